@@ -1,0 +1,63 @@
+"""Approach directions around a closing axis and the gripper rotations they define.
+
+Grasp frame convention (shared with execution): rotation matrix columns are
+x = cross(y, z), y = closing axis, z = approach (the direction the gripper moves in toward the
+object). This is the Panda ``panda_hand`` / ``panda_grasptarget`` frame: the fingers slide along
+hand y and hand z points out through the fingers.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+
+
+def approach_directions(closing_axis: torch.Tensor, n_approaches: int, preferred: torch.Tensor) -> torch.Tensor:
+    """``n_approaches`` unit approach directions evenly spaced on the circle perpendicular to each axis.
+
+    Approach k is at angle 2*pi*k/K from approach 0, which is the direction perpendicular to the
+    axis closest to ``preferred`` (e.g. world down for top-down-first grasping); when the axis is
+    parallel to ``preferred`` the reference falls back to the world axis least aligned with it.
+
+    Args:
+        closing_axis: (C, 3) unit closing axes, world frame.
+        n_approaches: K >= 1 approaches per axis.
+        preferred: (3,) unit direction approach 0 is rotated towards, world frame.
+
+    Returns:
+        (C, K, 3) unit approach directions, world frame, each perpendicular to its closing axis.
+    """
+    if closing_axis.ndim != 2 or closing_axis.shape[-1] != 3:
+        raise ValueError(f"closing_axis must be (C, 3), got {tuple(closing_axis.shape)}")
+    if n_approaches < 1:
+        raise ValueError(f"n_approaches must be >= 1, got {n_approaches}")
+    preferred = preferred.to(closing_axis)
+    first = preferred - (closing_axis @ preferred).unsqueeze(-1) * closing_axis
+    first_norm = first.norm(dim=-1, keepdim=True)
+    fallback_axis = torch.zeros_like(closing_axis)
+    fallback_axis.scatter_(1, closing_axis.abs().argmin(dim=1, keepdim=True), 1.0)
+    fallback = fallback_axis - (closing_axis * fallback_axis).sum(-1, keepdim=True) * closing_axis
+    # 1e-6 of a unit vector: below it the projection's direction is numerically meaningless.
+    degenerate = first_norm < 1e-6
+    first = torch.where(degenerate, fallback, first)
+    first = first / first.norm(dim=-1, keepdim=True)
+    second = torch.linalg.cross(closing_axis, first, dim=-1)
+    angles = torch.arange(n_approaches, dtype=closing_axis.dtype) * (2.0 * math.pi / n_approaches)
+    cos, sin = torch.cos(angles), torch.sin(angles)
+    return cos[None, :, None] * first[:, None, :] + sin[None, :, None] * second[:, None, :]
+
+
+def grasp_rotations(closing_axis: torch.Tensor, approach: torch.Tensor) -> torch.Tensor:
+    """Gripper orientations from closing axes and approach directions.
+
+    Args:
+        closing_axis: (..., 3) unit closing axes (grasp y), world frame.
+        approach: (..., 3) unit approach directions (grasp z), world frame, perpendicular to the axes.
+
+    Returns:
+        (..., 3, 3) rotation matrices (grasp frame -> world), columns (x, y, z) with x = cross(y, z),
+        right-handed and orthonormal.
+    """
+    closing_axis, approach = torch.broadcast_tensors(closing_axis, approach)
+    x_axis = torch.linalg.cross(closing_axis, approach, dim=-1)
+    return torch.stack((x_axis, closing_axis, approach), dim=-1)

@@ -1,0 +1,151 @@
+"""Collision proxies for a parallel-jaw gripper: swept-volume occupancy and table penetration.
+
+The gripper is described in the grasp frame (origin at the contact midpoint, y = closing axis,
+z = approach, see ``grasp_frames``) by three axis-aligned boxes:
+
+* two finger slabs, one outside each contact: |x| <= finger_width/2, z from the finger root to the
+  fingertip, and |y| from just outside the contact (width/2 + contact_clearance) out to the open
+  finger's back face (open_width/2 + finger_thickness). This is the volume each finger sweeps while
+  closing from fully open to the contacts, so any point in it is something the finger would hit
+  before touching the grasped surface: the "box swept between the fingers" of the SPEC.
+* the palm: |x| <= palm_width/2, |y| <= palm_span/2, from the finger root back by palm_depth.
+
+Points between the contacts (|y| < width/2) are the part being grasped and are not counted; the
+``contact_clearance`` keeps the grasped surfaces' own points (which lie at |y| ~ width/2) out of
+the count.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+
+
+class GripperGeometry(NamedTuple):
+    """Gripper dimensions in metres, grasp frame (see module docstring)."""
+
+    open_width_m: float
+    finger_width_m: float
+    finger_thickness_m: float
+    finger_length_m: float
+    fingertip_offset_m: float  # how far the fingertips reach beyond the grasp point along +z
+    palm_width_m: float
+    palm_span_m: float
+    palm_depth_m: float
+    contact_clearance_m: float
+
+
+def gripper_occupancy(
+    points: torch.Tensor,
+    object_index: torch.Tensor,
+    centre: torch.Tensor,
+    rotation: torch.Tensor,
+    width_m: torch.Tensor,
+    geometry: GripperGeometry,
+    chunk_elements: int,
+) -> torch.Tensor:
+    """Count the points inside each candidate gripper's swept finger slabs and palm.
+
+    Args:
+        points: (B, N, 3) points of B scenes (object plus obstacle points), world frame, metres.
+            Scenes with fewer points are padded with NaN rows, which are never inside.
+        object_index: (C,) int64 scene of each candidate, in [0, B).
+        centre: (C, 3) grasp centres (contact midpoints), world frame.
+        rotation: (C, K, 3, 3) grasp rotations (grasp frame -> world) for K approaches per candidate.
+        width_m: (C,) contact distances.
+        geometry: gripper dimensions.
+        chunk_elements: bound on the number of (candidate, approach, point) triples held in
+            memory at once; work is split over candidates to respect it.
+
+    Returns:
+        (C, K) int64 number of points inside the gripper volume.
+    """
+    if points.ndim != 3 or points.shape[-1] != 3:
+        raise ValueError(f"points must be (B, N, 3), got {tuple(points.shape)}")
+    if rotation.ndim != 4 or rotation.shape[-2:] != (3, 3) or rotation.shape[0] != centre.shape[0]:
+        raise ValueError(f"rotation must be (C, K, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
+    n_candidates, n_approaches = rotation.shape[:2]
+    n_points = points.shape[1]
+    finger_z_max = geometry.fingertip_offset_m
+    finger_z_min = finger_z_max - geometry.finger_length_m
+    palm_z_min = finger_z_min - geometry.palm_depth_m
+    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
+    counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
+    step = max(1, chunk_elements // max(1, n_approaches * n_points))
+    for start in range(0, n_candidates, step):
+        stop = min(start + step, n_candidates)
+        relative = points[object_index[start:stop]] - centre[start:stop, None, :]
+        # (c, 1, N, 3) @ (c, K, 3, 3) -> grasp-frame coordinates R^T (p - centre), (c, K, N, 3).
+        local = relative.unsqueeze(1) @ rotation[start:stop]
+        abs_x = local[..., 0].abs()
+        abs_y = local[..., 1].abs()
+        z = local[..., 2]
+        finger_y_min = (width_m[start:stop] / 2 + geometry.contact_clearance_m)[:, None, None]
+        in_fingers = (
+            (abs_x <= geometry.finger_width_m / 2)
+            & (abs_y >= finger_y_min)
+            & (abs_y <= finger_y_max)
+            & (z >= finger_z_min)
+            & (z <= finger_z_max)
+        )
+        in_palm = (
+            (abs_x <= geometry.palm_width_m / 2)
+            & (abs_y <= geometry.palm_span_m / 2)
+            & (z >= palm_z_min)
+            & (z < finger_z_min)
+        )
+        counts[start:stop] = (in_fingers | in_palm).sum(dim=-1)
+    return counts
+
+
+def gripper_corners_local(geometry: GripperGeometry) -> torch.Tensor:
+    """Corners of the open gripper's finger and palm boxes in the grasp frame.
+
+    Returns:
+        (24, 3) float32 corner positions, metres: 8 per finger (at the fully open width) and 8 for the palm.
+    """
+    finger_z_max = geometry.fingertip_offset_m
+    finger_z_min = finger_z_max - geometry.finger_length_m
+    inner_y = geometry.open_width_m / 2
+    outer_y = inner_y + geometry.finger_thickness_m
+    boxes = [
+        ((-geometry.finger_width_m / 2, geometry.finger_width_m / 2), (inner_y, outer_y), (finger_z_min, finger_z_max)),
+        ((-geometry.finger_width_m / 2, geometry.finger_width_m / 2), (-outer_y, -inner_y), (finger_z_min, finger_z_max)),
+        (
+            (-geometry.palm_width_m / 2, geometry.palm_width_m / 2),
+            (-geometry.palm_span_m / 2, geometry.palm_span_m / 2),
+            (finger_z_min - geometry.palm_depth_m, finger_z_min),
+        ),
+    ]
+    corners = [torch.cartesian_prod(torch.tensor(xs), torch.tensor(ys), torch.tensor(zs)) for xs, ys, zs in boxes]
+    return torch.cat(corners).to(torch.float32)
+
+
+def table_penetration(
+    centre: torch.Tensor,
+    rotation: torch.Tensor,
+    corners_local: torch.Tensor,
+    retreat_m: float,
+    table_top_z_m: float,
+) -> torch.Tensor:
+    """Whether the open gripper dips below the table top at the grasp or at the pre-grasp pose.
+
+    The pre-grasp pose is the grasp pose moved ``retreat_m`` back along the approach (grasp -z).
+
+    Args:
+        centre: (C, 3) grasp centres, world frame, metres.
+        rotation: (C, K, 3, 3) grasp rotations (grasp frame -> world).
+        corners_local: (M, 3) gripper box corners in the grasp frame (``gripper_corners_local``).
+        retreat_m: pre-grasp distance back along the approach, metres.
+        table_top_z_m: world height of the table top, metres.
+
+    Returns:
+        (C, K) bool, True where some corner is below the table top at either pose.
+    """
+    # Only world z matters: z_world = centre_z + R[2, :] . corner.
+    row_z = rotation[..., 2, :]  # (C, K, 3)
+    corner_z = centre[:, 2, None, None] + row_z @ corners_local.to(rotation).T  # (C, K, M)
+    lowest_grasp = corner_z.min(dim=-1).values
+    # Retreating along -approach changes every corner's height by -retreat * approach_z.
+    lowest_pregrasp = lowest_grasp - retreat_m * rotation[..., 2, 2]
+    return (lowest_grasp < table_top_z_m) | (lowest_pregrasp < table_top_z_m)

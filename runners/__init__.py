@@ -1,0 +1,1 @@
+"""Command-line entry points: ``python -m runners.<name>``. Installed as ``sagp_batched_runners``."""

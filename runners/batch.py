@@ -1,0 +1,101 @@
+"""Run the grasping study: ``python -m runners.batch --n-trials 20``.
+
+Profile values (``--profile``, default ``paper``) are overridden by the flags given here; the
+resolved config, provenance and every finished trial go to ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from sagp_batched.config import ConfigError, load_config
+from sagp_batched.objects import ObjectSetError, UnknownObjectError, load_object_set
+from sagp_batched.runtime import configure_torch
+from sagp_batched.study import run_study
+
+MODEL_BACKENDS = ("transformers", "openai")
+
+
+def _csv(text: str) -> list[str]:
+    return [item.strip() for item in text.split(",") if item.strip()]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m runners.batch", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--profile", default="paper", help="profile name in profiles/ or a TOML path (default: paper)")
+    parser.add_argument("--methods", type=_csv, help="comma list of go,sagp,vd")
+    parser.add_argument("--tasks", type=_csv, help="comma list of t1,t2,t3")
+    parser.add_argument("--objects", type=_csv, help="comma list of object ids, or 'all'")
+    parser.add_argument("--n-trials", type=int, help="trials per (object, task)")
+    parser.add_argument("--objects-dir", help="YCB directory (objects.json + URDFs); default $SAGP_YCB_DIR, else the built-in pybullet_data set")
+    parser.add_argument("--out", help="run directory (re-running into it resumes)")
+    parser.add_argument("--resume", action="store_true", help="finish the run in --out, failing if there is none (a plain re-run into a run directory resumes too)")
+    parser.add_argument("--workers", type=int, help="trial processes, each with its own PyBullet client")
+    parser.add_argument("--backend", choices=("local", "ray"), help="where trials run")
+    parser.add_argument("--address", dest="ray_address", help="Ray cluster address for --backend ray")
+    parser.add_argument("--rater", choices=("prior", "transformers", "openai"), help="zone-rating backend")
+    parser.add_argument("--model", help="model id or local path (transformers) or served model name (openai)")
+    parser.add_argument("--endpoint", help="OpenAI-compatible base URL, e.g. http://127.0.0.1:8000/v1")
+    parser.add_argument("--pairs", type=int, dest="n_pairs", help="sampled point pairs per trial")
+    parser.add_argument("--trial-timeout", type=float, dest="trial_timeout_s", help="seconds before a trial is recorded as timed out")
+    parser.add_argument("--export-grasps", action="store_true", default=None, help="write every scored candidate to grasps/")
+    parser.add_argument("--save-frames", action="store_true", default=None, help="save images at contact and after the lift")
+    parser.add_argument("--gui", action="store_true", default=None, help="PyBullet GUI instead of DIRECT")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        config = load_config(args.profile, overrides={
+            "run": {
+                "methods": args.methods, "tasks": args.tasks, "objects": args.objects, "n_trials": args.n_trials,
+                "objects_dir": args.objects_dir, "out": args.out, "workers": args.workers, "backend": args.backend,
+                "ray_address": args.ray_address, "trial_timeout_s": args.trial_timeout_s,
+                "export_grasps": args.export_grasps, "save_frames": args.save_frames, "gui": args.gui,
+            },
+            "rating": {"backend": args.rater, "model": args.model, "endpoint": args.endpoint},
+            "planner": {"n_pairs": args.n_pairs},
+        })
+        objects = load_object_set(config.run.objects_dir)
+    except (ConfigError, ObjectSetError, UnknownObjectError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+    if args.resume and not (Path(config.run.out).expanduser() / "config.json").exists():
+        print(f"error: --resume: {config.run.out} holds no run to resume", file=sys.stderr)
+        return 2
+
+    methods = list(config.run.methods)
+    not_run: dict[str, str] = {}
+    if "vd" in methods and config.rating.backend not in MODEL_BACKENDS:
+        reason = f"VLM-Direct needs a model backend ({', '.join(MODEL_BACKENDS)}); the rater is '{config.rating.backend}'"
+        if args.methods is not None:
+            print(f"error: {reason}: choose --rater transformers|openai or drop vd from --methods", file=sys.stderr)
+            return 2
+        methods.remove("vd")
+        not_run["vd"] = reason + " (not run)"
+        print(f"note: {not_run['vd']}", file=sys.stderr)
+
+    print(f"objects: {objects.source}", file=sys.stderr)
+    print(f"rater: {config.rating.backend}" + (" (an offline prior table, not a VLM)" if config.rating.backend == "prior" else f" ({config.rating.model})"), file=sys.stderr)
+    configure_torch()
+    try:
+        result = run_study(config, objects, methods, objects_dir=config.run.objects_dir,
+                           progress=not args.no_progress, not_run=not_run)
+    except (ConfigError, ObjectSetError, UnknownObjectError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished trials are in {config.run.out}; run the same command again to resume", file=sys.stderr)
+        return 130
+    print((result.out_dir / "summary.md").read_text())
+    print(f"{result.new_records} new trial records; run directory: {result.out_dir}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,295 @@
+"""One configuration type for the whole pipeline, filled from ``profiles/*.toml``.
+
+Every number of the method lives here with the SPEC value as default; a choice the SPEC leaves
+open carries a one-line reason. A profile is a TOML file whose tables mirror these dataclasses
+(``[scene]``, ``[camera]``, ``[perception]``, ``[planner]``, ``[weights]``, ``[execution]``,
+``[zones]``, ``[rating]``, ``[run]``); command-line flags override profile values through ``override``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+PROFILES_DIR = Path(__file__).resolve().parent.parent / "profiles"
+
+
+class ConfigError(ValueError):
+    """A profile or override names an unknown key or holds a value of the wrong type."""
+
+
+@dataclass
+class SceneConfig:
+    time_step_s: float = 1.0 / 240.0
+    gravity_m_s2: float = -9.81
+    table_size_m: tuple[float, float] = (1.2, 0.8)
+    table_top_z_m: float = 0.625
+    # Table centre in world x/y; the Panda stands at the table's near long edge, facing +x.
+    table_center_xy_m: tuple[float, float] = (0.5, 0.0)
+    robot_base_xyz_m: tuple[float, float, float] = (-0.05, 0.0, 0.625)
+    # Comfortable Panda workspace for tabletop grasps: 0.4-0.65 m ahead, +-0.2 m sideways.
+    object_x_range_m: tuple[float, float] = (0.45, 0.65)
+    object_y_range_m: tuple[float, float] = (-0.2, 0.2)
+    object_yaw_range_rad: tuple[float, float] = (-3.141592653589793, 3.141592653589793)
+    settle_steps: int = 240
+    seed_base: int = 42
+    # PyBullet's default is 50; fixed explicitly so every Scene steps with identical solver settings.
+    solver_iterations: int = 100
+    # A plain box table gets a wood colour so RGB crops look like a tabletop scene.
+    table_rgba: tuple[float, float, float, float] = (0.72, 0.58, 0.42, 1.0)
+    # Arm turned to face -x (away from the table) with the elbow folded: clear of all cameras and objects.
+    robot_home_joints: tuple[float, ...] = (-2.8, -0.6, 0.0, -2.6, 0.0, 2.0, 0.785)
+    # Objects start this far above the table so they never begin interpenetrating it.
+    drop_clearance_m: float = 0.002
+    distractor_count_range: tuple[int, int] = (3, 4)
+    # T3 "within 15 cm of the target": the gap between a distractor's footprint and the target's is at most this.
+    distractor_max_distance_m: float = 0.15
+    # Footprints (world AABBs in x/y) of placed objects stay at least this far apart.
+    distractor_min_gap_m: float = 0.005
+    distractor_placement_tries: int = 400
+
+
+@dataclass
+class CameraConfig:
+    width_px: int = 640
+    height_px: int = 480
+    fov_deg: float = 60.0
+    near_m: float = 0.01
+    far_m: float = 3.0
+    # Eye positions relative to the object's resting position; all three look at it.
+    overhead_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.55)
+    side_offsets_m: tuple[tuple[float, float, float], ...] = ((0.0, 0.45, 0.3), (0.0, -0.45, 0.3))
+    # Looking straight down, the overhead image's "up" must be horizontal: +x puts the far table edge at the top.
+    overhead_up_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+
+
+@dataclass
+class PerceptionConfig:
+    normal_radius_m: float = 0.02
+    normal_max_neighbours: int = 30
+    min_points: int = 150
+    crop_padding_fraction: float = 0.2
+    # Merged clouds from three 640x480 views hold ~10-40k points; a 3 mm voxel keeps the
+    # geometry (contacts are sampled at 5 mm resolution at best) and bounds planning cost.
+    voxel_size_m: float = 0.003
+
+
+@dataclass
+class PlannerConfig:
+    n_pairs: int = 5000
+    min_width_m: float = 0.005
+    max_width_m: float = 0.08
+    max_contact_angle_deg: float = 45.0
+    n_approaches: int = 8
+    occupancy_max_fraction: float = 0.12
+    max_candidates: int = 200
+    min_reach: float = 0.5
+    ik_max_iterations: int = 60
+    ik_num_retries: int = 4
+    ik_pos_tolerance_m: float = 0.005
+    ik_rot_tolerance_rad: float = 0.05
+    seed: int = 0
+
+
+@dataclass
+class ScoreWeights:
+    geom: float = 0.3
+    reach: float = 0.1
+    afford: float = 0.3
+    avoid: float = 0.2
+    task: float = 0.1
+
+
+GEOMETRY_ONLY_WEIGHTS = ScoreWeights(geom=1.0, reach=0.0, afford=0.0, avoid=0.0, task=0.0)
+
+
+@dataclass
+class ExecutionConfig:
+    pregrasp_offset_m: float = 0.10
+    lift_height_m: float = 0.20
+    hold_steps: int = 80
+    settle_steps: int = 60
+    ik_iterations: int = 500
+    max_attempts: int = 3
+    success_height_above_table_m: float = 0.15
+    # Straight-line descent from the pre-grasp: IK waypoints, each tracked for steps_per_waypoint steps.
+    descent_waypoints: int = 8
+    lift_waypoints: int = 10
+    steps_per_waypoint: int = 20
+    close_steps: int = 120
+    # Panda hand: 70 N continuous grip force per the datasheet; enough for the 1.13 kg bleach bottle.
+    gripper_force_n: float = 70.0
+    finger_open_width_m: float = 0.08
+    # Rubber-like finger pads; PyBullet multiplies this with the object's friction (YCB URDFs: 0.9).
+    finger_lateral_friction: float = 1.5
+    arm_position_gain: float = 0.3
+    # IK solutions are accepted only within these errors of the requested grasptarget pose (forward kinematics check).
+    ik_position_tolerance_m: float = 0.005
+    ik_rotation_tolerance_rad: float = 0.05
+    # PyBullet IK restarts from seeded random joints inside the limits when the given seeds fail.
+    ik_random_restarts: int = 8
+    # The object moving more than this before the fingers close means the gripper knocked it.
+    knock_tolerance_m: float = 0.01
+    # A failed attempt whose object rose at least this much during the lift "slipped" rather than "not_lifted".
+    lifted_detect_height_m: float = 0.05
+    # Camera for record_frames: eye offset from the object's resting position.
+    frame_camera_offset_m: tuple[float, float, float] = (0.55, 0.35, 0.35)
+
+
+@dataclass
+class ZonesConfig:
+    protrusion_distance_factor: float = 1.5
+    dbscan_eps_m: float = 0.01
+    dbscan_min_samples: int = 10
+    min_protrusion_points: int = 20
+    # World references that name the zones: the robot stands at -x facing +x, so the object's
+    # "front" is the side facing the robot and its "left" is the robot's left (+y).
+    up_world: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    left_world: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    front_world: tuple[float, float, float] = (-1.0, 0.0, 0.0)
+    # Fewer points than DBSCAN's own core size cannot hold a stable covariance either.
+    min_points: int = 10
+    # Eigenvalue ratios (to the largest) under which the cloud counts as a line or a plane.
+    collinear_eigen_ratio: float = 1e-3
+    flat_eigen_ratio: float = 1e-3
+    # Extents under 1 mm are below the 3 mm voxel: such an axis cannot be split into parts.
+    min_split_extent_m: float = 0.001
+
+
+@dataclass
+class RatingConfig:
+    backend: str = "prior"
+    model: str = "Qwen/Qwen2.5-VL-3B-Instruct"
+    endpoint: str = "http://127.0.0.1:8000/v1"
+    api_key_env: str = "OPENAI_API_KEY"
+    timeout_s: float = 60.0
+    max_retries: int = 2
+    cache_dir: str = "~/.cache/sagp_batched/ratings"
+    # Hugging Face loads stay on disk unless a profile asks for the hub (no hub on lab machines).
+    local_files_only: bool = True
+    # A zone-rating JSON answer is ~150 tokens; twice that leaves room without letting a
+    # runaway model generate for minutes.
+    max_new_tokens: int = 384
+    # Exponential backoff between HTTP retries: 0.5 s, 1 s, ...
+    retry_backoff_s: float = 0.5
+    # Cache on by default so a study asks each (object, task) once.
+    use_cache: bool = True
+    # SPEC S_task: approach within 30 deg of the prescribed direction.
+    approach_tolerance_deg: float = 30.0
+    # "Keep upright" without a number means the SPEC T2 tolerance.
+    upright_max_tilt_deg: float = 15.0
+    # Tilt predictor: finger friction holds a CoM up to this far (m) off the grasp axis; beyond it the
+    # object swings about the closing axis until its CoM hangs below the axis.
+    friction_hold_offset_m: float = 0.02
+    # VLM-Direct: the SPEC's top-20 candidates, drawn on a crop scaled up so 20 numbered markers stay legible.
+    vd_num_candidates: int = 20
+    vd_image_min_side_px: int = 448
+    vd_marker_radius_px: int = 9
+
+
+@dataclass
+class RunConfig:
+    objects: tuple[str, ...] = ("all",)
+    tasks: tuple[str, ...] = ("t1", "t2", "t3")
+    methods: tuple[str, ...] = ("go", "sagp", "vd")
+    n_trials: int = 20
+    objects_dir: str | None = None
+    out: str = "runs/latest"
+    workers: int = 1
+    backend: str = "local"
+    ray_address: str | None = None
+    trial_timeout_s: float = 300.0
+    export_grasps: bool = False
+    save_frames: bool = False
+    gui: bool = False
+
+
+@dataclass
+class Config:
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    weights: ScoreWeights = field(default_factory=ScoreWeights)
+    execution: ExecutionConfig = field(default_factory=ExecutionConfig)
+    zones: ZonesConfig = field(default_factory=ZonesConfig)
+    rating: RatingConfig = field(default_factory=RatingConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def override(self, section: str, **values: Any) -> "Config":
+        """A copy with ``values`` replacing fields of ``section``; ``None`` values are ignored."""
+        return _merge(self, {section: {k: v for k, v in values.items() if v is not None}}, "")
+
+
+def _coerce(value: Any, template: Any, where: str) -> Any:
+    if isinstance(template, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+        return value
+    if isinstance(template, (int, float)) and not isinstance(template, bool):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if isinstance(template, int) and not float(value).is_integer():
+            raise ConfigError(f"{where}: expected a whole number, got {value!r}")
+        return type(template)(value)
+    if isinstance(template, tuple):
+        if isinstance(value, str):
+            value = [v.strip() for v in value.split(",") if v.strip()]
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        return tuple(tuple(v) if isinstance(v, list) else v for v in value)
+    if isinstance(template, str) and not isinstance(value, str):
+        raise ConfigError(f"{where}: expected a string, got {value!r}")
+    return value
+
+
+def _merge(obj: Any, updates: dict[str, Any], prefix: str) -> Any:
+    known = {f.name: f for f in dataclasses.fields(obj)}
+    changes = {}
+    for key, value in updates.items():
+        where = f"{prefix}{key}"
+        if key not in known:
+            raise ConfigError(f"unknown setting '{where}' (known: {', '.join(sorted(known))})")
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(current):
+            if not isinstance(value, dict):
+                raise ConfigError(f"'{where}' must be a table")
+            changes[key] = _merge(current, value, f"{where}.")
+        elif current is None:
+            changes[key] = value
+        else:
+            changes[key] = _coerce(value, current, where)
+    return dataclasses.replace(obj, **changes)
+
+
+def resolve_profile_path(name_or_path: str | Path) -> Path:
+    """A profile given by name (``paper``, ``ci``, ``datagen``) or by a path to a TOML file."""
+    candidate = Path(name_or_path).expanduser()
+    if candidate.suffix == ".toml" or candidate.exists():
+        path = candidate
+    else:
+        path = PROFILES_DIR / f"{name_or_path}.toml"
+    if not path.is_file():
+        known = sorted(p.stem for p in PROFILES_DIR.glob("*.toml")) if PROFILES_DIR.is_dir() else []
+        raise ConfigError(f"profile '{name_or_path}' not found at {path} (named profiles: {', '.join(known)})")
+    return path
+
+
+def load_config(profile: str | Path | None = None, overrides: dict[str, dict[str, Any]] | None = None) -> Config:
+    """Defaults, then the profile's tables, then ``overrides`` ({section: {field: value}})."""
+    config = Config()
+    if profile is not None:
+        path = resolve_profile_path(profile)
+        try:
+            data = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"profile {path} is not valid TOML: {exc}") from exc
+        config = _merge(config, data, "")
+    if overrides:
+        config = _merge(config, {s: {k: v for k, v in d.items() if v is not None} for s, d in overrides.items()}, "")
+    return config

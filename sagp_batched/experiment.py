@@ -1,0 +1,276 @@
+"""One trial of the study: perceive, plan once, rank by each method, execute, record.
+
+A *unit* is one (object, task, trial): the scene, the cloud and the candidate set are shared by
+every method of the unit, so all methods rank the identical candidates (SPEC "Methods compared").
+Each method's result is one JSON-ready record.
+"""
+from __future__ import annotations
+
+import signal
+import time
+import traceback
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from .config import GEOMETRY_ONLY_WEIGHTS, Config
+from .objects import ObjectSet, ObjectSpec
+from .types import GraspCandidates, PerceivedCloud, PerceptionFailure
+
+TASKS = {"t1": "stable pickup", "t2": "functional grasp", "t3": "cluttered grasp"}
+METHODS = ("go", "sagp", "vd")
+# SPEC tasks: t2 keeps the object within 15 deg of its resting orientation, t3 moves no distractor > 5 cm.
+ORIENTATION_TOLERANCE_DEG = 15.0
+DISTRACTOR_TOLERANCE_M = 0.05
+
+
+class TrialTimeout(RuntimeError):
+    """A trial ran past ``config.run.trial_timeout_s``."""
+
+
+@dataclass(frozen=True)
+class TrialUnit:
+    object_id: str
+    task: str
+    trial: int
+    methods: tuple[str, ...]
+
+    def keys(self) -> list[tuple[str, str, str, int]]:
+        return [(self.object_id, self.task, method, self.trial) for method in self.methods]
+
+
+def record_key(record: dict[str, Any]) -> tuple[str, str, str, int]:
+    return (record["object"], record["task"], record["method"], int(record["trial"]))
+
+
+def candidate_seed(config: Config, trial: int) -> int:
+    """Seed of a trial's candidate set: fixed per trial so every method sees the same set."""
+    return config.planner.seed + config.scene.seed_base + trial
+
+
+@contextmanager
+def time_limit(seconds: float) -> Iterator[None]:
+    """Raise TrialTimeout in this (main) thread after ``seconds``; a no-op off the main thread."""
+    try:
+        previous = signal.signal(signal.SIGALRM, _raise_timeout)
+    except ValueError:  # signals only work in the main thread (e.g. inside some Ray workers)
+        yield
+        return
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _raise_timeout(signum: int, frame: Any) -> None:
+    raise TrialTimeout("trial exceeded its time limit")
+
+
+def _midpoint_object(cloud: PerceivedCloud, midpoint_world: np.ndarray) -> list[float]:
+    rotation = Rotation.from_quat(cloud.object_quat_xyzw)
+    return rotation.inv().apply(midpoint_world - cloud.object_position_world).tolist()
+
+
+def base_record(spec: ObjectSpec, unit: TrialUnit, method: str, config: Config) -> dict[str, Any]:
+    return {
+        "object": spec.id,
+        "category": spec.category,
+        "asymmetric": spec.asymmetric,
+        "task": unit.task,
+        "method": method,
+        "trial": unit.trial,
+        "seed": config.scene.seed_base + unit.trial,
+        "candidate_seed": candidate_seed(config, unit.trial),
+        "success": False,
+        "task_success": False,
+        "attempts": 0,
+        "attempt_log": [],
+        "grasp": None,
+        "failure_reason": None,
+        "in_preferred_zone": None,
+        "in_avoid_zone": None,
+        "orientation_change_deg": None,
+        "orientation_kept": None,
+        "distractors_max_displacement_m": None,
+        "n_candidates": {"sampled": None, "antipodal": None, "collision_free": None, "ik_feasible": None},
+        "times_s": {"perception": None, "geometry": None, "rating": None, "total_plan": None},
+        "rating": None,
+        "skipped": False,
+        "error": None,
+    }
+
+
+class TrialRunner:
+    """Runs units in one process with one PyBullet client and one rater, built on first use."""
+
+    def __init__(self, config: Config, objects: ObjectSet):
+        self.config = config
+        self.objects = objects
+        self._scene = None
+        self._rater = None
+
+    @property
+    def scene(self):
+        if self._scene is None:
+            from .scene import Scene
+
+            self._scene = Scene(self.config, gui=self.config.run.gui)
+        return self._scene
+
+    @property
+    def rater(self):
+        if self._rater is None:
+            from .rating import get_rater
+
+            self._rater = get_rater(self.config.rating)
+        return self._rater
+
+    def run_unit(self, unit: TrialUnit, emit: Callable[[dict[str, Any]], None]) -> None:
+        """Run every method of ``unit``; ``emit`` each finished record at once.
+
+        A failure inside the unit (an exception or the time limit) is recorded on every method
+        of the unit not yet emitted, and the caller goes on with the next unit.
+        """
+        spec = self.objects.get(unit.object_id)
+        emitted: set[str] = set()
+
+        def emit_once(record: dict[str, Any]) -> None:
+            emitted.add(record["method"])
+            emit(record)
+
+        try:
+            with time_limit(self.config.run.trial_timeout_s):
+                self._run_unit(spec, unit, emit_once)
+        except Exception as exc:  # recorded, never lost: the run goes on with the next unit
+            message = f"{type(exc).__name__}: {exc}"
+            for method in unit.methods:
+                if method in emitted:
+                    continue
+                record = base_record(spec, unit, method, self.config)
+                record["error"] = message
+                record["traceback"] = traceback.format_exc(limit=8)
+                emit(record)
+
+    def _distractors_for(self, unit: TrialUnit) -> list[ObjectSpec]:
+        if unit.task != "t3":
+            return []
+        return list(self.objects.distractors())
+
+    def _run_unit(self, spec: ObjectSpec, unit: TrialUnit, emit: Callable[[dict[str, Any]], None]) -> None:
+        from .execution import execute_ranked
+        from .perception import capture
+        from .planner import plan
+        from .zones import assign_zones
+
+        config = self.config
+        scene = self.scene
+        scene.reset(spec, unit.trial, distractors=self._distractors_for(unit))
+
+        start = time.perf_counter()
+        try:
+            cloud = capture(scene, config)
+        except PerceptionFailure as failure:
+            for method in unit.methods:
+                record = base_record(spec, unit, method, config)
+                record["failure_reason"] = f"perception:{failure.reason}"
+                emit(record)
+            return
+        perception_s = time.perf_counter() - start
+
+        start = time.perf_counter()
+        candidates = plan(cloud, config, seed=candidate_seed(config, unit.trial))
+        decomposition, candidates = assign_zones(cloud, candidates)
+        geometry_s = time.perf_counter() - start
+
+        # Rated for every method, GO included: PZA and AC of GO are measured against the same zones.
+        start = time.perf_counter()
+        rating = self.rater.rate(spec.id, spec.name, unit.task, cloud.crop_rgb, decomposition.describe())
+        rating_s = time.perf_counter() - start
+
+        for method in unit.methods:
+            record = base_record(spec, unit, method, config)
+            record["n_candidates"] = {key: candidates.counts.get(key) for key in record["n_candidates"]}
+            method_start = time.perf_counter()
+            ranked, order = self._rank(method, candidates, cloud, rating, spec, unit)
+            ranking_s = time.perf_counter() - method_start
+            method_rating_s = rating_s if method != "go" else 0.0
+            record["times_s"] = {
+                "perception": perception_s,
+                "geometry": geometry_s,
+                "rating": method_rating_s,
+                "total_plan": geometry_s + method_rating_s + ranking_s,
+            }
+            record["rating"] = rating.provenance_dict()
+            if len(order) == 0:
+                record["failure_reason"] = "no_candidates"
+                emit(record)
+                continue
+            attempts = execute_ranked(scene, config, ranked, order)
+            self._fill_outcome(record, ranked, order, attempts, cloud, rating, unit)
+            emit(record)
+
+    def _rank(self, method, candidates: GraspCandidates, cloud, rating, spec, unit):
+        """(scored candidates, indices of the attempts to make, best first)."""
+        from .scoring import score_candidates
+
+        n_attempts = self.config.execution.max_attempts
+        if method == "go":
+            scored = score_candidates(candidates, rating, GEOMETRY_ONLY_WEIGHTS, cloud)
+        elif method == "sagp":
+            scored = score_candidates(candidates, rating, self.config.weights, cloud)
+        elif method == "vd":
+            from .vlm_direct import vlm_direct_order
+
+            scored = score_candidates(candidates, rating, GEOMETRY_ONLY_WEIGHTS, cloud)
+            order = vlm_direct_order(self.rater, scored, cloud, spec, unit.task)
+            return scored, list(order[:n_attempts])
+        else:
+            raise ValueError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
+        order = torch.sort(scored.score, descending=True, stable=True).indices[:n_attempts]
+        return scored, [int(i) for i in order]
+
+    def _fill_outcome(self, record, candidates: GraspCandidates, order, attempts, cloud, rating, unit) -> None:
+        record["attempts"] = len(attempts)
+        record["attempt_log"] = [
+            {"candidate": int(i), "success": a.success, "failure_reason": a.failure_reason, **_jsonable(a.details)}
+            for i, a in zip(order, attempts)
+        ]
+        final_index = int(order[len(attempts) - 1])
+        final = attempts[-1]
+        grasp = candidates.record(final_index)
+        grasp["midpoint_object"] = _midpoint_object(cloud, np.asarray(grasp["position"]))
+        record["grasp"] = grasp
+        record["success"] = bool(final.success)
+        record["failure_reason"] = final.failure_reason
+        record["orientation_change_deg"] = float(final.orientation_change_deg)
+        record["orientation_kept"] = bool(final.orientation_change_deg <= ORIENTATION_TOLERANCE_DEG)
+        displacement = float(final.details.get("distractors_max_displacement_m", 0.0))
+        record["distractors_max_displacement_m"] = displacement
+        record["in_preferred_zone"] = grasp["zone"] in rating.preferred
+        record["in_avoid_zone"] = grasp["zone"] in rating.avoid
+        task_success = record["success"]
+        if unit.task == "t2":
+            task_success = task_success and bool(record["in_preferred_zone"]) and record["orientation_kept"]
+        if unit.task == "t3":
+            task_success = task_success and displacement <= DISTRACTOR_TOLERANCE_M
+        record["task_success"] = bool(task_success)
+
+
+def _jsonable(details: dict[str, Any]) -> dict[str, Any]:
+    """Attempt details without images (frames are written as files, not into JSON)."""
+    out = {}
+    for key, value in details.items():
+        if key == "frames":
+            continue
+        if isinstance(value, (np.floating, np.integer)):
+            value = value.item()
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        out[key] = value
+    return out

@@ -1,0 +1,86 @@
+"""Study metrics (SPEC "Protocol and metrics") over trial records, with 95 % Wilson intervals.
+
+Definitions, per method x task x group:
+- GSR: grasp success rate, the object lifted and held (the T1 criterion) over all trials.
+- TSR: task success rate, GSR plus the task's own conditions (t2: preferred zone and orientation
+  kept; t3: no distractor moved more than 5 cm). Reported beside GSR so t2/t3 stay comparable to t1.
+- PZA, AC, OP: over successful grasps, the fraction in a preferred zone, outside every avoid zone,
+  and keeping the object within 15 deg of its resting orientation.
+- MPT_s: mean planning time per trial (perception excluded), with the rating model's mean time
+  reported separately as ``rating_s`` and geometry as ``geometry_s``.
+"""
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from typing import Any, Iterable
+
+WILSON_Z_95 = 1.959963984540054
+
+
+def wilson_interval(successes: int, n: int, z: float = WILSON_Z_95) -> tuple[float, float] | None:
+    """95 % Wilson score interval of a binomial rate; None when there are no trials."""
+    if n == 0:
+        return None
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    # The bounds are exactly 0 and 1 at the extremes; rounding would leave 0.9999999999999999.
+    low = 0.0 if successes == 0 else centre - half
+    high = 1.0 if successes == n else centre + half
+    return (low, high)
+
+
+def _mean(values: list[float]) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def groups_of(record: dict[str, Any]) -> list[str]:
+    groups = ["all"]
+    if record.get("category"):
+        groups.append(record["category"])
+    groups.append("asymmetric" if record.get("asymmetric") else "near_symmetric")
+    return groups
+
+
+def group_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Metrics of one group of trial records (errors count as failed trials)."""
+    n = len(records)
+    lifted = [r for r in records if r.get("success")]
+    in_zone = [r for r in lifted if r.get("in_preferred_zone")]
+    clear_of_avoid = [r for r in lifted if r.get("in_avoid_zone") is False]
+    orientation_kept = [r for r in lifted if r.get("orientation_kept")]
+    task_done = [r for r in records if r.get("task_success")]
+    times = [r.get("times_s") or {} for r in records]
+    counts = {
+        "GSR": (len(lifted), n),
+        "TSR": (len(task_done), n),
+        "PZA": (len(in_zone), len(lifted)),
+        "AC": (len(clear_of_avoid), len(lifted)),
+        "OP": (len(orientation_kept), len(lifted)),
+    }
+    return {
+        "n": n,
+        "errors": sum(1 for r in records if r.get("error")),
+        **{name: (k / total if total else None) for name, (k, total) in counts.items()},
+        "counts": {name: list(kn) for name, kn in counts.items()},
+        "ci95": {name: wilson_interval(k, total) for name, (k, total) in counts.items()},
+        "MPT_s": _mean([t["total_plan"] for t in times if t.get("total_plan") is not None]),
+        "geometry_s": _mean([t["geometry"] for t in times if t.get("geometry") is not None]),
+        "rating_s": _mean([t["rating"] for t in times if t.get("rating") is not None]),
+    }
+
+
+def summarise(records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """method -> task -> group -> metrics, over records that were actually run (not skipped)."""
+    buckets: dict[str, dict[str, dict[str, list]]] = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
+    for record in records:
+        if record.get("skipped"):
+            continue
+        for group in groups_of(record):
+            buckets[record["method"]][record["task"]][group].append(record)
+    return {
+        method: {task: {group: group_metrics(rs) for group, rs in sorted(by_group.items())} for task, by_group in sorted(by_task.items())}
+        for method, by_task in sorted(buckets.items())
+    }

@@ -1,0 +1,182 @@
+"""The object registry: which objects exist, where their URDFs are, and what the study knows of them.
+
+Two sources: a YCB directory laid out like ``/work/shared/ycb`` (``objects.json`` + ``<id>/model.urdf``),
+chosen by argument or the ``SAGP_YCB_DIR`` environment variable, or, without either, a built-in set
+made of objects that ship inside ``pybullet_data`` so the pipeline runs on a fresh machine.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass
+from pathlib import Path
+
+import pybullet
+import pybullet_data
+
+YCB_DIR_ENV = "SAGP_YCB_DIR"
+DISTRACTOR_CATEGORY = "distractor"
+
+# SPEC "Objects (YCB) and categories": objects with a functional region geometry alone does not reveal.
+YCB_ASYMMETRIC_IDS = frozenset(
+    {"025_mug", "019_pitcher_base", "035_power_drill", "037_scissors", "051_large_clamp", "011_banana", "040_large_marker"}
+)
+
+# Built-in set: pybullet_data objects a Panda can grasp (each narrower than 8 cm somewhere; checked to
+# settle on the table). (id, urdf path inside pybullet_data, category, asymmetric).
+BUILTIN_OBJECTS = (
+    ("mug", "objects/mug.urdf", "containers", True),
+    ("duck", "duck_vhacd.urdf", "toys", True),
+    ("teddy", "teddy_vhacd.urdf", "toys", True),
+    ("lego", "lego/lego.urdf", "boxes", False),
+    ("cube_small", "cube_small.urdf", "boxes", False),
+    ("jenga", "jenga/jenga.urdf", "elongated", False),
+    ("sphere_small", "sphere_small.urdf", "spheres", False),
+    ("domino", "domino/domino.urdf", DISTRACTOR_CATEGORY, False),
+    ("block", "block.urdf", DISTRACTOR_CATEGORY, False),
+    ("random_000", "random_urdfs/000/000.urdf", DISTRACTOR_CATEGORY, False),
+    ("random_008", "random_urdfs/008/008.urdf", DISTRACTOR_CATEGORY, False),
+)
+
+
+class ObjectSetError(ValueError):
+    """An objects directory is missing or its ``objects.json`` is malformed."""
+
+
+class UnknownObjectError(KeyError):
+    """An object id that the object set does not hold."""
+
+    def __init__(self, object_id: str, known_ids: tuple[str, ...]):
+        self.object_id = object_id
+        self.known_ids = known_ids
+        super().__init__(f"unknown object id '{object_id}' (known: {', '.join(known_ids)})")
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+class ObjectLoadError(RuntimeError):
+    """An object's URDF is missing, unparsable, or PyBullet refuses to load it."""
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    id: str
+    name: str
+    urdf_path: Path
+    category: str
+    asymmetric: bool
+    mass_kg: float
+    extents_m: tuple[float, float, float]  # resting-pose extents in the object's link frame (x, y, z)
+
+
+class ObjectSet:
+    """An ordered registry of objects; targets are every non-distractor object."""
+
+    def __init__(self, source: str, specs: list[ObjectSpec]):
+        self.source = source
+        self._specs = {spec.id: spec for spec in specs}
+
+    @property
+    def ids(self) -> tuple[str, ...]:
+        return tuple(self._specs)
+
+    def get(self, object_id: str) -> ObjectSpec:
+        try:
+            return self._specs[object_id]
+        except KeyError:
+            raise UnknownObjectError(object_id, self.ids) from None
+
+    def targets(self) -> list[ObjectSpec]:
+        return [spec for spec in self._specs.values() if spec.category != DISTRACTOR_CATEGORY]
+
+    def distractors(self) -> list[ObjectSpec]:
+        return [spec for spec in self._specs.values() if spec.category == DISTRACTOR_CATEGORY]
+
+    def checksum(self) -> str:
+        """SHA-256 over every object's metadata and URDF bytes: identifies the exact set a run used."""
+        digest = hashlib.sha256(self.source.encode())
+        for spec in self._specs.values():
+            digest.update(json.dumps([spec.id, spec.name, spec.category, spec.asymmetric, spec.mass_kg, spec.extents_m]).encode())
+            digest.update(spec.urdf_path.read_bytes())
+        return digest.hexdigest()
+
+    def __len__(self) -> int:
+        return len(self._specs)
+
+
+def _check_urdf(urdf_path: Path, object_id: str) -> None:
+    if not urdf_path.is_file():
+        raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} does not exist")
+    try:
+        ElementTree.parse(urdf_path)
+    except ElementTree.ParseError as exc:
+        raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} is not valid XML: {exc}") from exc
+
+
+def _load_ycb_dir(objects_dir: Path) -> ObjectSet:
+    if not objects_dir.is_dir():
+        raise ObjectSetError(f"objects directory {objects_dir} does not exist")
+    index_path = objects_dir / "objects.json"
+    if not index_path.is_file():
+        raise ObjectSetError(f"objects directory {objects_dir} has no objects.json")
+    try:
+        index = json.loads(index_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ObjectSetError(f"{index_path} is not valid JSON: {exc}") from exc
+    if not isinstance(index, dict) or not index:
+        raise ObjectSetError(f"{index_path} must map object ids to entries")
+    specs = []
+    for object_id, entry in index.items():
+        try:
+            urdf_path = objects_dir / entry["urdf"]
+            extents = tuple(float(e) for e in entry["extents_m"])
+            spec = ObjectSpec(
+                id=object_id,
+                name=str(entry.get("name", object_id)),
+                urdf_path=urdf_path,
+                category=str(entry["category"]),
+                asymmetric=object_id in YCB_ASYMMETRIC_IDS,
+                mass_kg=float(entry["mass_kg"]),
+                extents_m=extents,  # type: ignore[arg-type]
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ObjectSetError(f"{index_path}: entry '{object_id}' is malformed ({type(exc).__name__}: {exc})") from exc
+        if len(extents) != 3:
+            raise ObjectSetError(f"{index_path}: entry '{object_id}' extents_m must hold 3 numbers")
+        _check_urdf(urdf_path, object_id)
+        specs.append(spec)
+    return ObjectSet(f"ycb:{objects_dir.resolve()}", specs)
+
+
+def _measure_builtin(urdf_path: Path) -> tuple[float, tuple[float, float, float]]:
+    """Mass and resting extents of a pybullet_data object, read from PyBullet (its URDFs carry no metadata)."""
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        body = pybullet.loadURDF(str(urdf_path), physicsClientId=client)
+        lower, upper = pybullet.getAABB(body, physicsClientId=client)
+        mass = pybullet.getDynamicsInfo(body, -1, physicsClientId=client)[0]
+    finally:
+        pybullet.disconnect(client)
+    return float(mass), tuple(float(u - l) for l, u in zip(lower, upper))  # type: ignore[return-value]
+
+
+def _load_builtin() -> ObjectSet:
+    data_dir = Path(pybullet_data.getDataPath())
+    specs = []
+    for object_id, relative_path, category, asymmetric in BUILTIN_OBJECTS:
+        urdf_path = data_dir / relative_path
+        _check_urdf(urdf_path, object_id)
+        mass, extents = _measure_builtin(urdf_path)
+        specs.append(ObjectSpec(object_id, object_id.replace("_", " "), urdf_path, category, asymmetric, mass, extents))
+    return ObjectSet(f"builtin:pybullet_data:{data_dir}", specs)
+
+
+def load_object_set(objects_dir: str | Path | None = None) -> ObjectSet:
+    """The object set from ``objects_dir``, else from env ``SAGP_YCB_DIR``, else the built-in pybullet_data set."""
+    chosen = objects_dir if objects_dir is not None else os.environ.get(YCB_DIR_ENV) or None
+    if chosen is None:
+        return _load_builtin()
+    return _load_ycb_dir(Path(chosen).expanduser())

@@ -1,0 +1,123 @@
+"""Run reports: ``summary.json``, ``summary.md`` (the tables a paper would print) and PNG plots."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+RATE_METRICS = ("GSR", "TSR", "PZA", "AC", "OP")
+METHOD_LABELS = {"go": "Geometry-Only", "sagp": "SAGP", "vd": "VLM-Direct"}
+
+
+def format_rate(metrics: dict[str, Any], name: str) -> str:
+    """'17/20 (85.0 %, 62.1-94.8)': counts first, so a reader sees 17/20 and not only 85 %."""
+    k, n = metrics["counts"][name]
+    if not n:
+        return "-"
+    low, high = metrics["ci95"][name]
+    return f"{k}/{n} ({100 * k / n:.1f} %, {100 * low:.1f}-{100 * high:.1f})"
+
+
+def _seconds(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
+def summary_markdown(summary: dict[str, Any], not_run: dict[str, str]) -> str:
+    lines = ["# Study summary", "", "Rates are successes/trials (rate, 95 % Wilson interval). "
+             "GSR: lifted and held; TSR: the task's own success; PZA/AC/OP are over successful grasps. "
+             "MPT: mean planning time per trial in seconds (geometry + rating + ranking; perception excluded).", ""]
+    tasks = sorted({task for by_task in summary.values() for task in by_task})
+    for task in tasks:
+        lines += [f"## Task {task}", "", "| method | GSR | TSR | PZA | AC | OP | MPT s | geometry s | rating s |", "|---|---|---|---|---|---|---|---|---|"]
+        for method, by_task in summary.items():
+            if task not in by_task:
+                continue
+            m = by_task[task]["all"]
+            rates = " | ".join(format_rate(m, key) for key in RATE_METRICS)
+            lines.append(f"| {METHOD_LABELS.get(method, method)} | {rates} | {_seconds(m['MPT_s'])} | {_seconds(m['geometry_s'])} | {_seconds(m['rating_s'])} |")
+        lines += ["", f"### Task {task} by group (GSR / PZA)", ""]
+        groups = sorted({g for by_task in summary.values() if task in by_task for g in by_task[task]} - {"all"})
+        methods = [m for m in summary if task in summary[m]]
+        lines.append("| group | " + " | ".join(f"{METHOD_LABELS.get(m, m)} GSR | {METHOD_LABELS.get(m, m)} PZA" for m in methods) + " |")
+        lines.append("|---|" + "---|---|" * len(methods))
+        for group in groups:
+            cells = []
+            for method in methods:
+                metrics = summary[method][task].get(group)
+                cells += [format_rate(metrics, "GSR"), format_rate(metrics, "PZA")] if metrics else ["-", "-"]
+            lines.append(f"| {group} | " + " | ".join(cells) + " |")
+        lines.append("")
+    if not_run:
+        lines += ["## Not run", ""] + [f"- {METHOD_LABELS.get(m, m)}: {why}" for m, why in not_run.items()] + [""]
+    return "\n".join(lines)
+
+
+def write_plots(out_dir: Path, summary: dict[str, Any]) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    plots_dir = out_dir / "plots"
+    plots_dir.mkdir(exist_ok=True)
+    written = []
+    methods = list(summary)
+    tasks = sorted({task for by_task in summary.values() for task in by_task})
+    if not methods or not tasks:
+        return written
+
+    def bars(ax, values_by_method, labels, title):
+        """values_by_method: method -> list of (group metrics or None, metric name), one per label."""
+        width = 0.8 / max(1, len(values_by_method))
+        x = np.arange(len(labels))
+        for i, (method, values) in enumerate(values_by_method.items()):
+            rates = [(m[name] or 0.0) if m else 0.0 for m, name in values]
+            intervals = [m["ci95"][name] if m and m["ci95"][name] else None for m, name in values]
+            errors = [[r - ci[0] if ci else 0 for ci, r in zip(intervals, rates)],
+                      [ci[1] - r if ci else 0 for ci, r in zip(intervals, rates)]]
+            ax.bar(x + i * width, rates, width, yerr=errors, capsize=3, label=METHOD_LABELS.get(method, method))
+        ax.set_xticks(x + width * (len(values_by_method) - 1) / 2, labels, rotation=30, ha="right")
+        ax.set_ylim(0, 1.05)
+        ax.set_title(title)
+        ax.legend(fontsize=8)
+
+    fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.8), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        bars(ax, {m: [(summary[m].get(task, {}).get("all"), k) for k in RATE_METRICS] for m in methods}, list(RATE_METRICS), f"Task {task}")
+    fig.tight_layout()
+    path = plots_dir / "methods_by_task.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    written.append(path)
+
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5 * len(tasks), 3.8), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        groups = sorted({g for m in methods for g in summary[m].get(task, {})} - {"all"})
+        bars(ax, {m: [(summary[m].get(task, {}).get(g), "PZA") for g in groups] for m in methods}, groups, f"PZA by group, {task}")
+    fig.tight_layout()
+    path = plots_dir / "pza_by_category.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    written.append(path)
+
+    fig, ax = plt.subplots(figsize=(6, 3.8))
+    labels = [f"{METHOD_LABELS.get(m, m)}\n{t}" for m in methods for t in tasks if t in summary[m]]
+    geometry = [summary[m][t]["all"]["geometry_s"] or 0.0 for m in methods for t in tasks if t in summary[m]]
+    rating = [summary[m][t]["all"]["rating_s"] or 0.0 for m in methods for t in tasks if t in summary[m]]
+    ax.bar(labels, geometry, label="geometry")
+    ax.bar(labels, rating, bottom=geometry, label="rating")
+    ax.set_ylabel("mean planning time per trial (s)")
+    ax.legend()
+    fig.tight_layout()
+    path = plots_dir / "planning_time.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    written.append(path)
+    return written
+
+
+def write_reports(out_dir: Path, records: list[dict[str, Any]], summary: dict[str, Any], not_run: dict[str, str]) -> None:
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
+    (out_dir / "summary.md").write_text(summary_markdown(summary, not_run))
+    write_plots(out_dir, summary)

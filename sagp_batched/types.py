@@ -1,0 +1,147 @@
+"""Typed data that flows between the pipeline's stages.
+
+Frames are explicit in field names: ``*_world`` is the PyBullet world frame (z up, metres),
+``*_object`` the target object's URDF link frame. Quaternions are xyzw (PyBullet's order) unless a
+name says ``wxyz``.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+
+class PerceptionFailure(RuntimeError):
+    """The target could not be perceived well enough to plan on.
+
+    ``reason`` is one of ``"not_visible"`` (no camera sees the target) or ``"too_few_points"``.
+    """
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(message)
+        self.reason = reason
+
+
+@dataclass
+class CameraData:
+    name: str
+    width_px: int
+    height_px: int
+    intrinsics: np.ndarray  # (3, 3) pinhole K in pixels
+    camera_to_world: np.ndarray  # (4, 4) pose of the camera (x right, y down, z forward) in world
+    view_matrix: np.ndarray  # (16,) PyBullet/OpenGL column-major view matrix
+    projection_matrix: np.ndarray  # (16,) PyBullet/OpenGL column-major projection matrix
+    near_m: float
+    far_m: float
+
+
+@dataclass
+class PerceivedCloud:
+    """The target object as the cameras see it: what the planner consumes."""
+
+    points_world: torch.Tensor  # (N, 3) float32, metres
+    normals_world: torch.Tensor  # (N, 3) float32, unit, pointing away from the cloud centroid
+    view_index: torch.Tensor  # (N,) int64, index into ``cameras`` of the view each point came from
+    crop_rgb: np.ndarray  # (H, W, 3) uint8, tight crop of the object with padding, for the rating model
+    cameras: list[CameraData]
+    object_id: str
+    # Ground-truth pose of the object's URDF link frame at capture time; used only to express
+    # results in the object frame (``midpoint_object``), never by the planner.
+    object_position_world: np.ndarray  # (3,)
+    object_quat_xyzw: np.ndarray  # (4,)
+    table_top_z_m: float
+    # Points of other bodies on the table (t3 distractors): the gripper-volume check counts them.
+    obstacle_points_world: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 3))
+
+    @property
+    def n_points(self) -> int:
+        return int(self.points_world.shape[0])
+
+
+@dataclass
+class GraspCandidates:
+    """A batch of C grasp candidates as a struct of tensors (graspnetAPI's GraspGroup habit).
+
+    Stages add fields or mask the batch; nothing becomes per-grasp Python objects until results
+    are written. Grasp frame: columns of ``rotation_world`` are (x = closing x approach,
+    y = closing axis, z = approach direction); ``position_world`` is the grasp centre (contact
+    midpoint), which is where the Panda's ``panda_grasptarget`` frame is sent.
+    """
+
+    contacts_world: torch.Tensor  # (C, 2, 3)
+    closing_axis: torch.Tensor  # (C, 3) unit, from contact 0 to contact 1
+    width_m: torch.Tensor  # (C,)
+    s_geom: torch.Tensor  # (C,)
+    approach: torch.Tensor  # (C, 3) unit, direction the gripper moves in to grasp (world)
+    rotation_world: torch.Tensor  # (C, 3, 3)
+    s_reach: torch.Tensor  # (C,) in [0, 1]
+    ik_solution: torch.Tensor  # (C, 7) Panda arm joints reaching the grasp pose
+    zone: torch.Tensor  # (C,) int64 zone index into ``zone_names``, -1 before zoning
+    s_afford: torch.Tensor  # (C,)
+    s_avoid: torch.Tensor  # (C,)
+    s_task: torch.Tensor  # (C,)
+    score: torch.Tensor  # (C,) fused score the batch is ranked by
+    zone_names: tuple[str, ...] = ()
+    counts: dict[str, int] = field(default_factory=dict)  # sampled / antipodal / collision_free / ik_feasible
+
+    @property
+    def position_world(self) -> torch.Tensor:
+        return self.contacts_world.mean(dim=1)
+
+    def __len__(self) -> int:
+        return int(self.width_m.shape[0])
+
+    def _tensor_fields(self) -> list[str]:
+        return [f.name for f in dataclasses.fields(self) if isinstance(getattr(self, f.name), torch.Tensor)]
+
+    def select(self, index: torch.Tensor) -> "GraspCandidates":
+        """The candidates picked by a boolean mask or an index tensor, in that order."""
+        return dataclasses.replace(self, **{name: getattr(self, name)[index] for name in self._tensor_fields()})
+
+    def with_fields(self, **tensors: torch.Tensor) -> "GraspCandidates":
+        return dataclasses.replace(self, **tensors)
+
+    def ranked_by(self, key: torch.Tensor) -> "GraspCandidates":
+        """Sorted by ``key`` descending; ties keep their current order (stable)."""
+        order = torch.sort(key, descending=True, stable=True).indices
+        return self.select(order)
+
+    def quat_xyzw(self) -> torch.Tensor:
+        """(C, 4) grasp orientations as xyzw quaternions."""
+        from scipy.spatial.transform import Rotation
+
+        return torch.as_tensor(Rotation.from_matrix(self.rotation_world.double().numpy()).as_quat(), dtype=torch.float32)
+
+    def record(self, i: int) -> dict[str, Any]:
+        """Grasp ``i`` as plain JSON-ready values (positions in metres, world frame)."""
+        zone = int(self.zone[i])
+        return {
+            "position": self.position_world[i].tolist(),
+            "quat_xyzw": self.quat_xyzw()[i].tolist(),
+            "width": float(self.width_m[i]),
+            "approach": self.approach[i].tolist(),
+            "contacts_world": self.contacts_world[i].tolist(),
+            "zone": self.zone_names[zone] if 0 <= zone < len(self.zone_names) else None,
+            "score": float(self.score[i]),
+            "terms": {
+                "geom": float(self.s_geom[i]),
+                "reach": float(self.s_reach[i]),
+                "afford": float(self.s_afford[i]),
+                "avoid": float(self.s_avoid[i]),
+                "task": float(self.s_task[i]),
+            },
+        }
+
+
+@dataclass
+class GraspAttempt:
+    """Outcome of executing one grasp in PyBullet."""
+
+    success: bool
+    failure_reason: str | None  # None on success; "unreachable" | "collision" | "slipped" | "not_lifted"
+    object_height_above_table_m: float
+    orientation_change_deg: float
+    details: dict[str, Any] = field(default_factory=dict)
