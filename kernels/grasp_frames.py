@@ -15,9 +15,12 @@ import torch
 def approach_directions(closing_axis: torch.Tensor, n_approaches: int, preferred: torch.Tensor) -> torch.Tensor:
     """``n_approaches`` unit approach directions evenly spaced on the circle perpendicular to each axis.
 
-    Approach k is at angle 2*pi*k/K from approach 0, which is the direction perpendicular to the
-    axis closest to ``preferred`` (e.g. world down for top-down-first grasping); when the axis is
-    parallel to ``preferred`` the reference falls back to the world axis least aligned with it.
+    Approach 0 is the direction perpendicular to the axis closest to ``preferred`` (e.g. world
+    down for top-down-first grasping); the others follow in order of increasing angle from it,
+    alternating sides: steps 0, +1, -1, +2, -2, ... of 2*pi/K. The order is therefore also a
+    closest-to-``preferred``-first prior, fixed by index so that mirror-image approaches never
+    swap places through rounding. When the axis is parallel to ``preferred``, the world axis least
+    aligned with it takes its place.
 
     Args:
         closing_axis: (C, 3) unit closing axes, world frame.
@@ -25,7 +28,8 @@ def approach_directions(closing_axis: torch.Tensor, n_approaches: int, preferred
         preferred: (3,) unit direction approach 0 is rotated towards, world frame.
 
     Returns:
-        (C, K, 3) unit approach directions, world frame, each perpendicular to its closing axis.
+        (C, K, 3) unit approach directions, world frame, each perpendicular to its closing axis,
+        in the prior order described above.
     """
     if closing_axis.ndim != 2 or closing_axis.shape[-1] != 3:
         raise ValueError(f"closing_axis must be (C, 3), got {tuple(closing_axis.shape)}")
@@ -42,7 +46,8 @@ def approach_directions(closing_axis: torch.Tensor, n_approaches: int, preferred
     first = torch.where(degenerate, fallback, first)
     first = first / first.norm(dim=-1, keepdim=True)
     second = torch.linalg.cross(closing_axis, first, dim=-1)
-    angles = torch.arange(n_approaches, dtype=closing_axis.dtype) * (2.0 * math.pi / n_approaches)
+    steps = [(k + 1) // 2 * (1 if k % 2 else -1) for k in range(n_approaches)]
+    angles = torch.tensor(steps, dtype=closing_axis.dtype) * (2.0 * math.pi / n_approaches)
     cos, sin = torch.cos(angles), torch.sin(angles)
     return cos[None, :, None] * first[:, None, :] + sin[None, :, None] * second[:, None, :]
 

@@ -70,30 +70,26 @@ def gripper_occupancy(
     finger_z_min = finger_z_max - geometry.finger_length_m
     palm_z_min = finger_z_min - geometry.palm_depth_m
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
+    finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
+    palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
     counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
     step = max(1, chunk_elements // max(1, n_approaches * n_points))
     for start in range(0, n_candidates, step):
         stop = min(start + step, n_candidates)
-        relative = points[object_index[start:stop]] - centre[start:stop, None, :]
-        # (c, 1, N, 3) @ (c, K, 3, 3) -> grasp-frame coordinates R^T (p - centre), (c, K, N, 3).
-        local = relative.unsqueeze(1) @ rotation[start:stop]
-        abs_x = local[..., 0].abs()
-        abs_y = local[..., 1].abs()
-        z = local[..., 2]
+        relative = points[object_index[start:stop]] - centre[start:stop, None, :]  # (c, N, 3)
+        # Grasp-frame coordinates R^T (p - centre) as one batched GEMM with the points along the
+        # long output dimension: (c, K*3, 3) @ (c, 3, N) -> (c, K, 3, N).
+        grasp_axes = rotation[start:stop].transpose(-1, -2).reshape(stop - start, n_approaches * 3, 3)
+        local = (grasp_axes @ relative.transpose(1, 2)).view(stop - start, n_approaches, 3, n_points)
+        abs_x = local[:, :, 0].abs()
+        abs_y = local[:, :, 1].abs()
+        z = local[:, :, 2]
+        # Each interval test is one |value - middle| <= half-length comparison to halve the passes
+        # over the (c, K, N) coordinates, the planner's most expensive tensors.
         finger_y_min = (width_m[start:stop] / 2 + geometry.contact_clearance_m)[:, None, None]
-        in_fingers = (
-            (abs_x <= geometry.finger_width_m / 2)
-            & (abs_y >= finger_y_min)
-            & (abs_y <= finger_y_max)
-            & (z >= finger_z_min)
-            & (z <= finger_z_max)
-        )
-        in_palm = (
-            (abs_x <= geometry.palm_width_m / 2)
-            & (abs_y <= geometry.palm_span_m / 2)
-            & (z >= palm_z_min)
-            & (z < finger_z_min)
-        )
+        in_finger_y = (abs_y - (finger_y_min + finger_y_max) / 2).abs() <= (finger_y_max - finger_y_min) / 2
+        in_fingers = in_finger_y & (abs_x <= geometry.finger_width_m / 2) & ((z - finger_z_mid).abs() <= finger_z_half)
+        in_palm = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2) & ((z - palm_z_mid).abs() <= palm_z_half)
         counts[start:stop] = (in_fingers | in_palm).sum(dim=-1)
     return counts
 

@@ -18,51 +18,82 @@ def _masked_mean(values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     return (values * weights).sum(dim=-2) / count
 
 
+def _unit(vectors: torch.Tensor) -> torch.Tensor:
+    return vectors / torch.linalg.vector_norm(vectors, dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def _axis_nearest(
+    reference: torch.Tensor, eigenvalues: torch.Tensor, eigenvectors: torch.Tensor, isotropy_tolerance: float
+) -> torch.Tensor:
+    """(B, D) unit principal direction nearest ``reference`` ((D,) or (B, D)), for eigenvectors (B, D, K) columns.
+
+    Eigenvalues within ``isotropy_tolerance`` (relative) of the best-aligned one's make their span a
+    principal subspace in which every direction is principal; the projection of ``reference`` onto that
+    span is then the principal direction nearest it.
+    """
+    batch = torch.arange(eigenvalues.shape[0], device=eigenvalues.device)
+    reference = reference.expand(eigenvalues.shape[0], -1).unsqueeze(-1)
+    alignment = (eigenvectors.transpose(1, 2) @ reference).squeeze(-1)  # (B, K)
+    best = alignment.abs().argmax(dim=1)
+    best_value = eigenvalues[batch, best].unsqueeze(1)
+    scale = torch.maximum(eigenvalues.abs(), best_value.abs()).clamp_min(1e-30)
+    same_space = (eigenvalues - best_value).abs() <= isotropy_tolerance * scale  # (B, K)
+    projection = (eigenvectors * (alignment * same_space).unsqueeze(1)).sum(dim=2)
+    return _unit(projection)
+
+
 def principal_frame(
     points: torch.Tensor,
     valid: torch.Tensor,
     up: torch.Tensor,
     left: torch.Tensor,
     front: torch.Tensor,
+    isotropy_tolerance: float,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The object's principal frame, with its axes named by world references.
 
     Args:
         points: (B, N, 3) cloud points, world frame, metres.
         valid: (B, N) bool, which points are real (not padding).
-        up: (3,) unit world up; the principal axis most aligned with it (either sign) is the vertical.
-        left: (3,) unit world direction called "left"; of the two remaining axes the one more aligned
-            with it is the lateral axis.
-        front: (3,) unit world direction called "front"; the last axis is the depth axis.
+        up: (3,) unit world up; the principal direction most aligned with it is the vertical axis.
+        left: (3,) unit world direction called "left", orthogonal to ``up``; the principal direction
+            orthogonal to the vertical that is most aligned with it is the lateral axis.
+        front: (3,) unit world direction called "front" (= left x up for a right-handed reference).
+        isotropy_tolerance: relative eigenvalue gap under which two principal axes are one principal
+            plane (a mug is about as tall as it is wide); the direction nearest the reference in that
+            plane is taken, so sampling noise cannot tilt the frame.
 
     Returns:
         centroid: (B, 3) mean of the valid points, world frame.
-        axes: (B, 3, 3) orthonormal columns (vertical, lateral, depth), world frame, each signed to
-            point along ``up`` / ``left`` / ``front`` (a zero dot product keeps the positive sign).
-        eigenvalues: (B, 3) covariance eigenvalues of (vertical, lateral, depth), m^2.
+        axes: (B, 3, 3) orthonormal columns (vertical, lateral, depth), world frame, signed to point
+            along ``up`` / ``left`` / ``front`` (a zero dot product keeps the positive sign).
+        eigenvalues: (B, 3) covariance of the points along (vertical, lateral, depth), m^2.
     """
     centroid = _masked_mean(points, valid)
     centred = (points - centroid.unsqueeze(1)) * valid.unsqueeze(-1).to(points.dtype)
     count = valid.sum(dim=1).clamp_min(1).to(points.dtype)
-    covariance = centred.transpose(1, 2) @ centred / count.view(-1, 1, 1)
-    # float64 eigh: near-degenerate covariances of float32 clouds otherwise lose their small axes.
-    eigenvalues, eigenvectors = torch.linalg.eigh(covariance.double())
-    eigenvalues, eigenvectors = eigenvalues.to(points.dtype), eigenvectors.to(points.dtype)
+    # float64: near-degenerate covariances of float32 clouds otherwise lose their small axes.
+    covariance = (centred.transpose(1, 2) @ centred / count.view(-1, 1, 1)).double()
+    eigenvalues, eigenvectors = torch.linalg.eigh(covariance)
+    vertical = _axis_nearest(up.double(), eigenvalues, eigenvectors, isotropy_tolerance)
 
-    batch = torch.arange(points.shape[0], device=points.device)
-    vertical_index = (eigenvectors.transpose(1, 2) @ up).abs().argmax(dim=1)
-    others = torch.stack([(vertical_index + 1) % 3, (vertical_index + 2) % 3], dim=1)
-    other_axes = eigenvectors.transpose(1, 2)[batch.unsqueeze(1), others]  # (B, 2, 3)
-    lateral_pick = (other_axes @ left).abs().argmax(dim=1)
-    lateral_index = others[batch, lateral_pick]
-    depth_index = others[batch, 1 - lateral_pick]
+    # Orthonormal basis of the plane normal to the vertical, then its own 2-D principal axes.
+    seed = torch.where(((vertical @ left.double()).abs() < 0.9).unsqueeze(1), left.double(), front.double())
+    plane_u = _unit(seed - (vertical * seed).sum(dim=1, keepdim=True) * vertical)
+    plane_v = torch.linalg.cross(vertical, plane_u)
+    plane_basis = torch.stack([plane_u, plane_v], dim=2)  # (B, 3, 2)
+    plane_values, plane_vectors = torch.linalg.eigh(plane_basis.transpose(1, 2) @ covariance @ plane_basis)
+    left_in_plane = (plane_basis.transpose(1, 2) @ left.double().unsqueeze(-1)).squeeze(-1)  # (B, 2)
+    lateral_in_plane = _axis_nearest(left_in_plane, plane_values, plane_vectors, isotropy_tolerance)
+    lateral = _unit((plane_basis @ lateral_in_plane.unsqueeze(-1)).squeeze(-1))
+    depth = torch.linalg.cross(vertical, lateral)
 
-    order = torch.stack([vertical_index, lateral_index, depth_index], dim=1)  # (B, 3)
-    axes = eigenvectors.transpose(1, 2)[batch.unsqueeze(1), order].transpose(1, 2)
-    references = torch.stack([up, left, front], dim=1)  # (3, 3) columns
-    signs = torch.where((axes * references).sum(dim=1) < 0, -1.0, 1.0).to(points.dtype)
+    axes = torch.stack([vertical, lateral, depth], dim=2)
+    references = torch.stack([up, left, front], dim=1).double()
+    signs = torch.where((axes * references).sum(dim=1) < 0, -1.0, 1.0).to(axes.dtype)
     axes = axes * signs.unsqueeze(1)
-    return centroid, axes, eigenvalues[batch.unsqueeze(1), order]
+    spread = torch.einsum("bji,bjk,bki->bi", axes, covariance, axes)
+    return centroid, axes.to(points.dtype), spread.to(points.dtype)
 
 
 def zone_coordinates(

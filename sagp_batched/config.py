@@ -91,6 +91,33 @@ class PlannerConfig:
     ik_pos_tolerance_m: float = 0.005
     ik_rot_tolerance_rad: float = 0.05
     seed: int = 0
+    # Panda hand (panda.urdf): fingers start 0.0584 m past the hand origin, the grasp target is
+    # 0.105 m past it, so fingers run 0.054 m back from just beyond the grasp point.
+    gripper_open_width_m: float = 0.08
+    finger_width_m: float = 0.02
+    finger_thickness_m: float = 0.012
+    finger_length_m: float = 0.054
+    fingertip_offset_m: float = 0.007
+    palm_width_m: float = 0.065
+    palm_span_m: float = 0.204
+    palm_depth_m: float = 0.0584
+    # Cloud points within this of a contact plane belong to the grasped surface (3 mm voxels + normal noise).
+    contact_clearance_m: float = 0.004
+    # The occupancy fraction is estimated on a seeded subset of at most this many object points
+    # (obstacle points thinned at the same rate): standard error ~1 % at the 12 % limit, 2-5x faster.
+    occupancy_max_points: int = 1024
+    # Bounds the (candidate, approach, point) triples the occupancy check holds at once (~50 MB of float32 coordinates).
+    occupancy_chunk_elements: int = 4_000_000
+    # IK retries start from these Panda arm configurations (radians), joint 1 turned toward each
+    # target: two top-down "ready" wrists 90 deg apart, and two lower forward reaches for side grasps.
+    ik_seed_configurations: tuple[tuple[float, ...], ...] = (
+        (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785),
+        (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, -0.785),
+        (0.0, 0.3, 0.0, -2.2, 0.0, 2.5, 0.785),
+        (0.0, 0.3, 0.0, -2.2, 0.0, 2.5, -0.785),
+    )
+    # Clamped refinement steps pytorch-kinematics runs after solving to pull solutions inside the limits.
+    ik_limit_refinement_iterations: int = 5
 
 
 @dataclass
@@ -124,12 +151,18 @@ class ExecutionConfig:
     finger_open_width_m: float = 0.08
     # Rubber-like finger pads; PyBullet multiplies this with the object's friction (YCB URDFs: 0.9).
     finger_lateral_friction: float = 1.5
+    # Torsional friction of the pads resists tall objects swinging about the closing axis during the lift.
+    finger_spinning_friction: float = 0.05
     arm_position_gain: float = 0.3
     # IK solutions are accepted only within these errors of the requested grasptarget pose (forward kinematics check).
     ik_position_tolerance_m: float = 0.005
     ik_rotation_tolerance_rad: float = 0.05
     # PyBullet IK restarts from seeded random joints inside the limits when the given seeds fail.
     ik_random_restarts: int = 8
+    # Franka's "ready" pose (hand down over the table): a seed far from joint limits for tabletop grasps.
+    ik_seed_joints: tuple[float, ...] = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
+    # Neighbouring waypoints are ~1-2 cm apart; a larger joint jump means IK switched branch mid-path.
+    max_waypoint_joint_step_rad: float = 0.3
     # The object moving more than this before the fingers close means the gripper knocked it.
     knock_tolerance_m: float = 0.01
     # A failed attempt whose object rose at least this much during the lift "slipped" rather than "not_lifted".
@@ -156,6 +189,9 @@ class ZonesConfig:
     flat_eigen_ratio: float = 1e-3
     # Extents under 1 mm are below the 3 mm voxel: such an axis cannot be split into parts.
     min_split_extent_m: float = 0.001
+    # Principal axes whose variances differ by under 10% are one principal plane (a mug is about as
+    # tall as wide); the direction in it nearest the world reference is taken, not eigh's noisy pick.
+    isotropy_tolerance: float = 0.1
 
 
 @dataclass

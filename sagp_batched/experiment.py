@@ -11,6 +11,7 @@ import time
 import traceback
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
@@ -193,11 +194,14 @@ class TrialRunner:
         rating = self.rater.rate(spec.id, spec.name, unit.task, cloud.crop_rgb, decomposition.describe())
         rating_s = time.perf_counter() - start
 
+        scored_by_method: dict[str, GraspCandidates] = {}
+        executed_by_method: dict[str, tuple[list[int], list]] = {}
         for method in unit.methods:
             record = base_record(spec, unit, method, config)
             record["n_candidates"] = {key: candidates.counts.get(key) for key in record["n_candidates"]}
             method_start = time.perf_counter()
             ranked, order = self._rank(method, candidates, cloud, rating, spec, unit)
+            scored_by_method[method] = ranked
             ranking_s = time.perf_counter() - method_start
             method_rating_s = rating_s if method != "go" else 0.0
             record["times_s"] = {
@@ -211,9 +215,33 @@ class TrialRunner:
                 record["failure_reason"] = "no_candidates"
                 emit(record)
                 continue
-            attempts = execute_ranked(scene, config, ranked, order)
+            attempts = execute_ranked(scene, config, ranked, order, record_frames=config.run.save_frames)
+            executed_by_method[method] = (order, attempts)
             self._fill_outcome(record, ranked, order, attempts, cloud, rating, unit)
+            if config.run.save_frames:
+                record["frames"] = self._save_frames(attempts[-1], record)
             emit(record)
+        if config.run.export_grasps:
+            from .export import write_acronym
+
+            grasps_dir = Path(config.run.out).expanduser() / "grasps"
+            grasps_dir.mkdir(parents=True, exist_ok=True)
+            write_acronym(grasps_dir / f"{spec.id}_{unit.task}_{unit.trial:04d}.h5", spec, cloud, candidates,
+                          scored_by_method, executed_by_method)
+
+    def _save_frames(self, attempt, record: dict[str, Any]) -> dict[str, str]:
+        """PNG images of the executed grasp at contact and after the lift; paths relative to the run."""
+        from PIL import Image
+
+        out_dir = Path(self.config.run.out).expanduser()
+        frames_dir = out_dir / "frames"
+        frames_dir.mkdir(parents=True, exist_ok=True)
+        saved = {}
+        for moment, image in attempt.details.get("frames", {}).items():
+            path = frames_dir / f"{record['object']}_{record['task']}_{record['method']}_{record['trial']:04d}_{moment}.png"
+            Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path)
+            saved[moment] = str(path.relative_to(out_dir))
+        return saved
 
     def _rank(self, method, candidates: GraspCandidates, cloud, rating, spec, unit):
         """(scored candidates, indices of the attempts to make, best first)."""

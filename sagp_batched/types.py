@@ -55,6 +55,10 @@ class PerceivedCloud:
     table_top_z_m: float
     # Points of other bodies on the table (t3 distractors): the gripper-volume check counts them.
     obstacle_points_world: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 3))
+    # Pixel box (u0, v0, u1, v1) of ``crop_rgb`` in ``cameras[crop_camera_index]``: VLM-Direct projects
+    # candidates into the crop through it; None when unknown.
+    crop_box_px: tuple[int, int, int, int] | None = None
+    crop_camera_index: int = 0
 
     @property
     def n_points(self) -> int:

@@ -1,0 +1,89 @@
+"""Benchmark the batched planner against the loop reference on YCB object clouds.
+
+    python -m runners.bench --json OUT.json [--objects 025_mug,003_cracker_box] [--pairs 5000,50000,500000]
+        [--repeats 5] [--objects-dir DIR] [--cache-dir DIR] [--threads 1]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import torch
+
+from sagp_batched.benchmark import BenchmarkSettings, benchmark_ik, benchmark_object, mesh_cloud
+from sagp_batched.config import load_config
+from sagp_batched.objects import load_object_set
+from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
+from sagp_batched.runtime import DEFAULT_TORCH_THREADS, configure_torch
+
+
+def _ycb_dir(argument: str | None) -> Path:
+    for candidate in (argument, os.environ.get("SAGP_YCB_DIR"), str(REPO_ROOT.parent / "shared" / "ycb")):
+        if candidate and (Path(candidate).expanduser() / "objects.json").is_file():
+            return Path(candidate).expanduser()
+    raise SystemExit("no YCB directory with objects.json: pass --objects-dir, set SAGP_YCB_DIR, or place shared/ycb beside the repository")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--json", required=True, type=Path, help="where to write the results")
+    parser.add_argument("--objects", default="025_mug,003_cracker_box,005_tomato_soup_can", help="comma-separated YCB ids")
+    parser.add_argument("--pairs", default="5000,50000,500000", help="comma-separated sampled pair counts")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--reference-max-pairs", type=int, default=50_000, help="largest pair count the loop reference is run at (once)")
+    parser.add_argument("--ik-targets", type=int, default=2000)
+    parser.add_argument("--cloud-points", type=int, default=3000)
+    parser.add_argument("--objects-dir", default=None)
+    parser.add_argument("--cache-dir", type=Path, default=Path("~/.cache/sagp_batched/clouds").expanduser())
+    parser.add_argument("--profile", default=None)
+    parser.add_argument("--threads", type=int, default=DEFAULT_TORCH_THREADS)
+    args = parser.parse_args(argv)
+
+    configure_torch(args.threads)
+    config = load_config(args.profile)
+    object_set = load_object_set(_ycb_dir(args.objects_dir))
+    settings = BenchmarkSettings(
+        pairs=tuple(int(p) for p in args.pairs.split(",")),
+        repeats=args.repeats,
+        reference_max_pairs=args.reference_max_pairs,
+        cloud_points=args.cloud_points,
+        object_xy_m=(0.55, 0.0),
+        ik_targets=args.ik_targets,
+    )
+    clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in args.objects.split(",")]
+    results = []
+    for cloud in clouds:
+        for row in benchmark_object(cloud, config, settings):
+            results.append(row)
+            reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
+            stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
+            print(
+                f"{row['object']:>22} pairs={row['pairs']:>7} plan={row['batched_plan_s']:.3f} s "
+                f"({row['candidates_per_s']:.0f} pairs/s) reference={reference} | {stages} | {row['counts_last_repeat']}",
+                flush=True,
+            )
+    ik = benchmark_ik(clouds, config, settings)
+    print(f"IK: {ik['targets']} targets, {ik['targets_per_s']:.0f} targets/s, success {ik['success_rate']:.1%}, feasible {ik['feasible_rate']:.1%}")
+    print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
+    report = {
+        "results": results,
+        "ik": ik,
+        "provenance": {
+            "torch": torch.__version__,
+            "threads": torch.get_num_threads(),
+            "git": git_revision(),
+            "packages": package_versions(),
+            "python": sys.version.split()[0],
+            "settings": vars(settings) if hasattr(settings, "__dict__") else None,
+        },
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,342 @@
+"""Grasp execution in PyBullet with the published sequence, and the judgement of each attempt.
+
+Sequence: open the gripper, teleport (``resetJointState``) to a pre-grasp ``pregrasp_offset_m`` back
+along the approach and hold it for ``settle_steps``, descend in a straight line through IK
+waypoints under position control, close, lift ``lift_height_m``, hold ``hold_steps``. Success: the
+object's centre of mass at least ``success_height_above_table_m`` above the table and both fingers
+still touching it.
+
+IK: PyBullet's ``calculateInverseKinematics`` (``ik_iterations``) with joint limits, ranges and rest
+poses, seeded by the planner's joints, then Franka's ready pose, mid-limits and seeded random joints;
+every solution is checked against the joint limits and by forward kinematics (``getLinkState`` on
+``panda_grasptarget``). Where PyBullet fails, the batched ``PandaIK`` is tried. The descent and lift
+waypoints are each seeded by their neighbour and must stay on the grasp solution's IK branch.
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+import pybullet
+import torch
+
+from .config import Config
+from .perception import make_camera, render
+from .scene import PANDA_ARM_JOINTS, PANDA_FINGER_JOINTS, PANDA_GRASPTARGET_LINK, Scene
+from .types import GraspAttempt, GraspCandidates
+
+# Joint-limit slack for accepting an IK solution: PyBullet clamps to the limits within float noise.
+LIMIT_SLACK_RAD = 1e-6
+
+_panda_ik_cache: dict[str, Any] = {}
+
+
+class InvalidGraspError(ValueError):
+    """A grasp handed to execution is malformed (wrong shapes, zero-length vectors, bad width)."""
+
+
+def _as_vector(value: Any, length: int, name: str) -> np.ndarray:
+    array = np.asarray(value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else value, dtype=float).reshape(-1)
+    if array.shape != (length,) or not np.all(np.isfinite(array)):
+        raise InvalidGraspError(f"{name} must be {length} finite numbers, got {value!r}")
+    return array
+
+
+def _quat_angle_deg(quat_a: Sequence[float], quat_b: Sequence[float]) -> float:
+    dot = abs(float(np.dot(quat_a, quat_b))) / (np.linalg.norm(quat_a) * np.linalg.norm(quat_b))
+    return math.degrees(2.0 * math.acos(min(1.0, dot)))
+
+
+class _ArmIK:
+    """Validated IK for ``panda_grasptarget`` in one scene (teleports the arm; call before stepping)."""
+
+    def __init__(self, scene: Scene, config: Config):
+        self.scene = scene
+        self.config = config
+        client, robot = scene.client, scene.robot_id
+        movable = [j for j in range(pybullet.getNumJoints(robot, physicsClientId=client))
+                   if pybullet.getJointInfo(robot, j, physicsClientId=client)[2] != pybullet.JOINT_FIXED]
+        info = [pybullet.getJointInfo(robot, j, physicsClientId=client) for j in movable]
+        self.movable = movable
+        self.lower = np.array([i[8] for i in info])
+        self.upper = np.array([i[9] for i in info])
+        self.arm_slots = [movable.index(j) for j in PANDA_ARM_JOINTS]
+        self.rng = np.random.default_rng(config.scene.seed_base + (scene.trial or 0))
+        self.source = "pybullet"
+
+    def _full(self, arm_joints: np.ndarray) -> list[float]:
+        full = (self.lower + self.upper) / 2.0
+        full[self.arm_slots] = arm_joints
+        return full.tolist()
+
+    def check(self, arm_joints: np.ndarray, position: np.ndarray, quat: np.ndarray) -> tuple[bool, float, float]:
+        """(valid, position error m, rotation error rad) of arm joints against a grasptarget pose."""
+        lower, upper = self.lower[self.arm_slots], self.upper[self.arm_slots]
+        inside = bool(np.all(arm_joints >= lower - LIMIT_SLACK_RAD) and np.all(arm_joints <= upper + LIMIT_SLACK_RAD))
+        for joint, angle in zip(PANDA_ARM_JOINTS, arm_joints):
+            pybullet.resetJointState(self.scene.robot_id, joint, float(angle), physicsClientId=self.scene.client)
+        reached_position, reached_quat = self.scene.grasptarget_pose()
+        position_error = float(np.linalg.norm(reached_position - position))
+        rotation_error = math.radians(_quat_angle_deg(reached_quat, quat))
+        execution = self.config.execution
+        valid = inside and position_error <= execution.ik_position_tolerance_m and rotation_error <= execution.ik_rotation_tolerance_rad
+        return valid, position_error, rotation_error
+
+    def _pybullet(self, position: np.ndarray, quat: np.ndarray, seed: np.ndarray) -> np.ndarray | None:
+        client, robot = self.scene.client, self.scene.robot_id
+        # PyBullet's IK iterates from the body's current joints, so the seed is set first.
+        for joint, angle in zip(PANDA_ARM_JOINTS, seed):
+            pybullet.resetJointState(robot, joint, float(angle), physicsClientId=client)
+        solution = pybullet.calculateInverseKinematics(
+            robot,
+            PANDA_GRASPTARGET_LINK,
+            position.tolist(),
+            quat.tolist(),
+            lowerLimits=self.lower.tolist(),
+            upperLimits=self.upper.tolist(),
+            jointRanges=(self.upper - self.lower).tolist(),
+            restPoses=self._full(seed),
+            maxNumIterations=self.config.execution.ik_iterations,
+            residualThreshold=1e-6,
+            physicsClientId=client,
+        )
+        arm_joints = np.array(solution)[self.arm_slots]
+        return arm_joints if self.check(arm_joints, position, quat)[0] else None
+
+    def _panda_ik(self, position: np.ndarray, quat: np.ndarray, seed: np.ndarray) -> np.ndarray | None:
+        # sagp_batched.ik is the planner engineer's module; execution must work without it.
+        if importlib.util.find_spec("sagp_batched.ik") is None:
+            return None
+        from .ik import PandaIK
+
+        key = repr((self.config.planner, self.config.scene.robot_base_xyz_m))
+        if key not in _panda_ik_cache:
+            _panda_ik_cache[key] = PandaIK(self.config.planner, self.config.scene.robot_base_xyz_m)
+        rotation = np.array(pybullet.getMatrixFromQuaternion(quat.tolist())).reshape(3, 3)
+        result = _panda_ik_cache[key].solve(
+            torch.tensor(position, dtype=torch.float32).view(1, 3),
+            torch.tensor(rotation, dtype=torch.float32).view(1, 3, 3),
+            torch.tensor(seed, dtype=torch.float32).view(1, 7),
+        )
+        arm_joints = result.joints[0].double().numpy()
+        return arm_joints if self.check(arm_joints, position, quat)[0] else None
+
+    def _seeds(self, given: Sequence[np.ndarray]) -> Iterator[np.ndarray]:
+        lower, upper = self.lower[self.arm_slots], self.upper[self.arm_slots]
+        yield from (np.clip(seed, lower, upper) for seed in given)
+        yield np.asarray(self.config.execution.ik_seed_joints, dtype=float)
+        yield (lower + upper) / 2.0
+        for _ in range(self.config.execution.ik_random_restarts):
+            yield self.rng.uniform(lower, upper)
+
+    def grasp_solutions(self, position: np.ndarray, quat: np.ndarray, seeds: Sequence[np.ndarray]) -> Iterator[np.ndarray]:
+        """Valid solutions for one pose, one per seed that converges (PyBullet, then PandaIK)."""
+        for seed in self._seeds(seeds):
+            arm_joints = self._pybullet(position, quat, seed)
+            if arm_joints is not None:
+                yield arm_joints
+        arm_joints = self._panda_ik(position, quat, next(self._seeds(seeds)))
+        if arm_joints is not None:
+            self.source = "panda_ik"
+            yield arm_joints
+
+    def path(self, start_joints: np.ndarray, positions: Sequence[np.ndarray], quat: np.ndarray) -> list[np.ndarray] | None:
+        """Joints for each position in order, each seeded by the previous one; None if IK switches branch."""
+        solutions = [start_joints]
+        for position in positions:
+            arm_joints = self._pybullet(position, quat, solutions[-1])
+            if arm_joints is None or np.abs(arm_joints - solutions[-1]).max() > self.config.execution.max_waypoint_joint_step_rad:
+                return None
+            solutions.append(arm_joints)
+        return solutions[1:]
+
+    def plan(
+        self, position: np.ndarray, quat: np.ndarray, seeds: Sequence[np.ndarray], descent: Sequence[np.ndarray], lift: Sequence[np.ndarray]
+    ) -> tuple[list[np.ndarray], list[np.ndarray]] | None:
+        """(descent joints ending at the grasp, lift joints): the first grasp solution from which both
+        straight-line paths stay on one IK branch. ``descent`` lists positions from the pre-grasp to just
+        before the grasp; they are solved backwards from the grasp."""
+        for grasp_joints in self.grasp_solutions(position, quat, seeds):
+            backwards = self.path(grasp_joints, list(descent)[::-1], quat)
+            lift_joints = self.path(grasp_joints, lift, quat) if backwards is not None else None
+            if lift_joints is not None:
+                return [*backwards[::-1], grasp_joints], lift_joints
+        return None
+
+
+def _robot_touches(scene: Scene, other_body: int) -> bool:
+    """Any robot link other than the fixed base (which stands on the table) in contact with ``other_body``."""
+    contacts = pybullet.getContactPoints(bodyA=scene.robot_id, bodyB=other_body, physicsClientId=scene.client)
+    return any(contact[3] != -1 for contact in contacts)
+
+
+def _fingers_holding(scene: Scene) -> bool:
+    return all(
+        pybullet.getContactPoints(bodyA=scene.robot_id, bodyB=scene.target_id, linkIndexA=finger, physicsClientId=scene.client)
+        for finger in PANDA_FINGER_JOINTS
+    )
+
+
+def _step(scene: Scene, steps: int) -> None:
+    for _ in range(steps):
+        pybullet.stepSimulation(physicsClientId=scene.client)
+
+
+def execute_grasp(
+    scene: Scene,
+    config: Config,
+    position_world: Any,
+    quat_xyzw: Any,
+    width_m: float,
+    approach_world: Any,
+    ik_seed: Any = None,
+    record_frames: bool = False,
+) -> GraspAttempt:
+    """Execute one grasp from the scene's current state and judge it.
+
+    Args:
+        position_world: (3,) grasp centre (contact midpoint) where ``panda_grasptarget`` goes, metres.
+        quat_xyzw: (4,) grasp orientation (columns: x = y cross z, y = closing axis, z = approach).
+        width_m: object width between the contacts; the gripper opens fully regardless (published sequence).
+        approach_world: (3,) direction the gripper moves in toward the object.
+        ik_seed: (7,) arm joints reaching the grasp (the planner's), used as the first IK seed.
+        record_frames: put RGB images at contact and after the lift in ``details["frames"]``.
+
+    Returns a ``GraspAttempt`` whose ``failure_reason`` is None, "unreachable", "collision",
+    "slipped" or "not_lifted".
+    """
+    execution = config.execution
+    position = _as_vector(position_world, 3, "position_world")
+    quat = _as_vector(quat_xyzw, 4, "quat_xyzw")
+    approach = _as_vector(approach_world, 3, "approach_world")
+    if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
+        raise InvalidGraspError("quat_xyzw and approach_world must be non-zero")
+    if not 0.0 <= float(width_m) <= execution.finger_open_width_m:
+        raise InvalidGraspError(f"width_m {float(width_m)} is outside the gripper's 0..{execution.finger_open_width_m} m")
+    quat = quat / np.linalg.norm(quat)
+    approach = approach / np.linalg.norm(approach)
+
+    client, target = scene.client, scene.target_id
+    table_top = config.scene.table_top_z_m
+    rest_com, rest_quat = scene.centre_of_mass(target)
+    distractor_start = [scene.centre_of_mass(body)[0] for body in scene.distractor_ids]
+    details: dict[str, Any] = {}
+
+    def finish(success: bool, reason: str | None) -> GraspAttempt:
+        com, com_quat = scene.centre_of_mass(target)
+        moved = [float(np.linalg.norm(scene.centre_of_mass(body)[0] - start)) for body, start in zip(scene.distractor_ids, distractor_start)]
+        details["distractors_max_displacement_m"] = max(moved, default=0.0)
+        details["object_height_above_table_m"] = float(com[2] - table_top)
+        details["ik_source"] = ik.source
+        return GraspAttempt(
+            success=success,
+            failure_reason=reason,
+            object_height_above_table_m=float(com[2] - table_top),
+            orientation_change_deg=_quat_angle_deg(com_quat, rest_quat),
+            details=details,
+        )
+
+    for finger in PANDA_FINGER_JOINTS:
+        pybullet.changeDynamics(
+            scene.robot_id,
+            finger,
+            lateralFriction=execution.finger_lateral_friction,
+            spinningFriction=execution.finger_spinning_friction,
+            physicsClientId=client,
+        )
+
+    # Plan every waypoint before stepping: IK teleports the arm, which is harmless while time stands still.
+    ik = _ArmIK(scene, config)
+    start_joints = scene.arm_joints()
+    seeds = [_as_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
+    pregrasp = position - approach * execution.pregrasp_offset_m
+    descent_fractions = np.linspace(0.0, 1.0, execution.descent_waypoints + 1)[:-1]
+    lift_offsets = np.linspace(0.0, execution.lift_height_m, execution.lift_waypoints + 1)[1:]
+    plan = ik.plan(
+        position,
+        quat,
+        seeds,
+        [pregrasp + (position - pregrasp) * f for f in descent_fractions],
+        [position + np.array([0.0, 0.0, dz]) for dz in lift_offsets],
+    )
+    if plan is None:
+        scene.set_arm_joints(start_joints)
+        return finish(False, "unreachable")
+    descent, lift = plan
+
+    scene.set_finger_width(execution.finger_open_width_m)
+    scene.set_arm_joints(descent[0])
+    pybullet.performCollisionDetection(physicsClientId=client)
+    if _robot_touches(scene, scene.table_id) or _robot_touches(scene, target):
+        details["collision_at"] = "pregrasp"
+        return finish(False, "collision")
+    _step(scene, execution.settle_steps)
+
+    for joints in descent[1:]:
+        scene.command_arm(joints)
+        _step(scene, execution.steps_per_waypoint)
+        knocked = np.linalg.norm(scene.centre_of_mass(target)[0] - rest_com) > execution.knock_tolerance_m
+        if _robot_touches(scene, scene.table_id) or knocked:
+            details["collision_at"] = "descent"
+            return finish(False, "collision")
+
+    scene.command_fingers(0.0)
+    _step(scene, execution.close_steps)
+    details["fingers_touching_after_close"] = _fingers_holding(scene)
+    frames: dict[str, np.ndarray] = {}
+    if record_frames:
+        camera = make_camera("frames", config, rest_com + np.asarray(execution.frame_camera_offset_m), rest_com, (0.0, 0.0, 1.0))
+        frames["contact"] = render(scene, camera)[0]
+
+    highest_rise = 0.0
+    for joints in lift:
+        scene.command_arm(joints)
+        _step(scene, execution.steps_per_waypoint)
+        highest_rise = max(highest_rise, float(scene.centre_of_mass(target)[0][2] - rest_com[2]))
+    _step(scene, execution.hold_steps)
+    if record_frames:
+        frames["lifted"] = render(scene, camera)[0]
+        details["frames"] = frames
+
+    com = scene.centre_of_mass(target)[0]
+    high_enough = com[2] - table_top >= execution.success_height_above_table_m
+    if high_enough and _fingers_holding(scene):
+        return finish(True, None)
+    return finish(False, "slipped" if highest_rise >= execution.lifted_detect_height_m else "not_lifted")
+
+
+def execute_ranked(
+    scene: Scene,
+    config: Config,
+    candidates: GraspCandidates,
+    order: Sequence[int],
+    record_frames: bool = False,
+) -> list[GraspAttempt]:
+    """Execute candidates in ``order`` (at most ``max_attempts``), each from the restored settled scene.
+
+    Stops at the first success. Each attempt's ``details["candidate_index"]`` names the candidate.
+    """
+    attempts: list[GraspAttempt] = []
+    positions = candidates.position_world
+    quats = candidates.quat_xyzw()
+    for index in list(order)[: config.execution.max_attempts]:
+        if not 0 <= int(index) < len(candidates):
+            raise IndexError(f"candidate index {index} outside the {len(candidates)} candidates")
+        scene.restore_state()
+        attempt = execute_grasp(
+            scene,
+            config,
+            positions[index],
+            quats[index],
+            float(candidates.width_m[index]),
+            candidates.approach[index],
+            ik_seed=candidates.ik_solution[index],
+            record_frames=record_frames,
+        )
+        attempt.details["candidate_index"] = int(index)
+        attempts.append(attempt)
+        if attempt.success:
+            break
+    return attempts

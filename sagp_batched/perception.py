@@ -1,0 +1,172 @@
+"""Three-camera perception of the target: RGB-D + segmentation to a merged, normal-carrying point cloud."""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+import pybullet
+import torch
+
+from sagp_batched_kernels.camera import backproject_to_world, linearize_depth
+
+from ._open3d import o3d
+from .config import Config
+from .scene import Scene
+from .types import CameraData, PerceivedCloud, PerceptionFailure
+
+# PyBullet's segmentation value is body_id + ((link_index + 1) << 24) with the flag below.
+BODY_ID_BITS = (1 << 24) - 1
+# Segmentation value PyBullet writes where no body is hit.
+BACKGROUND = -1
+
+
+def make_camera(name: str, config: Config, eye_world: Sequence[float], target_world: Sequence[float], up_world: Sequence[float]) -> CameraData:
+    """A pinhole camera at ``eye_world`` looking at ``target_world``; intrinsics follow PyBullet's projection."""
+    camera = config.camera
+    view = pybullet.computeViewMatrix(list(eye_world), list(target_world), list(up_world))
+    aspect = camera.width_px / camera.height_px
+    projection = pybullet.computeProjectionMatrixFOV(camera.fov_deg, aspect, camera.near_m, camera.far_m)
+    focal_px = camera.height_px / (2.0 * math.tan(math.radians(camera.fov_deg) / 2.0))
+    # Pixel (u, v) covers [u, u + 1] in OpenGL's raster, so its centre sits half a pixel in.
+    intrinsics = np.array(
+        [[focal_px, 0.0, camera.width_px / 2.0 - 0.5], [0.0, focal_px, camera.height_px / 2.0 - 0.5], [0.0, 0.0, 1.0]]
+    )
+    world_to_opengl = np.array(view).reshape(4, 4).T
+    # OpenGL's camera looks down -z with y up; the pinhole frame looks down +z with y down.
+    opengl_to_pinhole = np.diag([1.0, -1.0, -1.0, 1.0])
+    camera_to_world = np.linalg.inv(world_to_opengl) @ opengl_to_pinhole
+    return CameraData(
+        name=name,
+        width_px=camera.width_px,
+        height_px=camera.height_px,
+        intrinsics=intrinsics,
+        camera_to_world=camera_to_world,
+        view_matrix=np.array(view),
+        projection_matrix=np.array(projection),
+        near_m=camera.near_m,
+        far_m=camera.far_m,
+    )
+
+
+def camera_rig(config: Config, look_at_world: Sequence[float]) -> list[CameraData]:
+    """One overhead and two side cameras, placed by ``config.camera`` offsets around ``look_at_world``."""
+    look_at = np.asarray(look_at_world, dtype=float)
+    cameras = [make_camera("overhead", config, look_at + config.camera.overhead_offset_m, look_at, config.camera.overhead_up_axis)]
+    for index, offset in enumerate(config.camera.side_offsets_m):
+        cameras.append(make_camera(f"side_{index}", config, look_at + np.asarray(offset), look_at, (0.0, 0.0, 1.0)))
+    return cameras
+
+
+def render(scene: Scene, camera: CameraData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """RGB (H, W, 3) uint8, depth buffer (H, W) float in [0, 1], body-id image (H, W) int (-1 = none)."""
+    _, _, rgba, depth, segmentation = pybullet.getCameraImage(
+        camera.width_px,
+        camera.height_px,
+        viewMatrix=camera.view_matrix.tolist(),
+        projectionMatrix=camera.projection_matrix.tolist(),
+        renderer=pybullet.ER_TINY_RENDERER,
+        flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+        physicsClientId=scene.client,
+    )
+    shape = (camera.height_px, camera.width_px)
+    rgb = np.asarray(rgba, dtype=np.uint8).reshape(*shape, 4)[..., :3].copy()
+    depth_buffer = np.asarray(depth, dtype=np.float64).reshape(shape)
+    segmentation = np.asarray(segmentation, dtype=np.int64).reshape(shape)
+    body_ids = np.where(segmentation >= 0, segmentation & BODY_ID_BITS, BACKGROUND)
+    return rgb, depth_buffer, body_ids
+
+
+def backproject_views(cameras: list[CameraData], depth_buffers: np.ndarray) -> torch.Tensor:
+    """(V, H, W, 3) world points of every pixel of V depth buffers (V, H, W)."""
+    depth_m = linearize_depth(
+        torch.from_numpy(depth_buffers),
+        torch.tensor([c.near_m for c in cameras], dtype=torch.float64),
+        torch.tensor([c.far_m for c in cameras], dtype=torch.float64),
+    )
+    intrinsics = torch.from_numpy(np.stack([c.intrinsics for c in cameras]))
+    poses = torch.from_numpy(np.stack([c.camera_to_world for c in cameras]))
+    return backproject_to_world(depth_m, intrinsics, poses)
+
+
+def crop_with_padding(rgb: np.ndarray, mask: np.ndarray, padding_fraction: float) -> np.ndarray:
+    """Tight box around ``mask`` grown by ``padding_fraction`` of its size on every side, clipped to the image."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    top, bottom, left, right = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    pad_v = int(round((bottom - top) * padding_fraction))
+    pad_u = int(round((right - left) * padding_fraction))
+    height, width = mask.shape
+    return rgb[max(0, top - pad_v) : min(height, bottom + pad_v), max(0, left - pad_u) : min(width, right + pad_u)].copy()
+
+
+def _voxel_downsample(points: np.ndarray, labels: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Voxel-grid downsampling (Open3D) that keeps, per voxel, the label of one of its source points."""
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    down, _, traced = cloud.voxel_down_sample_and_trace(voxel_size_m, cloud.get_min_bound(), cloud.get_max_bound())
+    first_source = np.array([np.asarray(indices)[0] for indices in traced], dtype=np.int64)
+    return np.asarray(down.points), labels[first_source]
+
+
+def outward_normals(points_world: np.ndarray, radius_m: float, max_neighbours: int) -> np.ndarray:
+    """Open3D normals (hybrid radius/kNN search), flipped to point away from the cloud centroid."""
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_world))
+    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_neighbours))
+    normals = np.asarray(cloud.normals)
+    outward = points_world - points_world.mean(axis=0)
+    flip = np.einsum("ij,ij->i", normals, outward) < 0.0
+    normals[flip] *= -1.0
+    return normals
+
+
+def capture(scene: Scene, config: Config) -> PerceivedCloud:
+    """Render the three views, segment the target, merge, downsample, estimate normals, crop the image.
+
+    Raises ``PerceptionFailure`` ("not_visible" / "too_few_points") instead of returning a cloud
+    the planner cannot use. The RGB crop comes from the view with the most target pixels: it shows
+    the object largest and least occluded, which is what the rating model needs to see parts.
+    """
+    if scene.target_spec is None:
+        raise RuntimeError("capture needs a scene that was reset with a target")
+    object_position, object_quat = scene.object_link_pose(scene.target_id)
+    lower, upper = pybullet.getAABB(scene.target_id, physicsClientId=scene.client)
+    cameras = camera_rig(config, (np.asarray(lower) + np.asarray(upper)) / 2.0)
+    renders = [render(scene, camera) for camera in cameras]
+    body_ids = np.stack([r[2] for r in renders])
+    target_masks = body_ids == scene.target_id
+    pixels_per_view = target_masks.reshape(len(cameras), -1).sum(axis=1)
+    if pixels_per_view.sum() == 0:
+        raise PerceptionFailure("not_visible", f"object '{scene.target_spec.id}' is hidden from all {len(cameras)} cameras")
+
+    points_all = backproject_views(cameras, np.stack([r[1] for r in renders])).numpy()
+    view_of_pixel = np.broadcast_to(np.arange(len(cameras)).reshape(-1, 1, 1), target_masks.shape)
+    voxel = config.perception.voxel_size_m
+    points_world, view_index = _voxel_downsample(points_all[target_masks], view_of_pixel[target_masks], voxel)
+    if points_world.shape[0] < config.perception.min_points:
+        raise PerceptionFailure(
+            "too_few_points",
+            f"object '{scene.target_spec.id}': {points_world.shape[0]} points after {voxel} m voxels "
+            f"(need {config.perception.min_points}; target pixels per view {pixels_per_view.tolist()})",
+        )
+    normals_world = outward_normals(points_world, config.perception.normal_radius_m, config.perception.normal_max_neighbours)
+
+    non_obstacles = {scene.target_id, scene.table_id, scene.robot_id, BACKGROUND}
+    obstacle_masks = ~np.isin(body_ids, list(non_obstacles))
+    obstacles_world = np.zeros((0, 3))
+    if obstacle_masks.any():
+        obstacles_world, _ = _voxel_downsample(points_all[obstacle_masks], np.zeros(int(obstacle_masks.sum()), dtype=np.int64), voxel)
+
+    best_view = int(np.argmax(pixels_per_view))
+    crop_rgb = crop_with_padding(renders[best_view][0], target_masks[best_view], config.perception.crop_padding_fraction)
+    return PerceivedCloud(
+        points_world=torch.as_tensor(points_world, dtype=torch.float32),
+        normals_world=torch.as_tensor(normals_world, dtype=torch.float32),
+        view_index=torch.as_tensor(view_index, dtype=torch.int64),
+        crop_rgb=crop_rgb,
+        cameras=cameras,
+        object_id=scene.target_spec.id,
+        object_position_world=object_position,
+        object_quat_xyzw=object_quat,
+        table_top_z_m=config.scene.table_top_z_m,
+        obstacle_points_world=torch.as_tensor(obstacles_world, dtype=torch.float32),
+    )

@@ -1,0 +1,313 @@
+"""Batched antipodal grasp planner: sampled pairs -> antipodal filter -> approaches and gripper
+collision proxies -> IK reachability, ranked by S_geom.
+
+Every stage is a tensor kernel over all candidates (and, in ``plan_batch``, over all objects at
+once). Choosing each candidate's approach "by IK feasibility" is done in rounds so that IK runs
+only where it can change the answer: approaches are ordered by a top-down-first prior, and each
+round solves, in one batched IK call, the next untried approach of every undecided candidate
+that could still enter its object's top ``max_candidates``. The result equals trying candidates
+one by one in S_geom order, each approach in prior order, until ``max_candidates`` are feasible
+(which is what ``reference.plan_reference`` does).
+"""
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Sequence
+from dataclasses import astuple, dataclass
+
+import torch
+
+from sagp_batched_kernels.antipodal import antipodal_pairs
+from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
+from sagp_batched_kernels.gripper_volume import (
+    GripperGeometry,
+    gripper_corners_local,
+    gripper_occupancy,
+    table_penetration,
+)
+from sagp_batched_kernels.sampling import sample_pair_indices, sample_subset_indices
+
+from .config import Config, PlannerConfig
+from .ik import PandaIK
+from .types import GraspCandidates, PerceivedCloud
+
+# Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
+# the table and the arm most often, so they are the prior's first choice.
+WORLD_DOWN = torch.tensor([0.0, 0.0, -1.0])
+
+UNDECIDED, FEASIBLE, EXHAUSTED = 0, 1, 2
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_ik(planner_values: tuple, robot_base_xyz_m: tuple[float, float, float]) -> PandaIK:
+    return PandaIK(PlannerConfig(*planner_values), robot_base_xyz_m)
+
+
+def panda_ik(config: Config) -> PandaIK:
+    """The ``PandaIK`` for this configuration, built once per distinct planner/base settings."""
+    return _cached_ik(astuple(config.planner), tuple(config.scene.robot_base_xyz_m))
+
+
+def gripper_geometry(config: PlannerConfig) -> GripperGeometry:
+    return GripperGeometry(
+        open_width_m=config.gripper_open_width_m,
+        finger_width_m=config.finger_width_m,
+        finger_thickness_m=config.finger_thickness_m,
+        finger_length_m=config.finger_length_m,
+        fingertip_offset_m=config.fingertip_offset_m,
+        palm_width_m=config.palm_width_m,
+        palm_span_m=config.palm_span_m,
+        palm_depth_m=config.palm_depth_m,
+        contact_clearance_m=config.contact_clearance_m,
+    )
+
+
+def _check_cloud(cloud: PerceivedCloud, position: int) -> None:
+    points, normals = cloud.points_world, cloud.normals_world
+    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
+        raise ValueError(
+            f"cloud {position} ({cloud.object_id}): points_world and normals_world must both be (N, 3), "
+            f"got {tuple(points.shape)} and {tuple(normals.shape)}"
+        )
+    if points.shape[0] < 2:
+        raise ValueError(f"cloud {position} ({cloud.object_id}) has {points.shape[0]} points; planning needs at least 2")
+    if cloud.obstacle_points_world.ndim != 2 or cloud.obstacle_points_world.shape[1] != 3:
+        raise ValueError(f"cloud {position} ({cloud.object_id}): obstacle_points_world must be (M, 3)")
+
+
+@dataclass
+class SampledInputs:
+    """The random draws of one planning call for one cloud (identical for every method)."""
+
+    pair_indices: torch.Tensor  # (P, 2) int64 indices into the cloud's points
+    occupancy_points: torch.Tensor  # (M, 3) object points then obstacle points the occupancy check counts
+    occupancy_total: int  # object points in ``occupancy_points``: the occupancy fraction's denominator
+
+
+def sample_inputs(cloud: PerceivedCloud, planner: PlannerConfig, seed: int) -> SampledInputs:
+    """Draw the contact pairs and the occupancy subset of ``cloud`` from one generator seeded by ``seed``."""
+    generator = torch.Generator().manual_seed(int(seed))
+    pair_indices = sample_pair_indices(cloud.n_points, planner.n_pairs, generator)
+    object_subset = sample_subset_indices(cloud.n_points, planner.occupancy_max_points, generator)
+    n_obstacles = cloud.obstacle_points_world.shape[0]
+    n_obstacles_kept = round(n_obstacles * len(object_subset) / cloud.n_points)
+    obstacle_subset = sample_subset_indices(n_obstacles, n_obstacles_kept, generator)
+    occupancy_points = torch.cat(
+        (
+            cloud.points_world.to(torch.float32)[object_subset],
+            cloud.obstacle_points_world.to(torch.float32)[obstacle_subset],
+        )
+    )
+    return SampledInputs(pair_indices, occupancy_points, len(object_subset))
+
+
+def _segment_exclusive_cumsum(values: torch.Tensor, object_index: torch.Tensor, n_objects: int) -> torch.Tensor:
+    """Exclusive running sum of ``values`` restarting at each object (rows sorted by object)."""
+    exclusive = torch.cumsum(values, 0) - values
+    first_row = torch.searchsorted(object_index, torch.arange(n_objects))
+    base = torch.zeros(n_objects, dtype=values.dtype)
+    has_rows = first_row < object_index.shape[0]
+    base[has_rows] = exclusive[first_row[has_rows]]
+    return exclusive - base[object_index]
+
+
+@dataclass
+class ScreenedCandidates:
+    """Antipodal candidates of several clouds before IK, ranked by S_geom within each cloud.
+
+    Rows are sorted by cloud, then S_geom descending (sampling order among ties); approaches are
+    in prior order (most downward first).
+    """
+
+    object_index: torch.Tensor  # (A,) int64 cloud of each candidate
+    pair_indices: torch.Tensor  # (A, 2) int64 point indices within its cloud
+    contacts_world: torch.Tensor  # (A, 2, 3)
+    closing_axis: torch.Tensor  # (A, 3)
+    width_m: torch.Tensor  # (A,)
+    s_geom: torch.Tensor  # (A,)
+    approach: torch.Tensor  # (A, K, 3)
+    rotation_world: torch.Tensor  # (A, K, 3, 3)
+    usable: torch.Tensor  # (A, K) bool: clear of the table (grasp and pre-grasp) and under the occupancy limit
+
+    @property
+    def centre_world(self) -> torch.Tensor:
+        return self.contacts_world.mean(dim=1)
+
+
+def screen_candidates(
+    clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int], stage_time: dict[str, float] | None = None
+) -> ScreenedCandidates:
+    """Sampling, antipodal filter, approaches and gripper collision proxies for all clouds at once.
+
+    ``stage_time``, if given, receives seconds for ``sampling``, ``antipodal`` and ``frames_volume``.
+    """
+    planner = config.planner
+    stage_time = {} if stage_time is None else stage_time
+    clock = time.perf_counter()
+    n_objects = len(clouds)
+    sampled = [sample_inputs(cloud, planner, seed) for cloud, seed in zip(clouds, seeds)]
+    point_offsets = torch.tensor([0] + [cloud.n_points for cloud in clouds]).cumsum(0)[:-1]
+    pairs = torch.cat([s.pair_indices + offset for s, offset in zip(sampled, point_offsets)])
+    pair_object = torch.arange(n_objects).repeat_interleave(planner.n_pairs)
+    points = torch.cat([cloud.points_world.to(torch.float32) for cloud in clouds])
+    normals = torch.cat([cloud.normals_world.to(torch.float32) for cloud in clouds])
+    now = time.perf_counter()
+    stage_time["sampling"], clock = now - clock, now
+
+    pair_eval = antipodal_pairs(points, normals, pairs, planner.min_width_m, planner.max_width_m, planner.max_contact_angle_deg)
+    antipodal = pair_eval["antipodal"].nonzero().squeeze(1)
+    # Rank by S_geom within each object; stable sorts keep sampling order among ties.
+    antipodal = antipodal[torch.sort(pair_eval["s_geom"][antipodal], descending=True, stable=True).indices]
+    antipodal = antipodal[torch.sort(pair_object[antipodal], stable=True).indices]
+    candidate_object = pair_object[antipodal]
+    closing_axis = pair_eval["closing_axis"][antipodal]
+    width = pair_eval["width_m"][antipodal]
+    contacts = points[pairs[antipodal]]  # (A, 2, 3)
+    centre = contacts.mean(dim=1)
+    now = time.perf_counter()
+    stage_time["antipodal"], clock = now - clock, now
+
+    approach = approach_directions(closing_axis, planner.n_approaches, WORLD_DOWN)  # (A, K, 3), prior order
+    rotation = grasp_rotations(closing_axis[:, None, :], approach)  # (A, K, 3, 3)
+    geometry = gripper_geometry(planner)
+    through_table = table_penetration(
+        centre, rotation, gripper_corners_local(geometry), config.execution.pregrasp_offset_m, config.scene.table_top_z_m
+    )
+    padded = torch.full((n_objects, max(len(s.occupancy_points) for s in sampled), 3), float("nan"))
+    for index, inputs in enumerate(sampled):
+        padded[index, : len(inputs.occupancy_points)] = inputs.occupancy_points
+    occupancy = gripper_occupancy(padded, candidate_object, centre, rotation, width, geometry, planner.occupancy_chunk_elements)
+    occupancy_total = torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32)
+    occupancy_ok = occupancy.to(torch.float32) <= planner.occupancy_max_fraction * occupancy_total[candidate_object, None]
+    stage_time["frames_volume"] = time.perf_counter() - clock
+    return ScreenedCandidates(
+        object_index=candidate_object,
+        pair_indices=pairs[antipodal] - point_offsets[candidate_object, None],
+        contacts_world=contacts,
+        closing_axis=closing_axis,
+        width_m=width,
+        s_geom=pair_eval["s_geom"][antipodal],
+        approach=approach,
+        rotation_world=rotation,
+        usable=occupancy_ok & ~through_table,
+    )
+
+
+def plan_batch(
+    clouds: Sequence[PerceivedCloud],
+    config: Config,
+    seeds: Sequence[int | None] | None = None,
+    timings: dict[str, float] | None = None,
+) -> list[GraspCandidates]:
+    """Plan grasps for several objects with shared kernel calls and one IK call per round.
+
+    Args:
+        clouds: perceived objects (world frame, outward normals).
+        config: pipeline configuration (``planner``, ``scene.table_top_z_m``,
+            ``scene.robot_base_xyz_m``, ``execution.pregrasp_offset_m``).
+        seeds: one sampling seed per cloud (``None`` entries, or no list, use ``config.planner.seed``).
+        timings: if given, filled with seconds spent per stage (``sampling``, ``antipodal``,
+            ``frames_volume``, ``ik``) and ``ik_targets``.
+
+    Returns:
+        One ``GraspCandidates`` per cloud: at most ``max_candidates`` IK-feasible candidates ranked
+        by S_geom (ties in sampling order), ``score = s_geom``, zone -1, semantic terms 0, and
+        ``counts`` with ``sampled``, ``antipodal``, ``collision_free`` (antipodal candidates with at
+        least one approach clear of the table and under the occupancy limit), ``ik_feasible``
+        (feasible candidates found; IK stops once ``max_candidates`` are known).
+    """
+    planner = config.planner
+    seeds = [planner.seed] * len(clouds) if seeds is None else [planner.seed if s is None else s for s in seeds]
+    if len(seeds) != len(clouds):
+        raise ValueError(f"got {len(seeds)} seeds for {len(clouds)} clouds")
+    for position, cloud in enumerate(clouds):
+        _check_cloud(cloud, position)
+    if not clouds:
+        return []
+    stage_time: dict[str, float] = {}
+    n_objects = len(clouds)
+    screened = screen_candidates(clouds, config, seeds, stage_time)
+    clock = time.perf_counter()
+    candidate_object = screened.object_index
+    contacts, closing_axis, width, s_geom = screened.contacts_world, screened.closing_axis, screened.width_m, screened.s_geom
+    centre, approach, rotation, usable = screened.centre_world, screened.approach, screened.rotation_world, screened.usable
+
+    n_candidates, n_approaches = usable.shape
+    approach_slots = torch.arange(n_approaches).expand(n_candidates, n_approaches)
+    # next_usable[c, k]: first usable approach at or after prior position k (K when none left).
+    next_usable = torch.where(usable, approach_slots, torch.full_like(approach_slots, n_approaches))
+    next_usable = torch.cat((next_usable, torch.full((n_candidates, 1), n_approaches)), dim=1)
+    next_usable = next_usable.flip(1).cummin(1).values.flip(1)
+    rows = torch.arange(n_candidates)
+    cursor = next_usable[:, 0].clone()
+    status = torch.where(cursor < n_approaches, UNDECIDED, EXHAUSTED)
+    collision_free = status == UNDECIDED
+    chosen_joints = torch.zeros(n_candidates, 7)
+    chosen_reach = torch.zeros(n_candidates)
+    ik = panda_ik(config)
+    ik_targets = 0
+    while True:
+        alive = (status != EXHAUSTED).to(torch.int64)
+        in_window = _segment_exclusive_cumsum(alive, candidate_object, n_objects) < planner.max_candidates
+        pending = (in_window & (status == UNDECIDED)).nonzero().squeeze(1)
+        if pending.numel() == 0:
+            break
+        slot = cursor[pending]
+        result = ik.solve(centre[pending], rotation[pending, slot])
+        ik_targets += pending.numel()
+        reached = (
+            (result.position_error_m < planner.ik_pos_tolerance_m)
+            & (result.s_reach >= planner.min_reach)
+            & ((result.joints >= ik.lower) & (result.joints <= ik.upper)).all(dim=1)
+        )
+        done = pending[reached]
+        status[done] = FEASIBLE
+        chosen_joints[done] = result.joints[reached]
+        chosen_reach[done] = result.s_reach[reached]
+        retry = pending[~reached]
+        cursor[retry] = next_usable[retry, slot[~reached] + 1]
+        status[retry] = torch.where(cursor[retry] < n_approaches, UNDECIDED, EXHAUSTED)
+    stage_time["ik"] = time.perf_counter() - clock
+
+    feasible = status == FEASIBLE
+    rank_in_object = _segment_exclusive_cumsum(feasible.to(torch.int64), candidate_object, n_objects)
+    keep = feasible & (rank_in_object < planner.max_candidates)
+    final_slot = cursor.clamp_max(n_approaches - 1)
+    results = []
+    for index, cloud in enumerate(clouds):
+        mine = (keep & (candidate_object == index)).nonzero().squeeze(1)
+        count = mine.numel()
+        zeros = torch.zeros(count)
+        results.append(
+            GraspCandidates(
+                contacts_world=contacts[mine],
+                closing_axis=closing_axis[mine],
+                width_m=width[mine],
+                s_geom=s_geom[mine],
+                approach=approach[mine, final_slot[mine]],
+                rotation_world=rotation[mine, final_slot[mine]],
+                s_reach=chosen_reach[mine],
+                ik_solution=chosen_joints[mine],
+                zone=torch.full((count,), -1, dtype=torch.int64),
+                s_afford=zeros.clone(),
+                s_avoid=zeros.clone(),
+                s_task=zeros.clone(),
+                score=s_geom[mine].clone(),
+                counts={
+                    "sampled": planner.n_pairs,
+                    "antipodal": int((candidate_object == index).sum()),
+                    "collision_free": int((collision_free & (candidate_object == index)).sum()),
+                    "ik_feasible": int((feasible & (candidate_object == index)).sum()),
+                },
+            )
+        )
+    if timings is not None:
+        timings.update(stage_time)
+        timings["ik_targets"] = ik_targets
+    return results
+
+
+def plan(cloud: PerceivedCloud, config: Config, seed: int | None = None, timings: dict[str, float] | None = None) -> GraspCandidates:
+    """Plan grasps for one object; deterministic for a given ``seed`` (default ``config.planner.seed``)."""
+    return plan_batch([cloud], config, [seed], timings)[0]

@@ -1,0 +1,47 @@
+"""The structured zone-rating prompt; its version is part of every cache key."""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from ..zones import ZONE_NAMES
+from .types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, TASKS, RatingError
+
+PROMPT_VERSION = "sagp-zones-v1"
+
+
+def task_description(task: str) -> str:
+    if task not in TASKS:
+        raise RatingError(f"unknown task '{task}' (known: {', '.join(TASKS)})")
+    return TASKS[task]
+
+
+def checked_image(image: np.ndarray, name: str = "crop_rgb") -> np.ndarray:
+    """``image`` as an (H, W, 3) uint8 array, or a ``RatingError`` naming what is wrong."""
+    array = np.asarray(image)
+    if array.ndim != 3 or array.shape[2] != 3 or array.shape[0] == 0 or array.shape[1] == 0 or array.dtype != np.uint8:
+        raise RatingError(f"{name} must be a non-empty (H, W, 3) uint8 image, got shape {array.shape} dtype {array.dtype}")
+    return array
+
+
+def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[str, str]) -> str:
+    """The text sent beside the object crop: task, zones with their geometry, and the JSON to answer."""
+    unknown = [z for z in zone_descriptions if z not in ZONE_NAMES]
+    if unknown:
+        raise RatingError(f"zone descriptions name unknown zones {unknown} (known: {', '.join(ZONE_NAMES)})")
+    zone_lines = "\n".join(f"- {zone_descriptions[z]}" for z in ZONE_NAMES if z in zone_descriptions)
+    return (
+        f"The image shows a {object_name} on a table, seen by a robot with a parallel-jaw gripper.\n"
+        f"Task: {task_description(task)}.\n"
+        "The object is divided into coarse zones (vertical thirds of its height, the halves on each side, "
+        "and parts that stick out):\n"
+        f"{zone_lines}\n"
+        f"Rate every zone for grasping in this task as one of {', '.join(RATING_LEVELS)}. "
+        "Answer with one JSON object and nothing else:\n"
+        '{"ratings": {"<zone>": "<level>", ...}, "preferred": ["<zone>", ...], "avoid": ["<zone>", ...], '
+        f'"approach": "<one of {"|".join(a for a in APPROACH_NAMES if a != "vector")}>", '
+        f'"grasp_style": "<one of {"|".join(GRASP_STYLES)}>", '
+        '"max_tilt_deg": <largest tilt of the object the task allows, in degrees, or null>}\n'
+        f"Zone names must come from: {', '.join(ZONE_NAMES)}."
+    )

@@ -1,0 +1,182 @@
+"""Zone raters: one interface, a model-backed rater, the offline prior, and a persistent cache."""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import RatingConfig
+from .parse import parse_zone_rating
+from .prompt import PROMPT_VERSION, build_zone_prompt, checked_image, task_description
+from .types import RatingError, VLMRequestError, ZoneRating, neutral_rating
+from .vlm import VLMClient, get_vlm_client
+
+log = logging.getLogger(__name__)
+
+
+class Rater(ABC):
+    """Rates the coarse zones of an object for a task."""
+
+    backend: str
+    model: str
+    prompt_version: str
+
+    @abstractmethod
+    def rate(
+        self, object_id: str, object_name: str, task: str, crop_rgb: np.ndarray, zone_descriptions: Mapping[str, str]
+    ) -> ZoneRating:
+        """A validated rating; never raises for a bad model answer (that gives a neutral rating)."""
+
+
+class VLMRater(Rater):
+    """Asks a vision-language model with the structured zone prompt and validates its answer."""
+
+    prompt_version = PROMPT_VERSION
+
+    def __init__(self, client: VLMClient, upright_max_tilt_deg: float):
+        self.client = client
+        self.backend = client.backend
+        self.model = client.model
+        self.upright_max_tilt_deg = upright_max_tilt_deg
+
+    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions):
+        prompt = build_zone_prompt(object_name, task, zone_descriptions)
+        image = checked_image(crop_rgb)
+        start = time.perf_counter()
+        try:
+            text = self.client.generate(image, prompt)
+        except VLMRequestError as exc:
+            log.warning("no rating for %s/%s from %s: %s", object_id, task, self.model, exc)
+            return neutral_rating(self.backend, self.model, self.prompt_version, time.perf_counter() - start, f"no answer: {exc}")
+        latency = time.perf_counter() - start
+        return parse_zone_rating(text, self.backend, self.model, self.prompt_version, latency, self.upright_max_tilt_deg)
+
+
+class PriorRater(Rater):
+    """Zone ratings written down from how people hold each object: a prior, not a model.
+
+    The table lives in ``sagp_batched/data/zone_priors.json``; an object or task it lacks gets the
+    neutral rating, under which SAGP ranks by geometry and reachability alone.
+    """
+
+    backend = "prior"
+
+    def __init__(self, table_path: str | Path | None = None):
+        if table_path is None:
+            text = resources.files("sagp_batched").joinpath("data/zone_priors.json").read_text()
+            self.model = "zone_priors.json"
+        else:
+            text = Path(table_path).read_text()
+            self.model = Path(table_path).name
+        table = json.loads(text)
+        self.prompt_version = f"prior-{table['version']}"
+        self._objects: dict[str, Any] = table["objects"]
+        for object_id, tasks in self._objects.items():
+            for task, entry in tasks.items():
+                if task.startswith("_"):
+                    continue
+                task_description(task)
+                self._entry_rating(entry, f"{object_id}/{task}")
+
+    def _entry_rating(self, entry: dict[str, Any], where: str) -> ZoneRating:
+        data = {
+            **{"approach_vector_world": None, "issues": [], "max_tilt_deg": None}, **entry,
+            "provenance": {"backend": self.backend, "model": self.model, "prompt_version": self.prompt_version,
+                           "latency_s": 0.0, "outcome": "ok"},
+        }
+        try:
+            return ZoneRating.from_dict(data)
+        except RatingError as exc:
+            raise RatingError(f"zone prior {where} is invalid: {exc}") from exc
+
+    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions):
+        task_description(task)
+        entry = self._objects.get(object_id, {}).get(task)
+        if entry is None:
+            return neutral_rating(self.backend, self.model, self.prompt_version, 0.0, f"no prior for {object_id}/{task}")
+        return self._entry_rating(entry, f"{object_id}/{task}")
+
+
+class CachedRater(Rater):
+    """Persistent cache around a rater, one JSON file per (object, task, backend, model, prompt version).
+
+    Files are written atomically (temporary file + rename) and carry a SHA-256 of their rating; an
+    entry that fails to parse, to match its hash or to validate is logged and asked again. Neutral
+    ratings are not stored: they record a failure to rate, which the next run should retry.
+    ``queries`` counts the questions that reached the wrapped rater.
+    """
+
+    def __init__(self, inner: Rater, cache_dir: str | Path):
+        self.inner = inner
+        self.backend, self.model, self.prompt_version = inner.backend, inner.model, inner.prompt_version
+        self.cache_dir = Path(cache_dir).expanduser()
+        self.queries = 0
+
+    def _path(self, object_id: str, task: str) -> Path:
+        key = json.dumps([object_id, task, self.backend, self.model, self.prompt_version])
+        digest = hashlib.sha256(key.encode()).hexdigest()[:24]
+        return self.cache_dir / f"{object_id}__{task}__{self.backend}__{digest}.json"
+
+    @staticmethod
+    def _digest(rating: dict[str, Any]) -> str:
+        return hashlib.sha256(json.dumps(rating, sort_keys=True).encode()).hexdigest()
+
+    def _load(self, path: Path) -> ZoneRating | None:
+        if not path.is_file():
+            return None
+        try:
+            stored = json.loads(path.read_text())
+            if stored["sha256"] != self._digest(stored["rating"]):
+                raise RatingError("hash mismatch")
+            return ZoneRating.from_dict(stored["rating"], cached=True)
+        except (ValueError, KeyError, TypeError, RatingError) as exc:
+            log.warning("corrupt rating cache entry %s (%s); asking again", path, exc)
+            return None
+
+    def _store(self, path: Path, object_id: str, task: str, rating: ZoneRating) -> None:
+        record = rating.to_dict()
+        payload = {"key": {"object_id": object_id, "task": task, "backend": self.backend, "model": self.model,
+                           "prompt_version": self.prompt_version},
+                   "sha256": self._digest(record), "rating": record}
+        self.cache_dir.mkdir(parents=True, exist_ok=True)
+        descriptor, temporary = tempfile.mkstemp(dir=self.cache_dir, prefix=".tmp-", suffix=".json")
+        try:
+            with os.fdopen(descriptor, "w") as handle:
+                json.dump(payload, handle, indent=1)
+            os.replace(temporary, path)
+        except BaseException:
+            Path(temporary).unlink(missing_ok=True)
+            raise
+
+    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions):
+        task_description(task)
+        path = self._path(object_id, task)
+        cached = self._load(path)
+        if cached is not None:
+            return cached
+        self.queries += 1
+        rating = self.inner.rate(object_id, object_name, task, crop_rgb, zone_descriptions)
+        if not rating.is_neutral:
+            self._store(path, object_id, task, rating)
+        return rating
+
+
+def get_rater(config: RatingConfig) -> Rater:
+    """The rater of ``config.backend`` (``prior``, ``transformers`` or ``openai``), cached if ``config.use_cache``."""
+    if config.backend == "prior":
+        rater: Rater = PriorRater()
+    elif config.backend in ("transformers", "openai"):
+        rater = VLMRater(get_vlm_client(config), config.upright_max_tilt_deg)
+    else:
+        raise RatingError(f"unknown rating backend '{config.backend}' (known: prior, transformers, openai)")
+    return CachedRater(rater, config.cache_dir) if config.use_cache else rater

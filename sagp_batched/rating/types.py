@@ -1,0 +1,125 @@
+"""The validated zone rating every backend returns, and the errors of the rating layer."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..zones import ZONE_NAMES
+
+# SPEC stage 4: rating levels and their affordance value phi.
+PHI: dict[str, float] = {"good": 1.0, "acceptable": 0.5, "bad": -0.5, "dangerous": -1.0}
+RATING_LEVELS: tuple[str, ...] = tuple(PHI)
+# Direction the gripper comes from: "top" (moving down), "side" (any horizontal approach), a named
+# side of the object (the gripper moves toward it from outside), "any", or "vector" with a world vector.
+APPROACH_NAMES: tuple[str, ...] = ("top", "side", "front", "back", "left", "right", "any", "vector")
+GRASP_STYLES: tuple[str, ...] = ("pinch", "power", "wrap", "hook", "any")
+TASKS: dict[str, str] = {
+    "t1": "stable pickup: lift the object 20 cm and hold it without dropping it",
+    "t2": "functional grasp: hold the object where a person holds it to use it, keeping it within 15 degrees of its resting orientation",
+    "t3": "cluttered grasp: pick the object up while 3-4 other objects stand within 15 cm of it, without moving them",
+}
+# "ok": the answer validated as given; "repaired": safe repairs were made (listed in ``issues``);
+# "neutral": nothing trustworthy was left, the rating is neutral (SAGP falls back to geometry).
+OUTCOMES: tuple[str, ...] = ("ok", "repaired", "neutral")
+
+
+class RatingError(RuntimeError):
+    """A rating request is malformed (unknown task, bad image) or a backend is misconfigured."""
+
+
+class VLMRequestError(RuntimeError):
+    """A model backend gave no answer (timeout, HTTP error, generation failure) after its retries."""
+
+
+@dataclass(frozen=True)
+class RatingProvenance:
+    backend: str  # "transformers" | "openai" | "prior"
+    model: str
+    prompt_version: str
+    latency_s: float
+    outcome: str  # one of OUTCOMES
+    # Where an answer was read from does not change which answer it is.
+    cached: bool = field(default=False, compare=False)
+
+
+@dataclass(frozen=True)
+class ZoneRating:
+    """Ratings of the coarse zones of one object for one task.
+
+    ``ratings`` maps zone names to levels of ``RATING_LEVELS``; a zone without a rating is unrated
+    (phi 0). ``approach_vector_world`` is set only when ``approach == "vector"``. ``max_tilt_deg`` is the
+    orientation constraint (None: unconstrained).
+    """
+
+    ratings: dict[str, str]
+    preferred: frozenset[str]
+    avoid: frozenset[str]
+    approach: str
+    grasp_style: str
+    max_tilt_deg: float | None
+    provenance: RatingProvenance
+    approach_vector_world: tuple[float, float, float] | None = None
+    issues: tuple[str, ...] = ()
+    raw_text: str = field(default="", compare=False)
+
+    @property
+    def is_neutral(self) -> bool:
+        return self.provenance.outcome == "neutral"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "ratings": dict(sorted(self.ratings.items())),
+            "preferred": sorted(self.preferred),
+            "avoid": sorted(self.avoid),
+            "approach": self.approach,
+            "approach_vector_world": list(self.approach_vector_world) if self.approach_vector_world else None,
+            "grasp_style": self.grasp_style,
+            "max_tilt_deg": self.max_tilt_deg,
+            "issues": list(self.issues),
+            "provenance": {
+                "backend": self.provenance.backend,
+                "model": self.provenance.model,
+                "prompt_version": self.provenance.prompt_version,
+                "latency_s": self.provenance.latency_s,
+                "outcome": self.provenance.outcome,
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], cached: bool = False) -> "ZoneRating":
+        """Strict inverse of ``to_dict``; raises ``RatingError`` on anything out of vocabulary."""
+        try:
+            ratings = {str(k): str(v) for k, v in data["ratings"].items()}
+            preferred = frozenset(data["preferred"])
+            avoid = frozenset(data["avoid"])
+            provenance = RatingProvenance(cached=cached, **data["provenance"])
+            vector = data["approach_vector_world"]
+            rating = cls(
+                ratings=ratings, preferred=preferred, avoid=avoid, approach=data["approach"],
+                grasp_style=data["grasp_style"],
+                max_tilt_deg=None if data["max_tilt_deg"] is None else float(data["max_tilt_deg"]),
+                provenance=provenance, approach_vector_world=tuple(float(x) for x in vector) if vector else None,
+                issues=tuple(data["issues"]),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise RatingError(f"stored rating is malformed: {exc!r}") from exc
+        bad = [
+            *(f"zone {z}" for z in [*ratings, *preferred, *avoid] if z not in ZONE_NAMES),
+            *(f"level {v}" for v in ratings.values() if v not in PHI),
+            *([f"approach {rating.approach}"] if rating.approach not in APPROACH_NAMES else []),
+            *([f"grasp style {rating.grasp_style}"] if rating.grasp_style not in GRASP_STYLES else []),
+            *([f"outcome {provenance.outcome}"] if provenance.outcome not in OUTCOMES else []),
+            *(["vector approach without a vector"] if (rating.approach == "vector") != (rating.approach_vector_world is not None) else []),
+        ]
+        if bad:
+            raise RatingError(f"stored rating holds values out of vocabulary: {', '.join(bad)}")
+        return rating
+
+
+def neutral_rating(backend: str, model: str, prompt_version: str, latency_s: float, reason: str, raw_text: str = "") -> ZoneRating:
+    """The rating that says nothing: no zone rated, no sets, any approach, no orientation constraint."""
+    return ZoneRating(
+        ratings={}, preferred=frozenset(), avoid=frozenset(), approach="any", grasp_style="any", max_tilt_deg=None,
+        provenance=RatingProvenance(backend, model, prompt_version, latency_s, "neutral"),
+        issues=(reason,), raw_text=raw_text,
+    )

@@ -1,0 +1,276 @@
+"""Coarse zones of the perceived object (SPEC stage 3) and the zone of every grasp candidate.
+
+Every cloud point belongs to exactly three geometric zones: one vertical third (bottom / middle /
+top), one lateral side (left / right) and one depth side (front / back); a point of a protrusion
+cluster belongs to ``protrusion`` as well. ``memberships`` keeps all of them, so a rating of any
+zone can reach the points it names.
+
+One zone per candidate (``GraspCandidates.zone``, used for reporting, preferred-zone and avoid-zone
+metrics) is the *primary* zone of its contact midpoint's nearest cloud point: ``protrusion`` if the
+point is in a protrusion, else its vertical third (SPEC: protrusion wins over the vertical thirds).
+Side zones never become primary because they split the same points a second and third time.
+
+Degenerate clouds get a typed outcome in ``ZoneDecomposition.degenerate`` instead of NaN zones:
+``"empty"`` (no points: candidates get zone -1, unzoned), ``"too_few_points"`` and ``"collinear"``
+(no stable principal frame: the world references ``up/left/front`` stand in for the principal
+axes and no protrusions are sought), ``"flat"`` (the principal frame is still well defined and is
+kept; the thin axis' sides are a split of sensor noise and are described as such).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sagp_batched_kernels import zones as zone_kernels
+
+from ._open3d import o3d
+from .config import ZonesConfig
+from .types import GraspCandidates, PerceivedCloud
+
+ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "left", "right", "front", "back", "protrusion")
+ZONE_INDEX: dict[str, int] = {name: i for i, name in enumerate(ZONE_NAMES)}
+# Kernel codes BOTTOM, MIDDLE, TOP -> zone indices.
+_VERTICAL_ZONE = torch.tensor([ZONE_INDEX["bottom"], ZONE_INDEX["middle"], ZONE_INDEX["top"]])
+UNZONED = -1
+DEGENERATE_OUTCOMES = ("empty", "too_few_points", "collinear", "flat")
+
+
+class ZoneInputError(ValueError):
+    """The cloud or the candidates handed to zoning are malformed (shape or non-finite values)."""
+
+
+@dataclass
+class ZoneDecomposition:
+    """Zones of one object cloud; every tensor is indexed by cloud point."""
+
+    zone_names: tuple[str, ...]
+    points_world: torch.Tensor  # (N, 3) metres
+    point_zone: torch.Tensor  # (N,) int64 primary zone index
+    memberships: torch.Tensor  # (N, Z) bool, every zone each point belongs to
+    protrusion_label: torch.Tensor  # (N,) int64 protrusion cluster id, -1 outside every protrusion
+    centroid_world: torch.Tensor  # (3,) metres; the predicted centre of mass
+    axes_world: torch.Tensor  # (3, 3) columns (vertical, lateral, depth), unit
+    median_centroid_distance_m: float
+    degenerate: str | None = None  # one of DEGENERATE_OUTCOMES, None for a well-posed cloud
+    degenerate_reason: str = ""
+
+    @property
+    def n_points(self) -> int:
+        return int(self.points_world.shape[0])
+
+    def zone_point_counts(self) -> dict[str, int]:
+        counts = self.memberships.sum(dim=0).tolist()
+        return {name: int(count) for name, count in zip(self.zone_names, counts)}
+
+    def nearest_points(self, positions_world: torch.Tensor) -> torch.Tensor:
+        """(C,) index of the cloud point nearest each of ``positions_world`` (C, 3); needs a non-empty cloud."""
+        positions = _checked_positions(positions_world, "positions_world")
+        if self.n_points == 0:
+            raise ZoneInputError("an empty cloud has no nearest points")
+        valid = torch.ones(1, self.n_points, dtype=torch.bool)
+        return zone_kernels.nearest_point_index(positions.unsqueeze(0), self.points_world.unsqueeze(0), valid)[0]
+
+    def candidate_memberships(self, positions_world: torch.Tensor) -> torch.Tensor:
+        """(C, Z) bool: the zones of each position's nearest cloud point (all False on an empty cloud)."""
+        positions = _checked_positions(positions_world, "positions_world")
+        if self.n_points == 0:
+            return torch.zeros(positions.shape[0], len(self.zone_names), dtype=torch.bool)
+        return self.memberships[self.nearest_points(positions)]
+
+    def candidate_zone(self, positions_world: torch.Tensor) -> torch.Tensor:
+        """(C,) int64 primary zone of each position's nearest cloud point; UNZONED on an empty cloud."""
+        positions = _checked_positions(positions_world, "positions_world")
+        if self.n_points == 0:
+            return torch.full((positions.shape[0],), UNZONED, dtype=torch.int64)
+        return self.point_zone[self.nearest_points(positions)]
+
+
+def _checked_positions(positions: torch.Tensor, name: str) -> torch.Tensor:
+    if not isinstance(positions, torch.Tensor) or positions.ndim != 2 or positions.shape[1] != 3:
+        shape = tuple(positions.shape) if isinstance(positions, torch.Tensor) else type(positions).__name__
+        raise ZoneInputError(f"{name} must be a (N, 3) tensor, got {shape}")
+    if not torch.isfinite(positions).all():
+        raise ZoneInputError(f"{name} holds {int((~torch.isfinite(positions)).any(dim=1).sum())} non-finite rows")
+    return positions.float()
+
+
+def _world_reference_axes(config: ZonesConfig) -> torch.Tensor:
+    axes = torch.tensor([config.up_world, config.left_world, config.front_world], dtype=torch.float32).T
+    if not torch.allclose(axes.T @ axes, torch.eye(3), atol=1e-5):
+        raise ZoneInputError(
+            f"zones.up_world, left_world and front_world must be orthonormal, got {config.up_world}, "
+            f"{config.left_world}, {config.front_world}"
+        )
+    return axes
+
+
+def _cluster_protrusions(points: np.ndarray, config: ZonesConfig) -> np.ndarray:
+    """DBSCAN labels of ``points`` (M, 3); -1 is noise. Open3D's cluster_dbscan measured 12 ms on 5k
+    points against scikit-learn's 28 ms on these machines, and counts the point itself in min_points
+    as scikit-learn does."""
+    if points.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    labels = cloud.cluster_dbscan(eps=config.dbscan_eps_m, min_points=config.dbscan_min_samples, print_progress=False)
+    return np.asarray(labels, dtype=np.int64)
+
+
+def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> ZoneDecomposition:
+    """Coarse zones of one cloud ``points_world`` (N, 3), world frame, metres."""
+    config = config or ZonesConfig()
+    points = _checked_positions(points_world, "points_world")
+    n = points.shape[0]
+    reference_axes = _world_reference_axes(config)
+    zone_count = len(ZONE_NAMES)
+    if n == 0:
+        return ZoneDecomposition(
+            zone_names=ZONE_NAMES, points_world=points, point_zone=torch.zeros(0, dtype=torch.int64),
+            memberships=torch.zeros(0, zone_count, dtype=torch.bool), protrusion_label=torch.zeros(0, dtype=torch.int64),
+            centroid_world=torch.zeros(3), axes_world=reference_axes, median_centroid_distance_m=0.0,
+            degenerate="empty", degenerate_reason="the cloud has no points",
+        )
+
+    batch_points = points.unsqueeze(0)
+    valid = torch.ones(1, n, dtype=torch.bool)
+    up, left, front = reference_axes.T
+    centroid, axes, eigenvalues = zone_kernels.principal_frame(
+        batch_points, valid, up, left, front, config.isotropy_tolerance
+    )
+    spread = eigenvalues[0].sort(descending=True).values
+    largest = float(spread[0])
+    degenerate, reason = None, ""
+    if n < config.min_points:
+        degenerate, reason = "too_few_points", f"{n} points, fewer than zones.min_points={config.min_points}"
+    elif largest <= 0.0 or float(spread[1]) < config.collinear_eigen_ratio * largest:
+        degenerate, reason = "collinear", f"covariance eigenvalues {spread.tolist()} span a line at most"
+    elif float(spread[2]) < config.flat_eigen_ratio * largest:
+        degenerate, reason = "flat", f"covariance eigenvalues {spread.tolist()} span a plane; its thin axis' sides are noise"
+    frame_fallback = degenerate in ("too_few_points", "collinear")
+    if frame_fallback:
+        axes = reference_axes.unsqueeze(0)
+
+    third, lateral_positive, depth_positive = zone_kernels.zone_coordinates(
+        batch_points, valid, centroid, axes, config.min_split_extent_m
+    )
+    far, _, median_distance = zone_kernels.far_points(batch_points, valid, centroid, config.protrusion_distance_factor)
+    protrusion_label = torch.full((n,), -1, dtype=torch.int64)
+    if not frame_fallback:
+        far_index = far[0].nonzero().squeeze(1)
+        labels = torch.from_numpy(_cluster_protrusions(points[far_index].numpy(), config))
+        cluster_ids, sizes = torch.unique(labels[labels >= 0], return_counts=True)
+        kept = cluster_ids[sizes >= config.min_protrusion_points]
+        # Renumber kept clusters 0..K-1 so labels index protrusions directly.
+        for new_id, cluster_id in enumerate(kept.tolist()):
+            protrusion_label[far_index[labels == cluster_id]] = new_id
+
+    in_protrusion = protrusion_label >= 0
+    vertical_zone = _VERTICAL_ZONE[third[0]]
+    memberships = torch.zeros(n, zone_count, dtype=torch.bool)
+    rows = torch.arange(n)
+    memberships[rows, vertical_zone] = True
+    memberships[rows, torch.where(lateral_positive[0], ZONE_INDEX["left"], ZONE_INDEX["right"])] = True
+    memberships[rows, torch.where(depth_positive[0], ZONE_INDEX["front"], ZONE_INDEX["back"])] = True
+    memberships[:, ZONE_INDEX["protrusion"]] = in_protrusion
+    point_zone = torch.where(in_protrusion, torch.tensor(ZONE_INDEX["protrusion"]), vertical_zone)
+    return ZoneDecomposition(
+        zone_names=ZONE_NAMES, points_world=points, point_zone=point_zone, memberships=memberships,
+        protrusion_label=protrusion_label, centroid_world=centroid[0], axes_world=axes[0],
+        median_centroid_distance_m=float(median_distance[0]), degenerate=degenerate, degenerate_reason=reason,
+    )
+
+
+def assign_zones(
+    cloud: PerceivedCloud, candidates: GraspCandidates, config: ZonesConfig | None = None
+) -> tuple[ZoneDecomposition, GraspCandidates]:
+    """Zones of ``cloud`` and ``candidates`` with ``zone`` (primary zone of each contact midpoint) and ``zone_names`` set."""
+    decomposition = decompose(cloud.points_world, config)
+    zone = decomposition.candidate_zone(candidates.position_world)
+    return decomposition, dataclasses.replace(candidates, zone=zone, zone_names=decomposition.zone_names)
+
+
+_SIDE_WORDS = {0: ("upper part", "lower part"), 1: ("left side", "right side"), 2: ("front side", "back side")}
+
+
+def describe_zones(decomposition: ZoneDecomposition) -> dict[str, str]:
+    """A short geometric description of every zone that holds points, for the rating prompt."""
+    n = decomposition.n_points
+    if n == 0:
+        return {}
+    points = decomposition.points_world
+    offsets = (points - decomposition.centroid_world) @ decomposition.axes_world  # (N, 3) vertical, lateral, depth
+    extents_cm = 100.0 * (offsets.amax(dim=0) - offsets.amin(dim=0))
+    descriptions: dict[str, str] = {}
+    counts = decomposition.zone_point_counts()
+    side_words = {"left": "robot's left", "right": "robot's right", "front": "side facing the robot", "back": "side away from the robot"}
+    for name in decomposition.zone_names:
+        count = counts[name]
+        if count == 0 or name == "protrusion":
+            continue
+        share = f"{name}: {100.0 * count / n:.0f}% of points"
+        if name in side_words:
+            descriptions[name] = f"{share}, the half on the {side_words[name]}"
+            continue
+        zone_heights = offsets[decomposition.memberships[:, ZONE_INDEX[name]], 0]
+        height_cm = 100.0 * (zone_heights.amax() - zone_heights.amin())
+        descriptions[name] = f"{share}, {name} {height_cm:.1f} cm of the object's {extents_cm[0]:.1f} cm height"
+    for label in range(int(decomposition.protrusion_label.max()) + 1 if n else 0):
+        member = decomposition.protrusion_label == label
+        distance = torch.linalg.vector_norm(points[member] - decomposition.centroid_world, dim=1)
+        sticks_out_cm = 100.0 * (float(distance.max()) - decomposition.median_centroid_distance_m)
+        mean_offset = offsets[member].mean(dim=0)
+        axis = int(mean_offset.abs().argmax())
+        side = _SIDE_WORDS[axis][0 if mean_offset[axis] >= 0 else 1]
+        text = f"{100.0 * int(member.sum()) / n:.0f}% of points, sticks out {sticks_out_cm:.1f} cm on the {side}"
+        previous = descriptions.get("protrusion")
+        descriptions["protrusion"] = f"{previous}; part {label + 1}: {text}" if previous else f"protrusion: {text}"
+    if decomposition.degenerate is not None:
+        descriptions = {k: f"{v} (degenerate cloud: {decomposition.degenerate})" for k, v in descriptions.items()}
+    return descriptions
+
+
+_PRIMARY_COLOURS = {"top": "tab:blue", "middle": "tab:green", "bottom": "tab:orange", "protrusion": "tab:red"}
+_SIDE_COLOURS = {("left", "front"): "tab:purple", ("left", "back"): "tab:pink", ("right", "front"): "tab:cyan", ("right", "back"): "tab:olive"}
+
+
+def plot_zones(decomposition: ZoneDecomposition, path: str | Path, title: str = "") -> Path:
+    """Save a PNG of the cloud coloured by zone: primary zones (left panel) and side zones (right panel)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    points = decomposition.points_world.numpy()
+    figure = plt.figure(figsize=(11, 5.5))
+    primary_axes = figure.add_subplot(1, 2, 1, projection="3d")
+    side_axes = figure.add_subplot(1, 2, 2, projection="3d")
+    for name, colour in _PRIMARY_COLOURS.items():
+        member = (decomposition.point_zone == ZONE_INDEX[name]).numpy()
+        if member.any():
+            primary_axes.scatter(*points[member].T, s=2, c=colour, label=f"{name} ({int(member.sum())})")
+    for (lateral, depth), colour in _SIDE_COLOURS.items():
+        member = (decomposition.memberships[:, ZONE_INDEX[lateral]] & decomposition.memberships[:, ZONE_INDEX[depth]]).numpy()
+        if member.any():
+            side_axes.scatter(*points[member].T, s=2, c=colour, label=f"{lateral}/{depth} ({int(member.sum())})")
+    subtitle = f" [degenerate: {decomposition.degenerate}]" if decomposition.degenerate else ""
+    for axes, heading in ((primary_axes, "primary zones"), (side_axes, "side zones")):
+        axes.set_title(f"{title} {heading}{subtitle}".strip())
+        axes.set_xlabel("x (m)")
+        axes.set_ylabel("y (m)")
+        axes.set_zlabel("z (m)")
+        if points.shape[0]:
+            centre = points.mean(axis=0)
+            half = max(float(np.ptp(points, axis=0).max()) / 2.0, 1e-3)
+            axes.set_xlim(centre[0] - half, centre[0] + half)
+            axes.set_ylim(centre[1] - half, centre[1] + half)
+            axes.set_zlim(centre[2] - half, centre[2] + half)
+        axes.legend(loc="upper left", markerscale=4, fontsize=8)
+    figure.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+    return path

@@ -1,0 +1,252 @@
+"""Rating backends behind one interface: a real local VLM path, a real HTTP endpoint, the prior, the cache."""
+from __future__ import annotations
+
+import base64
+import io
+import json
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from sagp_batched.config import RatingConfig
+from sagp_batched.rating import (
+    TASKS,
+    CachedRater,
+    OpenAIVLM,
+    PriorRater,
+    RatingError,
+    VLMRater,
+    VLMRequestError,
+    get_rater,
+)
+
+STUDY_OBJECTS = (
+    "025_mug", "019_pitcher_base", "005_tomato_soup_can", "035_power_drill", "037_scissors", "051_large_clamp",
+    "011_banana", "040_large_marker", "003_cracker_box", "021_bleach_cleanser", "006_mustard_bottle",
+    "002_master_chef_can", "007_tuna_fish_can", "010_potted_meat_can",
+)
+ZONES = {"top": "top: 30% of points", "middle": "middle: 40% of points", "protrusion": "protrusion: 5% of points"}
+CROP = (np.random.default_rng(0).random((60, 80, 3)) * 255).astype(np.uint8)
+GOOD_ANSWER = {
+    "ratings": {"top": "dangerous", "middle": "acceptable", "bottom": "bad", "protrusion": "good"},
+    "preferred": ["protrusion"], "avoid": ["top"], "approach": "side", "grasp_style": "hook", "max_tilt_deg": 15,
+}
+
+
+# --- transformers: a tiny randomly initialised Qwen2-VL saved to disk and loaded back like a real checkpoint.
+
+@pytest.fixture(scope="module")
+def tiny_qwen2_vl(tmp_path_factory):
+    from transformers import AutoModelForImageTextToText, Qwen2Tokenizer, Qwen2VLConfig, Qwen2VLImageProcessorPil
+
+    directory = tmp_path_factory.mktemp("tiny-qwen2-vl")
+    vocab = {c: i for i, c in enumerate([chr(c) for c in range(33, 127)] + ["Ġ", "Ċ"])}
+    tokenizer = Qwen2Tokenizer(vocab=vocab, merges=[], unk_token=None)
+    specials = ["<|im_start|>", "<|im_end|>", "<|vision_start|>", "<|vision_end|>", "<|image_pad|>", "<|video_pad|>"]
+    tokenizer.add_special_tokens({"additional_special_tokens": specials, "eos_token": "<|im_end|>", "pad_token": "<|endoftext|>"})
+    ids = {s: tokenizer.convert_tokens_to_ids(s) for s in specials + ["<|endoftext|>"]}
+    config = Qwen2VLConfig(
+        text_config=dict(
+            vocab_size=len(tokenizer), hidden_size=64, intermediate_size=128, num_hidden_layers=2, num_attention_heads=4,
+            num_key_value_heads=2, rope_scaling={"type": "mrope", "mrope_section": [2, 3, 3]},
+            eos_token_id=ids["<|im_end|>"], pad_token_id=ids["<|endoftext|>"], bos_token_id=ids["<|endoftext|>"],
+        ),
+        vision_config=dict(depth=2, embed_dim=32, hidden_size=64, num_heads=2, mlp_ratio=2, patch_size=14,
+                           spatial_merge_size=2, temporal_patch_size=2),
+        image_token_id=ids["<|image_pad|>"], video_token_id=ids["<|video_pad|>"],
+        vision_start_token_id=ids["<|vision_start|>"], vision_end_token_id=ids["<|vision_end|>"],
+    )
+    torch.manual_seed(0)  # a fixed random model, so its (garbage) answer is the same every run
+    AutoModelForImageTextToText.from_config(config).save_pretrained(directory)
+    tokenizer.save_pretrained(directory)
+    Qwen2VLImageProcessorPil(min_pixels=56 * 56, max_pixels=112 * 112).save_pretrained(directory)
+    return directory
+
+
+def test_local_vlm_runs_the_real_path_and_its_garbage_becomes_a_marked_neutral_rating(tiny_qwen2_vl, tmp_path):
+    config = RatingConfig(backend="transformers", model=str(tiny_qwen2_vl), max_new_tokens=24, cache_dir=str(tmp_path))
+    rater = get_rater(config)
+    rating = rater.rate("025_mug", "mug", "t2", CROP, ZONES)
+    assert rating.provenance.backend == "transformers" and rating.provenance.model == str(tiny_qwen2_vl)
+    assert rating.provenance.latency_s > 0.0
+    assert rating.raw_text, "the model generated and its tokens were decoded"
+    # A random model's text is not a rating: it must be marked neutral, not turned into one.
+    assert rating.is_neutral and rating.ratings == {}
+    assert rater.queries == 1
+    assert not list(tmp_path.glob("*.json")), "a neutral answer is not cached"
+
+
+def test_local_vlm_stays_offline_for_an_unknown_model(tmp_path):
+    config = RatingConfig(backend="transformers", model="no-such-org/no-such-vlm", cache_dir=str(tmp_path))
+    with pytest.raises(RatingError, match="no-such-vlm"):
+        get_rater(config)
+
+
+# --- openai: a real HTTP server on 127.0.0.1 that answers from a script.
+
+class ScriptedEndpoint:
+    def __init__(self):
+        self.script: list[tuple[str, object]] = []
+        self.requests: list[dict] = []
+        endpoint = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *args):
+                pass
+
+            def do_POST(self):
+                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
+                endpoint.requests.append({"path": self.path, "body": body, "auth": self.headers.get("Authorization")})
+                kind, value = endpoint.script.pop(0)
+                if kind == "sleep":
+                    time.sleep(value)
+                    kind, value = "answer", "late"
+                status, text = (500, "overloaded") if kind == "error" else (200, json.dumps(
+                    {"choices": [{"message": {"role": "assistant", "content": value}}]}))
+                try:
+                    self.send_response(status)
+                    self.send_header("Content-Type", "application/json")
+                    self.end_headers()
+                    self.wfile.write(text.encode())
+                except (BrokenPipeError, ConnectionResetError):
+                    pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.server.daemon_threads = True
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/v1"
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+
+
+@pytest.fixture
+def endpoint():
+    server = ScriptedEndpoint()
+    yield server
+    server.server.shutdown()
+    server.server.server_close()
+
+
+def openai_rater(endpoint, tmp_path, **overrides):
+    config = RatingConfig(backend="openai", model="served-vlm", endpoint=endpoint.url, cache_dir=str(tmp_path),
+                          retry_backoff_s=0.01, timeout_s=2.0, api_key_env="SAGP_TEST_KEY", use_cache=False)
+    for key, value in overrides.items():
+        setattr(config, key, value)
+    return get_rater(config)
+
+
+def test_endpoint_good_answer_with_image_and_key(endpoint, tmp_path, monkeypatch):
+    monkeypatch.setenv("SAGP_TEST_KEY", "secret-token")
+    endpoint.script = [("answer", json.dumps(GOOD_ANSWER))]
+    rating = openai_rater(endpoint, tmp_path).rate("025_mug", "mug", "t2", CROP, ZONES)
+    assert rating.provenance.outcome == "ok" and rating.preferred == {"protrusion"}
+    request = endpoint.requests[0]
+    assert request["path"] == "/v1/chat/completions" and request["auth"] == "Bearer secret-token"
+    body = request["body"]
+    assert body["model"] == "served-vlm" and body["temperature"] == 0.0
+    image_url = body["messages"][0]["content"][0]["image_url"]["url"]
+    assert image_url.startswith("data:image/png;base64,")
+    sent = np.asarray(Image.open(io.BytesIO(base64.b64decode(image_url.split(",", 1)[1]))))
+    assert np.array_equal(sent, CROP)
+    prompt = body["messages"][0]["content"][1]["text"]
+    assert "protrusion: 5% of points" in prompt and "functional grasp" in prompt
+
+
+def test_endpoint_fenced_answer_is_repaired(endpoint, tmp_path):
+    endpoint.script = [("answer", "```json\n" + json.dumps(GOOD_ANSWER) + "\n```")]
+    rating = openai_rater(endpoint, tmp_path).rate("025_mug", "mug", "t2", CROP, ZONES)
+    assert rating.provenance.outcome == "repaired" and rating.avoid == {"top"}
+
+
+def test_endpoint_garbage_is_neutral(endpoint, tmp_path):
+    endpoint.script = [("answer", "The mug is a nice mug.")]
+    rating = openai_rater(endpoint, tmp_path).rate("025_mug", "mug", "t2", CROP, ZONES)
+    assert rating.is_neutral
+
+
+def test_endpoint_500_then_success_is_retried(endpoint, tmp_path):
+    endpoint.script = [("error", None), ("answer", json.dumps(GOOD_ANSWER))]
+    rating = openai_rater(endpoint, tmp_path).rate("025_mug", "mug", "t2", CROP, ZONES)
+    assert rating.provenance.outcome == "ok" and len(endpoint.requests) == 2
+
+
+def test_endpoint_timeout_gives_up_after_bounded_retries(endpoint, tmp_path):
+    endpoint.script = [("sleep", 1.0), ("sleep", 1.0)]
+    rater = openai_rater(endpoint, tmp_path, timeout_s=0.2, max_retries=1)
+    rating = rater.rate("025_mug", "mug", "t2", CROP, ZONES)
+    assert rating.is_neutral and "no answer" in rating.issues[0] and "2 attempts" in rating.issues[0]
+    assert len(endpoint.requests) == 2
+    with pytest.raises(VLMRequestError, match="ReadTimeout"):
+        endpoint.script = [("sleep", 1.0)]
+        OpenAIVLM(RatingConfig(endpoint=endpoint.url, timeout_s=0.2, max_retries=0)).generate(CROP, "hello")
+
+
+def test_unreachable_endpoint_is_neutral_not_a_crash(tmp_path):
+    config = RatingConfig(backend="openai", endpoint="http://127.0.0.1:9/v1", timeout_s=0.5, max_retries=1,
+                          retry_backoff_s=0.01, use_cache=False)
+    rating = get_rater(config).rate("025_mug", "mug", "t1", CROP, ZONES)
+    assert rating.is_neutral and "ConnectError" in rating.issues[0]
+
+
+def test_bad_requests_are_named():
+    # Requests are checked before any model is asked, so a client that could never answer is enough.
+    rater = VLMRater(OpenAIVLM(RatingConfig(endpoint="http://127.0.0.1:9/v1")), upright_max_tilt_deg=15.0)
+    with pytest.raises(RatingError, match="unknown task 't9'"):
+        rater.rate("025_mug", "mug", "t9", CROP, ZONES)
+    with pytest.raises(RatingError, match="crop_rgb"):
+        rater.rate("025_mug", "mug", "t1", CROP[..., 0], ZONES)
+    with pytest.raises(RatingError, match="unknown zones"):
+        rater.rate("025_mug", "mug", "t1", CROP, {"handle": "the handle"})
+    with pytest.raises(RatingError, match="unknown rating backend"):
+        get_rater(RatingConfig(backend="oracle"))
+
+
+# --- prior and cache.
+
+def test_prior_covers_the_study_and_names_itself_a_prior():
+    rater = PriorRater()
+    mug = rater.rate("025_mug", "mug", "t2", CROP, ZONES)
+    assert mug.provenance.backend == "prior" and mug.provenance.outcome == "ok"
+    assert mug.ratings["protrusion"] == "good" and "top" in mug.avoid and mug.max_tilt_deg == 15.0
+    drill = rater.rate("035_power_drill", "power drill", "t2", CROP, ZONES)
+    assert "protrusion" in drill.avoid
+    for object_id in STUDY_OBJECTS:
+        for task in TASKS:
+            assert not rater.rate(object_id, object_id, task, CROP, ZONES).is_neutral
+    unknown = rater.rate("999_teapot", "teapot", "t1", CROP, ZONES)
+    assert unknown.is_neutral and unknown.provenance.backend == "prior"
+
+
+def test_cache_asks_42_questions_once_and_reasks_corrupt_entries(tmp_path):
+    first = CachedRater(PriorRater(), tmp_path)
+    answers = {(o, t): first.rate(o, o, t, CROP, ZONES) for o in STUDY_OBJECTS for t in TASKS}
+    assert first.queries == 42 and len(list(tmp_path.glob("*.json"))) == 42
+
+    rerun = CachedRater(PriorRater(), tmp_path)
+    again = {(o, t): rerun.rate(o, o, t, CROP, ZONES) for o in STUDY_OBJECTS for t in TASKS}
+    assert rerun.queries == 0
+    assert again == answers and all(r.provenance.cached for r in again.values())
+
+    mug_t2 = rerun._path("025_mug", "t2")
+    mug_t2.write_text(mug_t2.read_text()[:40])  # torn write
+    banana_t1 = rerun._path("011_banana", "t1")
+    tampered = json.loads(banana_t1.read_text())
+    tampered["rating"]["ratings"]["middle"] = "dangerous"  # edited without its hash
+    banana_t1.write_text(json.dumps(tampered))
+    repaired = CachedRater(PriorRater(), tmp_path)
+    assert repaired.rate("025_mug", "mug", "t2", CROP, ZONES) == answers[("025_mug", "t2")]
+    assert repaired.rate("011_banana", "banana", "t1", CROP, ZONES).ratings["middle"] == "good"
+    assert repaired.queries == 2
+    assert CachedRater(PriorRater(), tmp_path).rate("025_mug", "mug", "t2", CROP, ZONES).provenance.cached
+
+
+def test_cache_keys_separate_backends_models_and_prompt_versions(tmp_path):
+    prior = CachedRater(PriorRater(), tmp_path)
+    assert prior._path("025_mug", "t1") != prior._path("025_mug", "t2")
+    other = CachedRater(PriorRater(), tmp_path)
+    other.model = "another-table.json"
+    assert other._path("025_mug", "t1") != prior._path("025_mug", "t1")

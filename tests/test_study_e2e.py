@@ -1,0 +1,114 @@
+"""The study runner end to end in PyBullet: records, resume, workers, Ray, failures, CI slice."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from sagp_batched.config import load_config
+from sagp_batched.objects import load_object_set
+from sagp_batched.study import read_records, run_study
+
+REPO = Path(__file__).resolve().parent.parent
+# Fields that depend on wall-clock time or the machine, not on the seeds.
+UNSTABLE = {"times_s", "traceback", "rating"}
+
+
+def _stable(records):
+    return sorted(
+        (json.dumps({k: v for k, v in r.items() if k not in UNSTABLE}, sort_keys=True) for r in records),
+    )
+
+
+def _config(tmp_path, ycb_dir, name, **run):
+    settings = {"objects": ["005_tomato_soup_can"], "tasks": ["t1"], "methods": ["go"], "n_trials": 2,
+                "out": str(tmp_path / name), "objects_dir": str(ycb_dir), **run}
+    return load_config("ci", overrides={"run": settings})
+
+
+def _run(config):
+    return run_study(config, load_object_set(config.run.objects_dir), config.run.methods,
+                     objects_dir=config.run.objects_dir, progress=False)
+
+
+@pytest.mark.slow
+def test_end_to_end_trial_records_hold_every_field(tmp_path, ycb_dir):
+    result = _run(_config(tmp_path, ycb_dir, "fields", n_trials=1))
+    (record,) = result.records
+    for key in ("object", "category", "asymmetric", "task", "method", "trial", "seed", "success", "attempts",
+                "grasp", "failure_reason", "n_candidates", "times_s", "error"):
+        assert key in record
+    assert record["error"] is None and record["seed"] == 42
+    assert record["n_candidates"]["sampled"] == 5000 and record["n_candidates"]["ik_feasible"] > 0
+    assert set(record["grasp"]["terms"]) == {"geom", "reach", "afford", "avoid", "task"}
+    assert len(record["grasp"]["midpoint_object"]) == 3
+    summary = json.loads((result.out_dir / "summary.json").read_text())
+    assert summary["go"]["t1"]["all"]["n"] == 1
+    provenance = json.loads((result.out_dir / "provenance.json").read_text())
+    assert provenance["packages"]["torch"] and provenance["objects"]["checksum"] and provenance["scene_seeds"] == [42]
+
+
+@pytest.mark.slow
+def test_end_to_end_a_failing_trial_is_recorded_and_the_run_completes(tmp_path, ycb_dir):
+    config = _config(tmp_path, ycb_dir, "timeout", trial_timeout_s=0.05)
+    result = _run(config)
+    assert len(result.records) == 2
+    assert all("TrialTimeout" in r["error"] for r in result.records)
+    assert (result.out_dir / "summary.md").exists()
+
+
+@pytest.mark.slow
+def test_end_to_end_resume_after_a_kill_equals_an_uninterrupted_run(tmp_path, ycb_dir):
+    reference = _run(_config(tmp_path, ycb_dir, "reference", n_trials=3))
+    out = tmp_path / "killed"
+    command = [sys.executable, "-m", "runners.batch", "--profile", "ci", "--objects", "005_tomato_soup_can",
+               "--tasks", "t1", "--methods", "go", "--n-trials", "3", "--objects-dir", str(ycb_dir),
+               "--out", str(out), "--no-progress"]
+    process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    trials = out / "trials.jsonl"
+    deadline = time.time() + 600
+    while time.time() < deadline and not (trials.exists() and trials.read_text().count("\n") >= 1):
+        time.sleep(0.2)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    partial = len(read_records(trials))
+    assert 1 <= partial < 3, "the kill should land mid-run"
+    resumed = subprocess.run([*command, "--resume"], cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert resumed.returncode == 0, resumed.stderr
+    lines = [line for line in trials.read_text().splitlines() if line.strip()]
+    assert len(lines) == 3, "no trial lost or duplicated"
+    assert _stable(read_records(trials)) == _stable(reference.records)
+
+
+@pytest.mark.slow
+def test_end_to_end_two_workers_equal_one(tmp_path, ycb_dir):
+    one = _run(_config(tmp_path, ycb_dir, "one", n_trials=2, workers=1))
+    two = _run(_config(tmp_path, ycb_dir, "two", n_trials=2, workers=2))
+    assert _stable(one.records) == _stable(two.records)
+
+
+@pytest.mark.slow
+def test_end_to_end_local_ray_returns_the_same_records(tmp_path, ycb_dir):
+    pytest.importorskip("ray")
+    one = _run(_config(tmp_path, ycb_dir, "inline", n_trials=1))
+    ray_run = _run(_config(tmp_path, ycb_dir, "ray", n_trials=1, backend="ray", workers=1))
+    assert _stable(one.records) == _stable(ray_run.records)
+
+
+@pytest.mark.slow
+def test_ci_slice_runs_the_ci_profile_end_to_end(tmp_path, ycb_dir):
+    out = tmp_path / "ci"
+    done = subprocess.run([sys.executable, "-m", "runners.batch", "--profile", "ci", "--objects-dir", str(ycb_dir),
+                           "--out", str(out), "--no-progress"], cwd=REPO, capture_output=True, text=True, timeout=3000)
+    assert done.returncode == 0, done.stderr[-3000:]
+    config = load_config("ci")
+    expected = len(config.run.objects) * len(config.run.tasks) * len(config.run.methods) * config.run.n_trials
+    records = read_records(out / "trials.jsonl")
+    assert len(records) == expected
+    assert not [r for r in records if r["error"]], "no trial may crash"
+    assert sum(r["success"] for r in records) >= expected // 2, "most CI-slice grasps should hold"
+    assert "## Task t1" in (out / "summary.md").read_text()

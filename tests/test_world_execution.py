@@ -1,0 +1,102 @@
+"""Grasp execution: a sound top-down grasp lifts the soup can; the same grasp beside it lifts nothing."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pybullet
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from sagp_batched import Config, GraspCandidates
+from sagp_batched.execution import InvalidGraspError, execute_grasp, execute_ranked
+from sagp_batched.objects import YCB_DIR_ENV, load_object_set
+from sagp_batched.scene import Scene
+
+YCB_DIR = Path(os.environ.get(YCB_DIR_ENV, "/work/shared/ycb"))
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+@pytest.fixture(scope="module")
+def can_scene():
+    if not (YCB_DIR / "objects.json").is_file():
+        pytest.skip(f"YCB models not found at {YCB_DIR}")
+    with Scene(Config()) as scene:
+        scene.reset(load_object_set(YCB_DIR).get("005_tomato_soup_can"), trial=0)
+        yield scene
+
+
+def _top_down_on_can(scene: Scene, offset_world=(0.0, 0.0, 0.0)):
+    """Grasp centre 3 cm below the can's top on its axis; closing along world y, approach straight down."""
+    lower, upper = (np.array(v) for v in pybullet.getAABB(scene.target_id, physicsClientId=scene.client))
+    position = np.array([(lower[0] + upper[0]) / 2, (lower[1] + upper[1]) / 2, Config().scene.table_top_z_m + 0.072])
+    closing = np.array([0.0, 1.0, 0.0])
+    rotation = np.stack([np.cross(closing, DOWN), closing, DOWN], axis=1)
+    return position + np.asarray(offset_world), Rotation.from_matrix(rotation).as_quat()
+
+
+def test_top_down_grasp_lifts_the_soup_can(can_scene):
+    config = Config()
+    can_scene.restore_state()
+    position, quat = _top_down_on_can(can_scene)
+    attempt = execute_grasp(can_scene, config, position, quat, 0.068, DOWN, record_frames=True)
+    assert attempt.success, attempt.failure_reason
+    assert attempt.failure_reason is None
+    assert attempt.object_height_above_table_m >= config.execution.success_height_above_table_m
+    assert attempt.orientation_change_deg < 15.0
+    assert attempt.details["distractors_max_displacement_m"] == 0.0
+    frames = attempt.details["frames"]
+    assert frames["contact"].dtype == np.uint8 and frames["lifted"].shape == (480, 640, 3)
+
+
+def test_the_same_grasp_5cm_beside_the_can_is_not_lifted(can_scene):
+    can_scene.restore_state()
+    position, quat = _top_down_on_can(can_scene, offset_world=(0.05, 0.0, 0.0))
+    attempt = execute_grasp(can_scene, Config(), position, quat, 0.068, DOWN)
+    assert not attempt.success
+    assert attempt.failure_reason == "not_lifted"
+    assert attempt.object_height_above_table_m < 0.1
+
+
+def test_out_of_reach_grasp_is_unreachable(can_scene):
+    can_scene.restore_state()
+    position, quat = _top_down_on_can(can_scene, offset_world=(1.5, 0.0, 0.0))
+    attempt = execute_grasp(can_scene, Config(), position, quat, 0.068, DOWN)
+    assert attempt.failure_reason == "unreachable"
+
+
+def test_ranked_execution_stops_at_the_first_success(can_scene):
+    config = Config()
+    beside, quat = _top_down_on_can(can_scene, offset_world=(0.05, 0.0, 0.0))
+    on_can, _ = _top_down_on_can(can_scene)
+    centres = torch.tensor(np.stack([beside, on_can, on_can]), dtype=torch.float32)
+    half_width = torch.tensor([0.0, 0.034, 0.0])
+    n = 3
+    candidates = GraspCandidates(
+        contacts_world=torch.stack([centres - half_width, centres + half_width], dim=1),
+        closing_axis=torch.tensor([[0.0, 1.0, 0.0]]).repeat(n, 1),
+        width_m=torch.full((n,), 0.068),
+        s_geom=torch.ones(n),
+        approach=torch.tensor(DOWN, dtype=torch.float32).repeat(n, 1),
+        rotation_world=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(n, 1, 1),
+        s_reach=torch.ones(n),
+        ik_solution=torch.tensor(config.execution.ik_seed_joints, dtype=torch.float32).repeat(n, 1),
+        zone=torch.full((n,), -1),
+        s_afford=torch.zeros(n),
+        s_avoid=torch.zeros(n),
+        s_task=torch.zeros(n),
+        score=torch.ones(n),
+    )
+    attempts = execute_ranked(can_scene, config, candidates, order=[0, 1, 2])
+    assert [a.success for a in attempts] == [False, True]
+    assert [a.details["candidate_index"] for a in attempts] == [0, 1]
+
+
+def test_malformed_grasps_are_rejected_with_a_clear_error(can_scene):
+    position, quat = _top_down_on_can(can_scene)
+    with pytest.raises(InvalidGraspError, match="position_world"):
+        execute_grasp(can_scene, Config(), position[:2], quat, 0.05, DOWN)
+    with pytest.raises(InvalidGraspError, match="width_m"):
+        execute_grasp(can_scene, Config(), position, quat, 0.2, DOWN)

@@ -1,0 +1,191 @@
+"""Coarse zones (SPEC stage 3) on constructed clouds: the geometry the published figure shows."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from sagp_batched.config import ZonesConfig
+from sagp_batched.zones import (
+    UNZONED,
+    ZONE_INDEX,
+    ZONE_NAMES,
+    ZoneInputError,
+    decompose,
+    describe_zones,
+    plot_zones,
+)
+from sagp_batched_kernels import zones as zone_kernels
+
+TABLE_Z = 0.625
+rng = np.random.default_rng(7)
+
+
+def cylinder(radius, height, n, base=(0.5, 0.0, TABLE_Z)):
+    theta = rng.uniform(0, 2 * math.pi, n)
+    z = rng.uniform(0, height, n)
+    return np.stack([radius * np.cos(theta), radius * np.sin(theta), z], 1) + np.asarray(base)
+
+
+def mug_cloud():
+    """A mug-like cylinder (r 4 cm, h 8 cm) with a C-shaped handle sticking out 4.8 cm on its +x side."""
+    body = cylinder(0.04, 0.08, 4500, base=(0.0, 0.0, 0.0))
+    n = 700
+    arc = rng.uniform(-math.pi / 2, math.pi / 2, n)
+    tube = rng.uniform(0, 2 * math.pi, n)
+    ring = 0.032 + 0.006 * np.cos(tube)
+    handle = np.stack([0.05 + ring * np.cos(arc), 0.006 * np.sin(tube), 0.04 + ring * np.sin(arc)], 1)
+    return torch.tensor(np.concatenate([body, handle]) + [0.5, 0.0, TABLE_Z], dtype=torch.float32), body.shape[0]
+
+
+def box_cloud(size, n=5000):
+    faces = []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            face = rng.uniform(-0.5, 0.5, (n // 6, 3)) * size
+            face[:, axis] = sign * size[axis] / 2
+            faces.append(face)
+    return np.concatenate(faces)
+
+
+def test_mug_handle_is_a_protrusion_and_rim_is_top():
+    points, n_body = mug_cloud()
+    zones = decompose(points)
+    assert zones.degenerate is None
+    handle_outer = (points[:, 0] > 0.5 + 0.084).nonzero().squeeze(1)
+    protrusion = zones.point_zone == ZONE_INDEX["protrusion"]
+    # The outer part of the handle is past 1.5 x the median distance and forms one cluster.
+    assert protrusion[handle_outer].all()
+    assert int(protrusion.sum()) >= ZonesConfig().min_protrusion_points
+    assert int(zones.protrusion_label.max()) == 0
+    assert not protrusion[:n_body].any(), "no body point is a protrusion"
+    rim = (points[:n_body, 2] > TABLE_Z + 0.075).nonzero().squeeze(1)
+    assert (zones.point_zone[rim] == ZONE_INDEX["top"]).all()
+    base = (points[:n_body, 2] < TABLE_Z + 0.005).nonzero().squeeze(1)
+    assert (zones.point_zone[base] == ZONE_INDEX["bottom"]).all()
+    assert torch.allclose(zones.axes_world[:, 0].abs(), torch.tensor([0.0, 0.0, 1.0]), atol=0.1)
+
+
+def test_every_point_is_in_one_third_one_lateral_and_one_depth_side():
+    points, _ = mug_cloud()
+    zones = decompose(points)
+    members = zones.memberships
+    for group in (("top", "middle", "bottom"), ("left", "right"), ("front", "back")):
+        assert (members[:, [ZONE_INDEX[z] for z in group]].sum(dim=1) == 1).all()
+    # Sides follow the robot's view: +y is its left, -x (towards the robot) the object's front.
+    left_points = points[:, 1] > 0.01
+    assert members[left_points, ZONE_INDEX["left"]].all()
+    front_points = points[:, 0] < 0.5 - 0.01
+    assert members[front_points, ZONE_INDEX["front"]].all()
+
+
+def test_candidate_zone_is_its_midpoints_nearest_point_and_protrusion_wins():
+    points, _ = mug_cloud()
+    zones = decompose(points)
+    on_handle = torch.tensor([[0.5 + 0.088, 0.0, TABLE_Z + 0.04]])
+    on_rim = torch.tensor([[0.5, 0.04, TABLE_Z + 0.079]])
+    near_base = torch.tensor([[0.5 - 0.04, 0.0, TABLE_Z + 0.002]])
+    zone = zones.candidate_zone(torch.cat([on_handle, on_rim, near_base]))
+    assert [ZONE_NAMES[i] for i in zone.tolist()] == ["protrusion", "top", "bottom"]
+    members = zones.candidate_memberships(on_handle)[0]
+    assert members[ZONE_INDEX["protrusion"]] and members[ZONE_INDEX["middle"]], "the handle point keeps its third"
+
+
+def test_tilted_box_still_finds_its_long_vertical_axis():
+    rotation = Rotation.from_euler("xy", [25.0, -15.0], degrees=True)
+    points = rotation.apply(box_cloud(np.array([0.05, 0.07, 0.16]))) + [0.5, 0.0, 0.72]
+    zones = decompose(torch.tensor(points, dtype=torch.float32))
+    long_axis = torch.tensor(rotation.apply([0.0, 0.0, 1.0]), dtype=torch.float32)
+    assert float(zones.axes_world[:, 0] @ long_axis) > 0.99
+    assert zones.degenerate is None
+    counts = zones.zone_point_counts()
+    assert all(counts[z] > 0.2 * zones.n_points for z in ("top", "middle", "bottom"))
+
+
+def test_sphere_has_no_protrusion():
+    direction = rng.normal(size=(4000, 3))
+    points = 0.05 * direction / np.linalg.norm(direction, axis=1, keepdims=True) + [0.5, 0.0, 0.7]
+    zones = decompose(torch.tensor(points, dtype=torch.float32))
+    assert zones.zone_point_counts()["protrusion"] == 0
+    assert "protrusion" not in describe_zones(zones)
+
+
+@pytest.mark.parametrize(
+    "points, outcome",
+    [
+        (torch.zeros(0, 3), "empty"),
+        (torch.tensor([[0.5, 0.0, 0.7], [0.51, 0.0, 0.7]]), "too_few_points"),
+        (torch.stack([torch.linspace(0.4, 0.6, 200), torch.zeros(200), torch.full((200,), 0.7)], 1), "collinear"),
+        (torch.tensor(np.c_[rng.uniform(0.4, 0.6, (500, 2)), np.full(500, 0.7)], dtype=torch.float32), "flat"),
+        (torch.full((50, 3), 0.6), "collinear"),
+    ],
+    ids=["empty", "two-points", "line", "plane", "one-point-repeated"],
+)
+def test_degenerate_clouds_get_a_typed_outcome_and_no_nan_zones(points, outcome):
+    zones = decompose(points)
+    assert zones.degenerate == outcome and zones.degenerate_reason
+    assert torch.isfinite(zones.axes_world).all() and torch.isfinite(zones.centroid_world).all()
+    assert ((zones.point_zone >= 0) & (zones.point_zone < len(ZONE_NAMES))).all()
+    assert (zones.memberships.sum(dim=1) >= 3).all()
+    queries = torch.tensor([[0.5, 0.0, 0.7], [0.45, 0.02, 0.71]])
+    zone = zones.candidate_zone(queries)
+    if outcome == "empty":
+        assert (zone == UNZONED).all()
+        assert describe_zones(zones) == {}
+    else:
+        assert ((zone >= 0) & (zone < len(ZONE_NAMES))).all()
+        assert all(outcome in text for text in describe_zones(zones).values())
+
+
+def test_malformed_clouds_are_rejected_by_name():
+    with pytest.raises(ZoneInputError, match="points_world"):
+        decompose(torch.zeros(10, 2))
+    with pytest.raises(ZoneInputError, match="non-finite"):
+        decompose(torch.tensor([[0.0, 0.0, float("nan")]] * 20))
+    with pytest.raises(ZoneInputError, match="orthonormal"):
+        decompose(torch.rand(20, 3), ZonesConfig(left_world=(1.0, 0.0, 0.0)))
+
+
+def test_kernels_batch_padded_clouds_like_single_ones():
+    mug, _ = mug_cloud()
+    sphere = torch.randn(300, 3) * 0.03
+    padded = torch.zeros(2, mug.shape[0], 3)
+    padded[0] = mug
+    padded[1, :300] = sphere
+    padded[1, 300:] = 5.0  # padding far away must not matter
+    valid = torch.zeros(2, mug.shape[0], dtype=torch.bool)
+    valid[0] = True
+    valid[1, :300] = True
+    config = ZonesConfig()
+    up, left, front = torch.tensor([config.up_world, config.left_world, config.front_world])
+    centroid, axes, _ = zone_kernels.principal_frame(padded, valid, up, left, front, config.isotropy_tolerance)
+    single_centroid, single_axes, _ = zone_kernels.principal_frame(
+        sphere.unsqueeze(0), torch.ones(1, 300, dtype=torch.bool), up, left, front, config.isotropy_tolerance
+    )
+    assert torch.allclose(centroid[1], single_centroid[0], atol=1e-6)
+    assert torch.allclose(axes[1], single_axes[0], atol=1e-4)
+    third, lateral, _ = zone_kernels.zone_coordinates(padded, valid, centroid, axes, config.min_split_extent_m)
+    assert (third[1, 300:] == zone_kernels.MIDDLE).all() and not lateral[1, 300:].any()
+    far, _, median = zone_kernels.far_points(padded, valid, centroid, config.protrusion_distance_factor)
+    assert not far[1, 300:].any() and median[1] < 0.1
+
+
+def test_describe_zones_says_how_far_the_handle_sticks_out():
+    points, _ = mug_cloud()
+    text = describe_zones(decompose(points))
+    assert set(text) == set(ZONE_NAMES)
+    assert "sticks out" in text["protrusion"] and "% of points" in text["top"]
+    sticks_out_cm = float(text["protrusion"].split("sticks out ")[1].split(" cm")[0])
+    assert 1.0 < sticks_out_cm < 5.0
+
+
+def test_zone_picture_is_written(tmp_path):
+    points, _ = mug_cloud()
+    path = plot_zones(decompose(points), tmp_path / "mug_zones.png", "mug")
+    from PIL import Image
+
+    with Image.open(path) as image:
+        assert image.size[0] > 500 and image.size[1] > 300
