@@ -21,6 +21,18 @@ from typing import NamedTuple
 import torch
 
 
+class GripperOccupancy(NamedTuple):
+    """Points inside each candidate gripper, split by part: (C, K) int64 each."""
+
+    fingers: torch.Tensor  # inside the two swept finger slabs
+    palm: torch.Tensor  # inside the palm box
+
+    @property
+    def total(self) -> torch.Tensor:
+        """Points inside the finger slabs or the palm (the boxes are disjoint along z)."""
+        return self.fingers + self.palm
+
+
 class GripperGeometry(NamedTuple):
     """Gripper dimensions in metres, grasp frame (see module docstring)."""
 
@@ -43,8 +55,8 @@ def gripper_occupancy(
     width_m: torch.Tensor,
     geometry: GripperGeometry,
     chunk_elements: int,
-) -> torch.Tensor:
-    """Count the points inside each candidate gripper's swept finger slabs and palm.
+) -> GripperOccupancy:
+    """Count the points inside each candidate gripper's swept finger slabs and, apart, its palm.
 
     Args:
         points: (B, N, 3) points of B scenes (object plus obstacle points), world frame, metres.
@@ -58,7 +70,7 @@ def gripper_occupancy(
             memory at once; work is split over candidates to respect it.
 
     Returns:
-        (C, K) int64 number of points inside the gripper volume.
+        ``GripperOccupancy`` of (C, K) int64 counts: finger slabs, palm, and their ``total``.
     """
     if points.ndim != 3 or points.shape[-1] != 3:
         raise ValueError(f"points must be (B, N, 3), got {tuple(points.shape)}")
@@ -72,7 +84,8 @@ def gripper_occupancy(
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
     finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
     palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
-    counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
+    finger_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
+    palm_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
     step = max(1, chunk_elements // max(1, n_approaches * n_points))
     for start in range(0, n_candidates, step):
         stop = min(start + step, n_candidates)
@@ -90,8 +103,9 @@ def gripper_occupancy(
         in_finger_y = (abs_y - (finger_y_min + finger_y_max) / 2).abs() <= (finger_y_max - finger_y_min) / 2
         in_fingers = in_finger_y & (abs_x <= geometry.finger_width_m / 2) & ((z - finger_z_mid).abs() <= finger_z_half)
         in_palm = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2) & ((z - palm_z_mid).abs() <= palm_z_half)
-        counts[start:stop] = (in_fingers | in_palm).sum(dim=-1)
-    return counts
+        finger_counts[start:stop] = in_fingers.sum(dim=-1)
+        palm_counts[start:stop] = in_palm.sum(dim=-1)
+    return GripperOccupancy(finger_counts, palm_counts)
 
 
 def gripper_corners_local(geometry: GripperGeometry) -> torch.Tensor:

@@ -58,7 +58,7 @@ def principal_frame(
         up: (3,) unit world up; the principal direction most aligned with it is the vertical axis.
         left: (3,) unit world direction called "left", orthogonal to ``up``; the principal direction
             orthogonal to the vertical that is most aligned with it is the lateral axis.
-        front: (3,) unit world direction called "front" (= left x up for a right-handed reference).
+        front: (3,) unit world direction called "front" (= up x left for a right-handed reference).
         isotropy_tolerance: relative eigenvalue gap under which two principal axes are one principal
             plane (a mug is about as tall as it is wide); the direction nearest the reference in that
             plane is taken, so sampling noise cannot tilt the frame.

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
             "git": git_revision(),
             "packages": package_versions(),
             "python": sys.version.split()[0],
-            "settings": vars(settings) if hasattr(settings, "__dict__") else None,
+            "settings": dataclasses.asdict(settings),
         },
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -19,7 +19,7 @@ from ._open3d import o3d
 from .config import Config
 from .ik import PandaIK
 from .objects import ObjectSpec
-from .planner import plan
+from .planner import plan, screen_candidates
 from .reference import plan_reference
 from .types import PerceivedCloud
 
@@ -115,8 +115,6 @@ def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkS
 
 def benchmark_ik(clouds: list[PerceivedCloud], config: Config, settings: BenchmarkSettings) -> dict[str, Any]:
     """Throughput of one batched IK call on grasp poses around the objects (top-down-first approaches)."""
-    from .planner import screen_candidates
-
     screened = screen_candidates(clouds, config.override("planner", n_pairs=50_000), [0] * len(clouds))
     usable_rows, usable_slots = screened.usable.nonzero(as_tuple=True)
     pick = torch.randperm(len(usable_rows), generator=torch.Generator().manual_seed(0))[: settings.ik_targets]

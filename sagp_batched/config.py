@@ -84,16 +84,25 @@ class PlannerConfig:
     max_contact_angle_deg: float = 45.0
     n_approaches: int = 8
     occupancy_max_fraction: float = 0.12
+    # The SPEC's 12 % bounds the whole gripper volume; the palm alone cannot brush past the object
+    # the way a finger edge can, so it gets its own bound (1 % tolerates depth noise): without it
+    # top-down grasps low on a mug drive the palm into the rim.
+    palm_max_fraction: float = 0.01
     max_candidates: int = 200
     min_reach: float = 0.5
-    ik_max_iterations: int = 60
-    ik_num_retries: int = 4
+    # 20 iterations x 2 seeds: 4,700 grasp targets/s at 81 % success on YCB grasp poses versus
+    # 1,300/s at 85 % for 60 x 4 (runners.bench, 1 thread); missed targets fall back to the next approach.
+    ik_max_iterations: int = 20
+    ik_num_retries: int = 2
     ik_pos_tolerance_m: float = 0.005
     ik_rot_tolerance_rad: float = 0.05
     seed: int = 0
     # Panda hand (panda.urdf): fingers start 0.0584 m past the hand origin, the grasp target is
     # 0.105 m past it, so fingers run 0.054 m back from just beyond the grasp point.
     gripper_open_width_m: float = 0.08
+    # Each open finger must clear its contact by this much to descend without brushing the object:
+    # a 7.9 cm pair under an 8 cm jaw passes the SPEC's width filter but hits the fingers in practice.
+    jaw_clearance_m: float = 0.005
     finger_width_m: float = 0.02
     finger_thickness_m: float = 0.012
     finger_length_m: float = 0.054
@@ -106,8 +115,9 @@ class PlannerConfig:
     # The occupancy fraction is estimated on a seeded subset of at most this many object points
     # (obstacle points thinned at the same rate): standard error ~1 % at the 12 % limit, 2-5x faster.
     occupancy_max_points: int = 1024
-    # Bounds the (candidate, approach, point) triples the occupancy check holds at once (~50 MB of float32 coordinates).
-    occupancy_chunk_elements: int = 4_000_000
+    # (candidate, approach, point) triples the occupancy check holds at once: chunks of ~3 MB of
+    # float32 coordinates stay in cache and measured 2x faster than 4M-element chunks.
+    occupancy_chunk_elements: int = 262_144
     # IK retries start from these Panda arm configurations (radians), joint 1 turned toward each
     # target: two top-down "ready" wrists 90 deg apart, and two lower forward reaches for side grasps.
     ik_seed_configurations: tuple[tuple[float, ...], ...] = (

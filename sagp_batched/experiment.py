@@ -186,7 +186,7 @@ class TrialRunner:
 
         start = time.perf_counter()
         candidates = plan(cloud, config, seed=candidate_seed(config, unit.trial))
-        decomposition, candidates = assign_zones(cloud, candidates)
+        decomposition, candidates = assign_zones(cloud, candidates, config.zones)
         geometry_s = time.perf_counter() - start
 
         # Rated for every method, GO included: PZA and AC of GO are measured against the same zones.
@@ -200,7 +200,7 @@ class TrialRunner:
             record = base_record(spec, unit, method, config)
             record["n_candidates"] = {key: candidates.counts.get(key) for key in record["n_candidates"]}
             method_start = time.perf_counter()
-            ranked, order = self._rank(method, candidates, cloud, rating, spec, unit)
+            ranked, order = self._rank(method, candidates, cloud, rating, decomposition, spec, unit)
             scored_by_method[method] = ranked
             ranking_s = time.perf_counter() - method_start
             method_rating_s = rating_s if method != "go" else 0.0
@@ -243,25 +243,32 @@ class TrialRunner:
             saved[moment] = str(path.relative_to(out_dir))
         return saved
 
-    def _rank(self, method, candidates: GraspCandidates, cloud, rating, spec, unit):
-        """(scored candidates, indices of the attempts to make, best first)."""
+    def _rank(self, method, candidates: GraspCandidates, cloud, rating, decomposition, spec, unit):
+        """(scored candidates, indices of the attempts to make, best first).
+
+        Every method scores the same candidate set; GO and VD keep S_geom order (VD then lets the
+        model pick among the top geometric candidates), SAGP uses the fused score.
+        """
         from .scoring import score_candidates
 
         n_attempts = self.config.execution.max_attempts
-        if method == "go":
-            scored = score_candidates(candidates, rating, GEOMETRY_ONLY_WEIGHTS, cloud)
-        elif method == "sagp":
-            scored = score_candidates(candidates, rating, self.config.weights, cloud)
-        elif method == "vd":
-            from .vlm_direct import vlm_direct_order
-
-            scored = score_candidates(candidates, rating, GEOMETRY_ONLY_WEIGHTS, cloud)
-            order = vlm_direct_order(self.rater, scored, cloud, spec, unit.task)
-            return scored, list(order[:n_attempts])
-        else:
+        weights = self.config.weights if method == "sagp" else GEOMETRY_ONLY_WEIGHTS
+        if method not in METHODS:
             raise ValueError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
-        order = torch.sort(scored.score, descending=True, stable=True).indices[:n_attempts]
-        return scored, [int(i) for i in order]
+        scored = score_candidates(candidates, rating, weights, decomposition, self.config)
+        if method == "vd":
+            from .vlm_direct import vlm_direct_rank
+
+            shortlist = vlm_direct_rank(cloud, scored, self._model_client(), self.config, unit.task, spec.name)
+            return scored, [int(i) for i in shortlist.order[:n_attempts]]
+        return scored, list(range(min(n_attempts, len(scored))))
+
+    def _model_client(self):
+        """The rater's own model client, so VLM-Direct never loads a second copy of the model."""
+        from .vlm_direct import get_vd_client
+
+        rater = getattr(self.rater, "inner", self.rater)
+        return rater.client if hasattr(rater, "client") else get_vd_client(self.config.rating)
 
     def _fill_outcome(self, record, candidates: GraspCandidates, order, attempts, cloud, rating, unit) -> None:
         record["attempts"] = len(attempts)

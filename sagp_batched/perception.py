@@ -89,15 +89,15 @@ def backproject_views(cameras: list[CameraData], depth_buffers: np.ndarray) -> t
     return backproject_to_world(depth_m, intrinsics, poses)
 
 
-def crop_with_padding(rgb: np.ndarray, mask: np.ndarray, padding_fraction: float) -> np.ndarray:
-    """Tight box around ``mask`` grown by ``padding_fraction`` of its size on every side, clipped to the image."""
+def padded_box(mask: np.ndarray, padding_fraction: float) -> tuple[int, int, int, int]:
+    """Pixel box (u0, v0, u1, v1), end-exclusive, around ``mask`` grown by ``padding_fraction`` of its size on every side, clipped to the image."""
     rows = np.flatnonzero(mask.any(axis=1))
     cols = np.flatnonzero(mask.any(axis=0))
     top, bottom, left, right = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
     pad_v = int(round((bottom - top) * padding_fraction))
     pad_u = int(round((right - left) * padding_fraction))
     height, width = mask.shape
-    return rgb[max(0, top - pad_v) : min(height, bottom + pad_v), max(0, left - pad_u) : min(width, right + pad_u)].copy()
+    return (int(max(0, left - pad_u)), int(max(0, top - pad_v)), int(min(width, right + pad_u)), int(min(height, bottom + pad_v)))
 
 
 def _voxel_downsample(points: np.ndarray, labels: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -157,12 +157,15 @@ def capture(scene: Scene, config: Config) -> PerceivedCloud:
         obstacles_world, _ = _voxel_downsample(points_all[obstacle_masks], np.zeros(int(obstacle_masks.sum()), dtype=np.int64), voxel)
 
     best_view = int(np.argmax(pixels_per_view))
-    crop_rgb = crop_with_padding(renders[best_view][0], target_masks[best_view], config.perception.crop_padding_fraction)
+    u0, v0, u1, v1 = padded_box(target_masks[best_view], config.perception.crop_padding_fraction)
+    crop_rgb = renders[best_view][0][v0:v1, u0:u1].copy()
     return PerceivedCloud(
         points_world=torch.as_tensor(points_world, dtype=torch.float32),
         normals_world=torch.as_tensor(normals_world, dtype=torch.float32),
         view_index=torch.as_tensor(view_index, dtype=torch.int64),
         crop_rgb=crop_rgb,
+        crop_box_px=(u0, v0, u1, v1),
+        crop_camera_index=best_view,
         cameras=cameras,
         object_id=scene.target_spec.id,
         object_position_world=object_position,

@@ -179,7 +179,10 @@ def screen_candidates(
         padded[index, : len(inputs.occupancy_points)] = inputs.occupancy_points
     occupancy = gripper_occupancy(padded, candidate_object, centre, rotation, width, geometry, planner.occupancy_chunk_elements)
     occupancy_total = torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32)
-    occupancy_ok = occupancy.to(torch.float32) <= planner.occupancy_max_fraction * occupancy_total[candidate_object, None]
+    total_of_candidate = occupancy_total[candidate_object, None]
+    occupancy_ok = (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total_of_candidate) & (
+        occupancy.palm.to(torch.float32) <= planner.palm_max_fraction * total_of_candidate
+    )
     stage_time["frames_volume"] = time.perf_counter() - clock
     return ScreenedCandidates(
         object_index=candidate_object,
@@ -190,8 +193,13 @@ def screen_candidates(
         s_geom=pair_eval["s_geom"][antipodal],
         approach=approach,
         rotation_world=rotation,
-        usable=occupancy_ok & ~through_table,
+        usable=occupancy_ok & ~through_table & (width <= jaw_width_limit(planner))[:, None],
     )
+
+
+def jaw_width_limit(planner) -> float:
+    """Widest pair the open jaws can descend around with ``jaw_clearance_m`` on each side."""
+    return planner.gripper_open_width_m - 2.0 * planner.jaw_clearance_m
 
 
 def plan_batch(
@@ -256,11 +264,9 @@ def plan_batch(
         slot = cursor[pending]
         result = ik.solve(centre[pending], rotation[pending, slot])
         ik_targets += pending.numel()
-        reached = (
-            (result.position_error_m < planner.ik_pos_tolerance_m)
-            & (result.s_reach >= planner.min_reach)
-            & ((result.joints >= ik.lower) & (result.joints <= ik.upper)).all(dim=1)
-        )
+        # Execution sends the requested pose, so the reached orientation must match it too
+        # (``success``), besides the SPEC's S_reach floor.
+        reached = result.success & (result.s_reach >= planner.min_reach)
         done = pending[reached]
         status[done] = FEASIBLE
         chosen_joints[done] = result.joints[reached]

@@ -17,7 +17,7 @@ import torch
 
 from .config import Config
 from .ik import END_LINK, N_ARM_JOINTS, PANDA_URDF
-from .planner import sample_inputs
+from .planner import jaw_width_limit, sample_inputs
 from .types import GraspCandidates, PerceivedCloud
 
 
@@ -158,7 +158,10 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
             )
             in_palm = (abs_x <= planner.palm_width_m / 2) & (abs_y <= planner.palm_span_m / 2) & (z >= palm_z_min) & (z <= finger_z_min)
             occupied = int(np.count_nonzero(in_fingers | in_palm))
-            row_usable.append(not through_table and occupied <= planner.occupancy_max_fraction * inputs.occupancy_total)
+            in_palm_count = int(np.count_nonzero(in_palm))
+            row_usable.append(not through_table and occupied <= planner.occupancy_max_fraction * inputs.occupancy_total
+                              and in_palm_count <= planner.palm_max_fraction * inputs.occupancy_total
+                              and width <= jaw_width_limit(planner))
             row_rotations.append(rotation)
         ranked_pairs.append((i, j))
         s_geoms.append(-negative_quality)
@@ -181,7 +184,8 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
                 rotation = rotations_rows[rank][slot]
                 joints, position_error, rotation_error = ik.solve(centre, _matrix_to_quat_xyzw(rotation))
                 s_reach = (1.0 + math.cos(rotation_error)) / 2.0
-                feasible = position_error < planner.ik_pos_tolerance_m and s_reach >= planner.min_reach
+                feasible = (position_error < planner.ik_pos_tolerance_m and rotation_error < planner.ik_rot_tolerance_rad
+                            and s_reach >= planner.min_reach)
                 trials.append({"rank": rank, "slot": slot, "position": centre, "rotation": rotation, "feasible": feasible})
                 if feasible:
                     chosen.append((rank, slot, joints, s_reach))

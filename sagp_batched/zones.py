@@ -66,6 +66,10 @@ class ZoneDecomposition:
         counts = self.memberships.sum(dim=0).tolist()
         return {name: int(count) for name, count in zip(self.zone_names, counts)}
 
+    def describe(self) -> dict[str, str]:
+        """``describe_zones(self)``: the zone descriptions the rating prompt carries."""
+        return describe_zones(self)
+
     def nearest_points(self, positions_world: torch.Tensor) -> torch.Tensor:
         """(C,) index of the cloud point nearest each of ``positions_world`` (C, 3); needs a non-empty cloud."""
         positions = _checked_positions(positions_world, "positions_world")

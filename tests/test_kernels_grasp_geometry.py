@@ -116,15 +116,15 @@ def test_finger_sweeping_through_a_protrusion_is_rejected():
     closing = torch.tensor([[0.0, 1.0, 0.0]])
     rotation = grasp_rotations(closing[:, None, :], torch.tensor([[[0.0, 0.0, -1.0]]]))
     width = torch.tensor([0.04])
-    clean = gripper_occupancy(body[None], torch.tensor([0]), centre, rotation, width, geometry, 10**6)
+    clean = gripper_occupancy(body[None], torch.tensor([0]), centre, rotation, width, geometry, 10**6).total
     with_fin = torch.cat((body, fin))
-    blocked = gripper_occupancy(with_fin[None], torch.tensor([0]), centre, rotation, width, geometry, 10**6)
+    blocked = gripper_occupancy(with_fin[None], torch.tensor([0]), centre, rotation, width, geometry, 10**6).total
     limit = PLANNER.occupancy_max_fraction * len(with_fin)
     assert clean.item() <= PLANNER.occupancy_max_fraction * len(body)
     assert blocked.item() > limit
     # Turned 90 deg about the approach, the fingers close along x and miss the fin.
     turned = grasp_rotations(torch.tensor([[[1.0, 0.0, 0.0]]]), torch.tensor([[[0.0, 0.0, -1.0]]]))
-    assert gripper_occupancy(with_fin[None], torch.tensor([0]), centre, turned, width, geometry, 10**6).item() <= limit
+    assert gripper_occupancy(with_fin[None], torch.tensor([0]), centre, turned, width, geometry, 10**6).total.item() <= limit
 
 
 def test_occupancy_ignores_nan_padding_and_matches_across_chunks():
@@ -138,7 +138,7 @@ def test_occupancy_ignores_nan_padding_and_matches_across_chunks():
     rotation = grasp_rotations(result["closing_axis"][keep][:, None, :], approach)
     padded = torch.cat((points, torch.full((100, 3), math.nan)))[None]
     index = torch.zeros(len(centre), dtype=torch.int64)
-    whole = gripper_occupancy(points[None], index, centre, rotation, result["width_m"][keep], geometry, 10**9)
-    chunked = gripper_occupancy(padded, index, centre, rotation, result["width_m"][keep], geometry, 5000)
+    whole = gripper_occupancy(points[None], index, centre, rotation, result["width_m"][keep], geometry, 10**9).total
+    chunked = gripper_occupancy(padded, index, centre, rotation, result["width_m"][keep], geometry, 5000).total
     assert torch.equal(whole, chunked)
     assert whole.max() > 0

@@ -83,8 +83,9 @@ def test_local_vlm_runs_the_real_path_and_its_garbage_becomes_a_marked_neutral_r
 
 def test_local_vlm_stays_offline_for_an_unknown_model(tmp_path):
     config = RatingConfig(backend="transformers", model="no-such-org/no-such-vlm", cache_dir=str(tmp_path))
+    rater = get_rater(config)  # nothing is loaded until a question needs the model
     with pytest.raises(RatingError, match="no-such-vlm"):
-        get_rater(config)
+        rater.rate("025_mug", "mug", "t1", CROP, ZONES)
 
 
 # --- openai: a real HTTP server on 127.0.0.1 that answers from a script.
@@ -194,7 +195,7 @@ def test_unreachable_endpoint_is_neutral_not_a_crash(tmp_path):
 
 def test_bad_requests_are_named():
     # Requests are checked before any model is asked, so a client that could never answer is enough.
-    rater = VLMRater(OpenAIVLM(RatingConfig(endpoint="http://127.0.0.1:9/v1")), upright_max_tilt_deg=15.0)
+    rater = VLMRater("openai", "m", 15.0, lambda: OpenAIVLM(RatingConfig(endpoint="http://127.0.0.1:9/v1")))
     with pytest.raises(RatingError, match="unknown task 't9'"):
         rater.rate("025_mug", "mug", "t9", CROP, ZONES)
     with pytest.raises(RatingError, match="crop_rgb"):
@@ -250,3 +251,41 @@ def test_cache_keys_separate_backends_models_and_prompt_versions(tmp_path):
     other = CachedRater(PriorRater(), tmp_path)
     other.model = "another-table.json"
     assert other._path("025_mug", "t1") != prior._path("025_mug", "t1")
+
+
+# --- VLM-Direct asks through the same generate primitive of both model backends.
+
+def test_vlm_direct_through_the_local_vlm_and_the_endpoint(tiny_qwen2_vl, endpoint):
+    from test_rating_vlm_direct import candidates, cloud
+
+    from sagp_batched.config import Config
+    from sagp_batched.vlm_direct import get_vd_client, vlm_direct_rank
+
+    batch = candidates(12)
+    local = Config().override("rating", backend="transformers", model=str(tiny_qwen2_vl), max_new_tokens=16)
+    result = vlm_direct_rank(cloud(), batch, get_vd_client(local.rating), local, "t1", "mug")
+    assert result.backend == "transformers" and result.latency_s > 0.0
+    assert sorted(result.order) == list(range(12)), "garbage or not, every candidate keeps a place"
+
+    endpoint.script = [("answer", '{"ranking": [2, 7]}')]
+    served = Config().override("rating", backend="openai", endpoint=endpoint.url, model="served-vlm")
+    result = vlm_direct_rank(cloud(), batch, get_vd_client(served.rating), served, "t1", "mug")
+    geometric = torch.sort(batch.s_geom, descending=True, stable=True).indices.tolist()
+    assert result.order[:2] == [geometric[1], geometric[6]] and result.n_from_model == 2
+    assert "1 to 12" in endpoint.requests[0]["body"]["messages"][0]["content"][1]["text"]
+
+
+def test_a_fully_cached_rerun_never_loads_the_model(tmp_path):
+    class Scripted:
+        backend, model = "transformers", "some-vlm"
+
+        def generate(self, image, prompt):
+            return json.dumps(GOOD_ANSWER)
+
+    def refuse():
+        raise AssertionError("the model was loaded although every answer is cached")
+
+    first = CachedRater(VLMRater("transformers", "some-vlm", 15.0, Scripted), tmp_path)
+    asked = first.rate("025_mug", "mug", "t2", CROP, ZONES)
+    rerun = CachedRater(VLMRater("transformers", "some-vlm", 15.0, refuse), tmp_path)
+    assert rerun.rate("025_mug", "mug", "t2", CROP, ZONES) == asked and rerun.queries == 0

@@ -140,8 +140,10 @@ def test_task_term_needs_the_prescribed_approach_within_30_degrees():
 
 def test_task_term_needs_the_predicted_tilt_within_the_constraint():
     zones, config = mug_zones(), Config()
-    # The handle grasp closes across y: the mug's centre of mass is ~5 cm off that axis, so it swings.
-    batch = candidates([BODY, HANDLE], [SIDEWAYS, SIDEWAYS], [[0.0, 1.0, 0.0]] * 2, s_geom=[0.9, 0.8])
+    # Both grasps close along y; the one across the body's centre holds the mug level, the handle grasp
+    # leaves its centre of mass ~8 cm off the closing axis, so the mug swings.
+    across_body = [0.0, 0.0, 0.04]
+    batch = candidates([across_body, HANDLE], [SIDEWAYS, SIDEWAYS], [[0.0, 1.0, 0.0]] * 2, s_geom=[0.9, 0.8])
     upright = score_candidates(batch, rating(approach="side", max_tilt_deg=15.0), config.weights, zones, config)
     by_geom = {round(float(g), 1): float(t) for g, t in zip(upright.s_geom, upright.s_task)}
     assert by_geom == {0.9: 1.0, 0.8: 0.0}

@@ -140,6 +140,20 @@ def test_degenerate_clouds_get_a_typed_outcome_and_no_nan_zones(points, outcome)
         assert all(outcome in text for text in describe_zones(zones).values())
 
 
+def test_a_single_view_half_shell_still_gets_every_zone():
+    theta = rng.uniform(-math.pi / 2, math.pi / 2, 3000)  # the half of a can one side camera sees
+    z = rng.uniform(0, 0.1, 3000)
+    points = np.stack([-0.033 * np.cos(theta) + 0.5, 0.033 * np.sin(theta), z + TABLE_Z], 1)
+    zones = decompose(torch.tensor(points, dtype=torch.float32))
+    assert zones.degenerate is None
+    counts = zones.zone_point_counts()
+    assert all(counts[z] > 0.2 * zones.n_points for z in ("top", "middle", "bottom", "left", "right"))
+    # The SPEC rule as written: a half shell's centroid sits inside the shell, so its far corners
+    # can pass 1.5 x the median distance; they must be corners (top or bottom third), never the middle.
+    in_protrusion = zones.point_zone == ZONE_INDEX["protrusion"]
+    assert not (zones.memberships[in_protrusion, ZONE_INDEX["middle"]]).any()
+
+
 def test_malformed_clouds_are_rejected_by_name():
     with pytest.raises(ZoneInputError, match="points_world"):
         decompose(torch.zeros(10, 2))

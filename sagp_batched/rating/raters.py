@@ -8,7 +8,7 @@ import os
 import tempfile
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -39,22 +39,34 @@ class Rater(ABC):
 
 
 class VLMRater(Rater):
-    """Asks a vision-language model with the structured zone prompt and validates its answer."""
+    """Asks a vision-language model with the structured zone prompt and validates its answer.
+
+    The client is built on the first question, so a run whose ratings are all cached never loads
+    a model.
+    """
 
     prompt_version = PROMPT_VERSION
 
-    def __init__(self, client: VLMClient, upright_max_tilt_deg: float):
-        self.client = client
-        self.backend = client.backend
-        self.model = client.model
+    def __init__(self, backend: str, model: str, upright_max_tilt_deg: float, connect: Callable[[], VLMClient]):
+        self.backend = backend
+        self.model = model
         self.upright_max_tilt_deg = upright_max_tilt_deg
+        self._connect = connect
+        self._client: VLMClient | None = None
+
+    @property
+    def client(self) -> VLMClient:
+        if self._client is None:
+            self._client = self._connect()
+        return self._client
 
     def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions):
         prompt = build_zone_prompt(object_name, task, zone_descriptions)
         image = checked_image(crop_rgb)
+        client = self.client
         start = time.perf_counter()
         try:
-            text = self.client.generate(image, prompt)
+            text = client.generate(image, prompt)
         except VLMRequestError as exc:
             log.warning("no rating for %s/%s from %s: %s", object_id, task, self.model, exc)
             return neutral_rating(self.backend, self.model, self.prompt_version, time.perf_counter() - start, f"no answer: {exc}")
@@ -79,7 +91,8 @@ class PriorRater(Rater):
             text = Path(table_path).read_text()
             self.model = Path(table_path).name
         table = json.loads(text)
-        self.prompt_version = f"prior-{table['version']}"
+        # The content hash makes an edited table a new cache key even if its version was not bumped.
+        self.prompt_version = f"prior-{table['version']}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
         self._objects: dict[str, Any] = table["objects"]
         for object_id, tasks in self._objects.items():
             for task, entry in tasks.items():
@@ -176,7 +189,7 @@ def get_rater(config: RatingConfig) -> Rater:
     if config.backend == "prior":
         rater: Rater = PriorRater()
     elif config.backend in ("transformers", "openai"):
-        rater = VLMRater(get_vlm_client(config), config.upright_max_tilt_deg)
+        rater = VLMRater(config.backend, config.model, config.upright_max_tilt_deg, lambda: get_vlm_client(config))
     else:
         raise RatingError(f"unknown rating backend '{config.backend}' (known: prior, transformers, openai)")
     return CachedRater(rater, config.cache_dir) if config.use_cache else rater

@@ -1,6 +1,7 @@
 """The validated zone rating every backend returns, and the errors of the rating layer."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -65,6 +66,10 @@ class ZoneRating:
     @property
     def is_neutral(self) -> bool:
         return self.provenance.outcome == "neutral"
+
+    def provenance_dict(self) -> dict[str, Any]:
+        """Where the rating came from, for trial records: backend, model, prompt version, latency, outcome, cache, issues."""
+        return {**dataclasses.asdict(self.provenance), "issues": list(self.issues)}
 
     def to_dict(self) -> dict[str, Any]:
         return {
