@@ -273,7 +273,8 @@ class TrialRunner:
     def _fill_outcome(self, record, candidates: GraspCandidates, order, attempts, cloud, rating, unit) -> None:
         record["attempts"] = len(attempts)
         record["attempt_log"] = [
-            {"candidate": int(i), "success": a.success, "failure_reason": a.failure_reason, **_jsonable(a.details)}
+            {"candidate": int(candidates.candidate_id[i]), "success": a.success, "failure_reason": a.failure_reason,
+             **_jsonable(a.details)}
             for i, a in zip(order, attempts)
         ]
         final_index = int(order[len(attempts) - 1])

@@ -47,7 +47,11 @@ def write_acronym(
     scored_by_method: dict[str, GraspCandidates],
     executed_by_method: dict[str, tuple[Sequence[int], Sequence[GraspAttempt]]],
 ) -> None:
-    """Write every scored candidate of one trial; the file is replaced atomically."""
+    """Write every scored candidate of one trial; the file is replaced atomically.
+
+    ``candidates`` is the planner's output; ``scored_by_method`` holds each method's re-ranked
+    copy and ``executed_by_method`` the indices (into that copy) it executed, with their outcomes.
+    """
     import h5py
 
     n = len(candidates)
@@ -66,14 +70,17 @@ def write_acronym(
         for term, values in (("geom", candidates.s_geom), ("reach", candidates.s_reach)):
             f[f"grasps/qualities/terms/{term}"] = values.numpy()
         for method, scored in scored_by_method.items():
-            f[f"grasps/qualities/{method}/score"] = scored.score.numpy()
-            for term, values in (("afford", scored.s_afford), ("avoid", scored.s_avoid), ("task", scored.s_task)):
-                f[f"grasps/qualities/{method}/{term}"] = values.numpy()
+            # Methods re-rank the candidates: put their values back in the planner's order.
+            ids = scored.candidate_id.numpy()
+            for term, values in (("score", scored.score), ("afford", scored.s_afford), ("avoid", scored.s_avoid), ("task", scored.s_task)):
+                aligned = np.empty(n, dtype=np.float32)
+                aligned[ids] = values.numpy()
+                f[f"grasps/qualities/{method}/{term}"] = aligned
             executed = np.full(n, -1, dtype=np.int8)
             order, attempts = executed_by_method.get(method, ((), ()))
             for index, attempt in zip(order, attempts):
-                executed[index] = int(attempt.success)
-                held[index] |= int(attempt.success)
+                executed[ids[index]] = int(attempt.success)
+                held[ids[index]] |= int(attempt.success)
             f[f"grasps/executed/{method}"] = executed
         f["grasps/qualities/flex/object_in_gripper"] = held
         f["object/file"] = str(spec.urdf_path)

@@ -7,6 +7,7 @@ solutions.
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +19,7 @@ import torch
 
 from .config import PlannerConfig, SceneConfig
 
+log = logging.getLogger(__name__)
 PANDA_URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
 END_LINK = "panda_grasptarget"
 N_ARM_JOINTS = 7
@@ -32,6 +34,22 @@ class IKResult:
     position_error_m: torch.Tensor  # (N,) distance of the reached grasp target from the requested one
     rotation_error_rad: torch.Tensor  # (N,) angle between the reached and requested orientation
     s_reach: torch.Tensor  # (N,) (1 + cos(rotation_error)) / 2, in [0, 1]
+
+
+def _panda_chain() -> pk.SerialChain:
+    """The Panda arm chain up to ``END_LINK``.
+
+    pybullet_data's panda.urdf carries PyBullet-only tags (``<contact>``, collision ``<material>``)
+    that pytorch-kinematics' parser reports on stderr once per link; they do not affect kinematics,
+    so its reports go to the debug log instead of every run's console.
+    """
+    from pytorch_kinematics.urdf_parser_py.xml_reflection import core
+
+    previous, core.on_error = core.on_error, lambda message: log.debug("panda.urdf: %s", message)
+    try:
+        return pk.build_serial_chain_from_urdf(PANDA_URDF.read_text(), END_LINK)
+    finally:
+        core.on_error = previous
 
 
 class PandaIK:
@@ -50,7 +68,7 @@ class PandaIK:
         if seeds.shape[1] != N_ARM_JOINTS:
             raise ValueError(f"planner.ik_seed_configurations must hold {N_ARM_JOINTS} joint values each, got {seeds.shape[1]}")
         self.config = config
-        self.chain = pk.build_serial_chain_from_urdf(PANDA_URDF.read_text(), END_LINK)
+        self.chain = _panda_chain()
         self.lower, self.upper = (torch.tensor(bound, dtype=torch.float32) for bound in self.chain.get_joint_limits())
         self.seed_configurations = seeds.clamp(self.lower, self.upper)
         self.base_xyz_world = torch.tensor(robot_base_xyz_m, dtype=torch.float32)

@@ -90,6 +90,13 @@ class GraspCandidates:
     score: torch.Tensor  # (C,) fused score the batch is ranked by
     zone_names: tuple[str, ...] = ()
     counts: dict[str, int] = field(default_factory=dict)  # sampled / antipodal / collision_free / ik_feasible
+    # (C,) int64 position of each candidate in the planner's output: it follows the candidates
+    # through re-ranking, so every method's choices name the same candidate by the same id.
+    candidate_id: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        if self.candidate_id is None:
+            self.candidate_id = torch.arange(self.width_m.shape[0])
 
     @property
     def position_world(self) -> torch.Tensor:

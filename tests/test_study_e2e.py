@@ -112,3 +112,39 @@ def test_ci_slice_runs_the_ci_profile_end_to_end(tmp_path, ycb_dir):
     assert not [r for r in records if r["error"]], "no trial may crash"
     assert sum(r["success"] for r in records) >= expected // 2, "most CI-slice grasps should hold"
     assert "## Task t1" in (out / "summary.md").read_text()
+
+
+@pytest.mark.slow
+def test_end_to_end_grasp_export_and_frames(tmp_path, ycb_dir):
+    import h5py
+    import numpy as np
+    from PIL import Image
+
+    config = _config(tmp_path, ycb_dir, "export", n_trials=1, methods=["go", "sagp"], export_grasps=True, save_frames=True)
+    result = _run(config)
+    (path,) = sorted((result.out_dir / "grasps").glob("*.h5"))
+    with h5py.File(path) as f:
+        transforms = f["grasps/transforms"][()]
+        n = len(transforms)
+        assert transforms.shape == (n, 4, 4) and n == result.records[0]["n_candidates"]["ik_feasible"]
+        assert np.allclose(transforms[:, 3], [0, 0, 0, 1])
+        rotations = transforms[:, :3, :3]
+        assert np.allclose(rotations @ rotations.transpose(0, 2, 1), np.eye(3), atol=1e-5)
+        for method in ("go", "sagp"):
+            executed = f[f"grasps/executed/{method}"][()]
+            record = next(r for r in result.records if r["method"] == method)
+            assert (executed >= 0).sum() == record["attempts"]
+            assert (executed == 1).any() == record["success"]
+            assert f[f"grasps/qualities/{method}/score"].shape == (n,)
+        assert f["grasps/qualities/flex/object_in_gripper"].shape == (n,)
+        # Each method's executed grasp, by its planner id, puts the hand's grasp target at the
+        # recorded midpoint in the object frame, and carries that method's recorded score.
+        for record in result.records:
+            index = record["attempt_log"][-1]["candidate"]
+            grasp_target = transforms[index, :3, 3] + 0.105 * transforms[index, :3, 2]
+            assert np.allclose(grasp_target, record["grasp"]["midpoint_object"], atol=1e-4)
+            assert f[f"grasps/qualities/{record['method']}/score"][index] == pytest.approx(record["grasp"]["score"], abs=1e-6)
+    for record in result.records:
+        for moment in ("contact", "lifted"):
+            image = Image.open(result.out_dir / record["frames"][moment])
+            assert image.size[0] > 0 and np.asarray(image).std() > 0
