@@ -13,6 +13,14 @@ z = approach, see ``grasp_frames``) by three axis-aligned boxes:
 Points between the contacts (|y| < width/2) are the part being grasped and are not counted; the
 ``contact_clearance`` keeps the grasped surfaces' own points (which lie at |y| ~ width/2) out of
 the count.
+
+Apart from that closing sweep, the open gripper reaches the grasp by a straight descent of
+``descent_m`` along +z, so it also sweeps the union of its boxes over that stroke: the open finger
+columns (|y| from open_width/2 to the finger's back face) from the fingertip back to the finger
+root minus ``descent_m``, and the palm's footprint from the finger root back to the palm's back
+face minus ``descent_m``. The palm footprint holds the finger columns' footprint, so this union
+is the palm column plus the two open-finger boxes below it. Anything in it is hit before the
+fingers close.
 """
 from __future__ import annotations
 
@@ -26,6 +34,7 @@ class GripperOccupancy(NamedTuple):
 
     fingers: torch.Tensor  # inside the two swept finger slabs
     palm: torch.Tensor  # inside the palm box
+    descent: torch.Tensor  # inside the open gripper's straight-descent sweep (overlaps the other two)
 
     @property
     def total(self) -> torch.Tensor:
@@ -55,8 +64,10 @@ def gripper_occupancy(
     width_m: torch.Tensor,
     geometry: GripperGeometry,
     chunk_elements: int,
+    descent_m: float = 0.0,
 ) -> GripperOccupancy:
-    """Count the points inside each candidate gripper's swept finger slabs and, apart, its palm.
+    """Count the points inside each candidate gripper's swept finger slabs, its palm, and the
+    volume the open gripper sweeps on its straight descent.
 
     Args:
         points: (B, N, 3) points of B scenes (object plus obstacle points), world frame, metres.
@@ -68,14 +79,19 @@ def gripper_occupancy(
         geometry: gripper dimensions.
         chunk_elements: bound on the number of (candidate, approach, point) triples held in
             memory at once; work is split over candidates to respect it.
+        descent_m: length of the straight descent onto the grasp along the approach, metres, >= 0
+            (0: the open gripper at the grasp pose only).
 
     Returns:
-        ``GripperOccupancy`` of (C, K) int64 counts: finger slabs, palm, and their ``total``.
+        ``GripperOccupancy`` of (C, K) int64 counts: finger slabs, palm, their ``total``, and the
+        descent sweep.
     """
     if points.ndim != 3 or points.shape[-1] != 3:
         raise ValueError(f"points must be (B, N, 3), got {tuple(points.shape)}")
     if rotation.ndim != 4 or rotation.shape[-2:] != (3, 3) or rotation.shape[0] != centre.shape[0]:
         raise ValueError(f"rotation must be (C, K, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
+    if descent_m < 0.0:
+        raise ValueError(f"descent_m must be >= 0, got {descent_m}")
     n_candidates, n_approaches = rotation.shape[:2]
     n_points = points.shape[1]
     finger_z_max = geometry.fingertip_offset_m
@@ -84,8 +100,11 @@ def gripper_occupancy(
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
     finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
     palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
+    column_z_mid, column_z_half = (palm_z_min - descent_m + finger_z_min) / 2, (finger_z_min - palm_z_min + descent_m) / 2
     finger_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
     palm_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
+    open_y_mid, open_y_half = (geometry.open_width_m / 2 + finger_y_max) / 2, geometry.finger_thickness_m / 2
+    descent_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
     step = max(1, chunk_elements // max(1, n_approaches * n_points))
     for start in range(0, n_candidates, step):
         stop = min(start + step, n_candidates)
@@ -101,11 +120,16 @@ def gripper_occupancy(
         # over the (c, K, N) coordinates, the planner's most expensive tensors.
         finger_y_min = (width_m[start:stop] / 2 + geometry.contact_clearance_m)[:, None, None]
         in_finger_y = (abs_y - (finger_y_min + finger_y_max) / 2).abs() <= (finger_y_max - finger_y_min) / 2
-        in_fingers = in_finger_y & (abs_x <= geometry.finger_width_m / 2) & ((z - finger_z_mid).abs() <= finger_z_half)
-        in_palm = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2) & ((z - palm_z_mid).abs() <= palm_z_half)
+        in_finger_xz = (abs_x <= geometry.finger_width_m / 2) & ((z - finger_z_mid).abs() <= finger_z_half)
+        in_fingers = in_finger_y & in_finger_xz
+        in_palm_xy = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2)
+        in_palm = in_palm_xy & ((z - palm_z_mid).abs() <= palm_z_half)
+        in_open_fingers = in_finger_xz & ((abs_y - open_y_mid).abs() <= open_y_half)
+        in_descent = (in_palm_xy & ((z - column_z_mid).abs() <= column_z_half)) | in_open_fingers
         finger_counts[start:stop] = in_fingers.sum(dim=-1)
         palm_counts[start:stop] = in_palm.sum(dim=-1)
-    return GripperOccupancy(finger_counts, palm_counts)
+        descent_counts[start:stop] = in_descent.sum(dim=-1)
+    return GripperOccupancy(finger_counts, palm_counts, descent_counts)
 
 
 def gripper_corners_local(geometry: GripperGeometry) -> torch.Tensor:

@@ -32,6 +32,77 @@ def sample_pair_indices(n_points: int, n_pairs: int, generator: torch.Generator)
     return torch.stack((first, second), dim=1)
 
 
+def sample_guided_pair_indices(
+    points: torch.Tensor,
+    normals: torch.Tensor,
+    n_pairs: int,
+    n_proposals: int,
+    min_width_m: float,
+    max_width_m: float,
+    generator: torch.Generator,
+    chunk_elements: int,
+) -> torch.Tensor:
+    """Draw ``n_pairs`` pairs whose second point is chosen among proposals for being antipodal to the first.
+
+    The antipodal-sampler idea of Dex-Net and GPD: a uniform pair lands on two small opposing
+    patches (a mug handle's two faces) almost never, so each first point ``i`` is drawn uniformly
+    and ``n_proposals`` second points ``j`` are drawn uniformly from the rest of the cloud; the
+    pair keeps the proposal with the best antipodal quality ``min(cos_i, cos_j)`` (the contact
+    cosines of ``antipodal.antipodal_pairs``, outward normals) among those at a distance in
+    ``[min_width_m, max_width_m]``, or the first proposal when none is in range. Proposals are
+    global, not drawn from a neighbourhood of ``i``: a point's nearest neighbours lie on its own
+    face, so they miss the opposing face the pinch needs.
+
+    Args:
+        points: (N, 3) float cloud points, metres, any frame shared with ``normals``; N >= 2.
+        normals: (N, 3) unit outward surface normals in the same frame.
+        n_pairs: number of pairs P to draw, at least 0.
+        n_proposals: second-point proposals K per pair, at least 1.
+        min_width_m, max_width_m: contact distances a proposal may have, metres (the gripper's reach).
+        generator: CPU ``torch.Generator``; the same generator state gives the same pairs. It is
+            advanced by exactly P + P * K draws, whatever the geometry.
+        chunk_elements: (pair, proposal) combinations evaluated at once (~80 bytes each), at least 1.
+
+    Returns:
+        (P, 2) int64 tensor of indices ``(i, j)`` into ``points``, ``i != j``. Pairs are drawn with
+        replacement, so a pair may appear more than once.
+    """
+    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
+        raise ValueError(f"points and normals must both be (N, 3), got {tuple(points.shape)} and {tuple(normals.shape)}")
+    if not points.is_floating_point() or not normals.is_floating_point():
+        raise ValueError(f"points and normals must be floating point, got {points.dtype} and {normals.dtype}")
+    n_points = points.shape[0]
+    if n_points < 2:
+        raise ValueError(f"need at least 2 points to sample pairs, got n_points={n_points}")
+    if n_pairs < 0:
+        raise ValueError(f"n_pairs must be >= 0, got {n_pairs}")
+    if n_proposals < 1:
+        raise ValueError(f"n_proposals must be >= 1, got {n_proposals}")
+    if not 0.0 <= min_width_m <= max_width_m:
+        raise ValueError(f"need 0 <= min_width_m <= max_width_m, got {min_width_m} and {max_width_m}")
+    if chunk_elements < 1:
+        raise ValueError(f"chunk_elements must be >= 1, got {chunk_elements}")
+    first = torch.randint(0, n_points, (n_pairs,), generator=generator)
+    second = torch.empty_like(first)
+    chunk_pairs = max(1, chunk_elements // n_proposals)
+    for start in range(0, n_pairs, chunk_pairs):
+        anchor = first[start : start + chunk_pairs]
+        # Same skip trick as sample_pair_indices: distinct from the anchor without rejection.
+        proposal = torch.randint(0, n_points - 1, (anchor.shape[0], n_proposals), generator=generator)
+        proposal = proposal + (proposal >= anchor[:, None]).to(proposal.dtype)
+        offset = points[proposal] - points[anchor][:, None, :]  # (C, K, 3)
+        width = offset.norm(dim=-1)
+        closing_axis = offset / width.clamp_min(torch.finfo(points.dtype).tiny).unsqueeze(-1)
+        cos_i = -(normals[anchor][:, None, :] * closing_axis).sum(-1)
+        cos_j = (normals[proposal] * closing_axis).sum(-1)
+        in_reach = (width >= min_width_m) & (width <= max_width_m)
+        quality = torch.where(in_reach, torch.minimum(cos_i, cos_j), torch.full_like(width, -torch.inf))
+        # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
+        best = quality.argmax(dim=1, keepdim=True)
+        second[start : start + chunk_pairs] = proposal.gather(1, best).squeeze(1)
+    return torch.stack((first, second), dim=1)
+
+
 def sample_subset_indices(n_points: int, max_points: int, generator: torch.Generator) -> torch.Tensor:
     """A seeded subset of at most ``max_points`` distinct indices, sorted ascending.
 

@@ -20,6 +20,10 @@ class ConfigError(ValueError):
     """A profile or override names an unknown key or holds a value of the wrong type."""
 
 
+# How planner.pair_sampling draws the SPEC's contact pairs: uniformly, or antipodally guided.
+PAIR_SAMPLING_MODES = ("uniform", "guided")
+
+
 @dataclass
 class SceneConfig:
     time_step_s: float = 1.0 / 240.0
@@ -79,6 +83,14 @@ class PerceptionConfig:
 @dataclass
 class PlannerConfig:
     n_pairs: int = 5000
+    # The SPEC fixes how many pairs, not how they are drawn. "guided" (Dex-Net/GPD antipodal sampling)
+    # puts ~25x more antipodal pairs on a mug handle, but ~7x more pairs pass the antipodal filter and
+    # the gripper-volume screen of all of them made mug plans 5x slower (0.17 -> 0.88 s, runners.bench).
+    pair_sampling: str = "uniform"
+    # Second-point proposals per guided pair: 64 doubles the handle pairs of 32 for ~20 ms per 5,000 pairs.
+    pair_proposals: int = 64
+    # (pair, proposal) combinations the guided sampler holds at once (~80 bytes each, ~80 MB).
+    pair_proposal_chunk_elements: int = 1_048_576
     min_width_m: float = 0.005
     max_width_m: float = 0.08
     max_contact_angle_deg: float = 45.0
@@ -88,6 +100,11 @@ class PlannerConfig:
     # the way a finger edge can, so it gets its own bound (1 % tolerates depth noise): without it
     # top-down grasps low on a mug drive the palm into the rim.
     palm_max_fraction: float = 0.01
+    # The straight descent from the pre-grasp drags the open gripper through object points the
+    # closing sweep never sees (a finger landing on a mug rim, the palm on a bottle cap). Any solid
+    # in that path stops the hand, and a thin rim is only ~0.5 % of a mug's points, so the bound
+    # tolerates stray points only (2 of the 1,024-point occupancy subset).
+    descent_max_fraction: float = 0.002
     max_candidates: int = 200
     min_reach: float = 0.5
     # 20 iterations x 2 seeds: 4,700 grasp targets/s at 81 % success on YCB grasp poses versus
@@ -97,19 +114,23 @@ class PlannerConfig:
     ik_pos_tolerance_m: float = 0.005
     ik_rot_tolerance_rad: float = 0.05
     seed: int = 0
-    # Panda hand (panda.urdf): fingers start 0.0584 m past the hand origin, the grasp target is
-    # 0.105 m past it, so fingers run 0.054 m back from just beyond the grasp point.
+    # PyBullet collides the Panda hand and fingers as the convex hulls of panda.urdf's
+    # meshes/collision/{hand,finger}.obj: measured from the grasp target (0.105 m past the hand
+    # origin) the finger hulls reach 0.0073 m beyond it, the hand hull's face is 0.039 m short of it
+    # and the hull is 0.092 m deep, 0.063 m wide and 0.204 m across; a finger hull is 0.021 m wide,
+    # 0.026 m thick at the hand and 0.014 m at the tip.
     gripper_open_width_m: float = 0.08
     # Each open finger must clear its contact by this much to descend without brushing the object:
     # a 7.9 cm pair under an 8 cm jaw passes the SPEC's width filter but hits the fingers in practice.
     jaw_clearance_m: float = 0.005
-    finger_width_m: float = 0.02
-    finger_thickness_m: float = 0.012
-    finger_length_m: float = 0.054
+    finger_width_m: float = 0.021
+    # A box needs one thickness: the hull's at mid-length of the 0.046 m that shows below the hand.
+    finger_thickness_m: float = 0.02
+    finger_length_m: float = 0.046
     fingertip_offset_m: float = 0.007
     palm_width_m: float = 0.065
     palm_span_m: float = 0.204
-    palm_depth_m: float = 0.0584
+    palm_depth_m: float = 0.092
     # Cloud points within this of a contact plane belong to the grasped surface (3 mm voxels + normal noise).
     contact_clearance_m: float = 0.004
     # The occupancy fraction is estimated on a seeded subset of at most this many object points
@@ -128,6 +149,15 @@ class PlannerConfig:
     )
     # Clamped refinement steps pytorch-kinematics runs after solving to pull solutions inside the limits.
     ik_limit_refinement_iterations: int = 5
+
+    def __post_init__(self) -> None:
+        # Checked here, at load, so a misspelt profile fails before a study starts rather than in every trial.
+        if self.pair_sampling not in PAIR_SAMPLING_MODES:
+            raise ConfigError(
+                f"planner.pair_sampling: unknown mode {self.pair_sampling!r} (known: {', '.join(PAIR_SAMPLING_MODES)})"
+            )
+        if self.pair_proposals < 1:
+            raise ConfigError(f"planner.pair_proposals must be >= 1, got {self.pair_proposals}")
 
 
 @dataclass
@@ -173,6 +203,10 @@ class ExecutionConfig:
     ik_seed_joints: tuple[float, ...] = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
     # Neighbouring waypoints are ~1-2 cm apart; a larger joint jump means IK switched branch mid-path.
     max_waypoint_joint_step_rad: float = 0.3
+    # A fingertip grazing the table on the way down (grasps on flat objects end millimetres above
+    # it) is harmless; pressing on it harder than this during the descent counts as a collision.
+    # libfranka's default contact reflex stops the real arm at 20 N; half that stays conservative.
+    table_contact_max_force_n: float = 10.0
     # The object moving more than this before the fingers close means the gripper knocked it.
     knock_tolerance_m: float = 0.01
     # A failed attempt whose object rose at least this much during the lift "slipped" rather than "not_lifted".

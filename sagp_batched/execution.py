@@ -172,6 +172,12 @@ def _robot_touches(scene: Scene, other_body: int) -> bool:
     return any(contact[3] != -1 for contact in contacts)
 
 
+def _robot_push_n(scene: Scene, other_body: int) -> float:
+    """Total normal force (N) of the last step's contacts between robot links (not the base) and ``other_body``."""
+    contacts = pybullet.getContactPoints(bodyA=scene.robot_id, bodyB=other_body, physicsClientId=scene.client)
+    return float(sum(contact[9] for contact in contacts if contact[3] != -1))
+
+
 def _fingers_holding(scene: Scene) -> bool:
     return all(
         pybullet.getContactPoints(bodyA=scene.robot_id, bodyB=scene.target_id, linkIndexA=finger, physicsClientId=scene.client)
@@ -278,7 +284,7 @@ def execute_grasp(
         scene.command_arm(joints)
         _step(scene, execution.steps_per_waypoint)
         knocked = np.linalg.norm(scene.centre_of_mass(target)[0] - rest_com) > execution.knock_tolerance_m
-        if _robot_touches(scene, scene.table_id) or knocked:
+        if _robot_push_n(scene, scene.table_id) > execution.table_contact_max_force_n or knocked:
             details["collision_at"] = "descent"
             return finish(False, "collision")
 

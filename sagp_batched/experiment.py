@@ -217,7 +217,7 @@ class TrialRunner:
                 continue
             attempts = execute_ranked(scene, config, ranked, order, record_frames=config.run.save_frames)
             executed_by_method[method] = (order, attempts)
-            self._fill_outcome(record, ranked, order, attempts, cloud, rating, unit)
+            self._fill_outcome(record, ranked, order, attempts, cloud, rating, decomposition, unit)
             if config.run.save_frames:
                 record["frames"] = self._save_frames(attempts[-1], record)
             emit(record)
@@ -270,7 +270,7 @@ class TrialRunner:
         rater = getattr(self.rater, "inner", self.rater)
         return rater.client if hasattr(rater, "client") else get_vd_client(self.config.rating)
 
-    def _fill_outcome(self, record, candidates: GraspCandidates, order, attempts, cloud, rating, unit) -> None:
+    def _fill_outcome(self, record, candidates: GraspCandidates, order, attempts, cloud, rating, decomposition, unit) -> None:
         record["attempts"] = len(attempts)
         record["attempt_log"] = [
             {"candidate": int(candidates.candidate_id[i]), "success": a.success, "failure_reason": a.failure_reason,
@@ -288,8 +288,12 @@ class TrialRunner:
         record["orientation_kept"] = bool(final.orientation_change_deg <= ORIENTATION_TOLERANCE_DEG)
         displacement = float(final.details.get("distractors_max_displacement_m", 0.0))
         record["distractors_max_displacement_m"] = displacement
+        # PZA uses the SPEC's single zone of the contact midpoint; AC ("outside every avoid zone")
+        # uses every zone the midpoint lies in (its third or protrusion, and its sides), as S_avoid does.
+        zone_names = decomposition.candidate_zone_names(candidates.position_world[final_index:final_index + 1])[0]
+        grasp["zones"] = list(zone_names)
         record["in_preferred_zone"] = grasp["zone"] in rating.preferred
-        record["in_avoid_zone"] = grasp["zone"] in rating.avoid
+        record["in_avoid_zone"] = any(name in rating.avoid for name in zone_names)
         task_success = record["success"]
         if unit.task == "t2":
             task_success = task_success and bool(record["in_preferred_zone"]) and record["orientation_kept"]

@@ -26,7 +26,7 @@ from sagp_batched_kernels.gripper_volume import (
     gripper_occupancy,
     table_penetration,
 )
-from sagp_batched_kernels.sampling import sample_pair_indices, sample_subset_indices
+from sagp_batched_kernels.sampling import sample_guided_pair_indices, sample_pair_indices, sample_subset_indices
 
 from .config import Config, PlannerConfig
 from .ik import PandaIK
@@ -88,7 +88,21 @@ class SampledInputs:
 def sample_inputs(cloud: PerceivedCloud, planner: PlannerConfig, seed: int) -> SampledInputs:
     """Draw the contact pairs and the occupancy subset of ``cloud`` from one generator seeded by ``seed``."""
     generator = torch.Generator().manual_seed(int(seed))
-    pair_indices = sample_pair_indices(cloud.n_points, planner.n_pairs, generator)
+    if planner.pair_sampling == "guided":
+        # Proposals wider than the open jaws can descend around pass the width filter but are
+        # never usable, so the guided sampler's reach is the narrower of the two limits.
+        pair_indices = sample_guided_pair_indices(
+            cloud.points_world.to(torch.float32),
+            cloud.normals_world.to(torch.float32),
+            planner.n_pairs,
+            planner.pair_proposals,
+            planner.min_width_m,
+            min(planner.max_width_m, jaw_width_limit(planner)),
+            generator,
+            planner.pair_proposal_chunk_elements,
+        )
+    else:
+        pair_indices = sample_pair_indices(cloud.n_points, planner.n_pairs, generator)
     object_subset = sample_subset_indices(cloud.n_points, planner.occupancy_max_points, generator)
     n_obstacles = cloud.obstacle_points_world.shape[0]
     n_obstacles_kept = round(n_obstacles * len(object_subset) / cloud.n_points)
@@ -128,7 +142,7 @@ class ScreenedCandidates:
     s_geom: torch.Tensor  # (A,)
     approach: torch.Tensor  # (A, K, 3)
     rotation_world: torch.Tensor  # (A, K, 3, 3)
-    usable: torch.Tensor  # (A, K) bool: clear of the table (grasp and pre-grasp) and under the occupancy limit
+    usable: torch.Tensor  # (A, K) bool: clear of the table (grasp and pre-grasp), under the occupancy limits
 
     @property
     def centre_world(self) -> torch.Tensor:
@@ -177,11 +191,15 @@ def screen_candidates(
     padded = torch.full((n_objects, max(len(s.occupancy_points) for s in sampled), 3), float("nan"))
     for index, inputs in enumerate(sampled):
         padded[index, : len(inputs.occupancy_points)] = inputs.occupancy_points
-    occupancy = gripper_occupancy(padded, candidate_object, centre, rotation, width, geometry, planner.occupancy_chunk_elements)
+    occupancy = gripper_occupancy(
+        padded, candidate_object, centre, rotation, width, geometry, planner.occupancy_chunk_elements, config.execution.pregrasp_offset_m
+    )
     occupancy_total = torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32)
     total_of_candidate = occupancy_total[candidate_object, None]
-    occupancy_ok = (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total_of_candidate) & (
-        occupancy.palm.to(torch.float32) <= planner.palm_max_fraction * total_of_candidate
+    occupancy_ok = (
+        (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total_of_candidate)
+        & (occupancy.palm.to(torch.float32) <= planner.palm_max_fraction * total_of_candidate)
+        & (occupancy.descent.to(torch.float32) <= planner.descent_max_fraction * total_of_candidate)
     )
     stage_time["frames_volume"] = time.perf_counter() - clock
     return ScreenedCandidates(

@@ -115,6 +115,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
     finger_z_min = finger_z_max - planner.finger_length_m
     palm_z_min = finger_z_min - planner.palm_depth_m
     finger_y_max = planner.gripper_open_width_m / 2 + planner.finger_thickness_m
+    descent = config.execution.pregrasp_offset_m
     corners = []
     for xs, ys, zs in (
         ((-planner.finger_width_m / 2, planner.finger_width_m / 2), (planner.gripper_open_width_m / 2, finger_y_max), (finger_z_min, finger_z_max)),
@@ -156,11 +157,23 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
                 & (z >= finger_z_min)
                 & (z <= finger_z_max)
             )
-            in_palm = (abs_x <= planner.palm_width_m / 2) & (abs_y <= planner.palm_span_m / 2) & (z >= palm_z_min) & (z <= finger_z_min)
+            under_palm = (abs_x <= planner.palm_width_m / 2) & (abs_y <= planner.palm_span_m / 2)
+            in_palm = under_palm & (z >= palm_z_min) & (z <= finger_z_min)
             occupied = int(np.count_nonzero(in_fingers | in_palm))
             in_palm_count = int(np.count_nonzero(in_palm))
+            # The straight descent drags the open gripper's boxes back by the pre-grasp offset.
+            in_palm_column = under_palm & (z >= palm_z_min - descent) & (z <= finger_z_min)
+            in_open_fingers = (
+                (abs_x <= planner.finger_width_m / 2)
+                & (abs_y >= planner.gripper_open_width_m / 2)
+                & (abs_y <= finger_y_max)
+                & (z >= finger_z_min)
+                & (z <= finger_z_max)
+            )
+            in_descent_count = int(np.count_nonzero(in_palm_column | in_open_fingers))
             row_usable.append(not through_table and occupied <= planner.occupancy_max_fraction * inputs.occupancy_total
                               and in_palm_count <= planner.palm_max_fraction * inputs.occupancy_total
+                              and in_descent_count <= planner.descent_max_fraction * inputs.occupancy_total
                               and width <= jaw_width_limit(planner))
             row_rotations.append(rotation)
         ranked_pairs.append((i, j))

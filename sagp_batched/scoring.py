@@ -1,7 +1,9 @@
 """SAGP fused scoring of a candidate batch (SPEC stage 5).
 
-Zone terms use every zone a candidate's contact point belongs to (see ``zones``): S_afford follows
-``zone_affordance``'s danger-dominates rule, S_avoid is 1 when any of those zones is avoided. S_task
+Zone terms use the zones a candidate is rated by (``ZoneDecomposition.candidate_rated_zones``: its
+primary zone, where protrusion wins over the vertical third as the SPEC says, and its two side
+zones): S_afford follows ``zone_affordance``'s danger-dominates rule, S_avoid is 1 when any of those
+zones is avoided. S_task
 needs both the prescribed approach (within ``rating.approach_tolerance_deg``; "any" always holds;
 "side" means any approach within the tolerance of horizontal) and the predicted post-lift tilt (a
 swing about the closing axis, centre of mass = cloud centroid) within the rating's ``max_tilt_deg``.
@@ -65,7 +67,7 @@ def score_candidates(
     if tuple(zones.zone_names) != tuple(candidates.zone_names) and candidates.zone_names:
         raise ScoringInputError(f"candidates carry zones {candidates.zone_names}, the decomposition {zones.zone_names}")
     positions = candidates.position_world
-    memberships = zones.candidate_memberships(positions)
+    memberships = zones.candidate_rated_zones(positions)
     zone_phi = torch.tensor([PHI.get(zone_rating.ratings.get(z, ""), 0.0) for z in zones.zone_names])
     zone_rated = torch.tensor([z in zone_rating.ratings for z in zones.zone_names], dtype=torch.bool)
     zone_avoid = torch.tensor([z in zone_rating.avoid for z in zones.zone_names], dtype=torch.bool)

@@ -9,6 +9,9 @@ One zone per candidate (``GraspCandidates.zone``, used for reporting, preferred-
 metrics) is the *primary* zone of its contact midpoint's nearest cloud point: ``protrusion`` if the
 point is in a protrusion, else its vertical third (SPEC: protrusion wins over the vertical thirds).
 Side zones never become primary because they split the same points a second and third time.
+A candidate is *rated* by its primary zone and its two side zones (``candidate_rated_zones``): a
+handle point in the top third is the handle, so a dangerous rim must not reach it, while a rating of
+a side still does.
 
 Degenerate clouds get a typed outcome in ``ZoneDecomposition.degenerate`` instead of NaN zones:
 ``"empty"`` (no points: candidates get zone -1, unzoned), ``"too_few_points"`` and ``"collinear"``
@@ -33,6 +36,7 @@ from .types import GraspCandidates, PerceivedCloud
 
 ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "left", "right", "front", "back", "protrusion")
 ZONE_INDEX: dict[str, int] = {name: i for i, name in enumerate(ZONE_NAMES)}
+VERTICAL_ZONES: tuple[str, ...] = ("top", "middle", "bottom")
 # Kernel codes BOTTOM, MIDDLE, TOP -> zone indices.
 _VERTICAL_ZONE = torch.tensor([ZONE_INDEX["bottom"], ZONE_INDEX["middle"], ZONE_INDEX["top"]])
 UNZONED = -1
@@ -84,6 +88,27 @@ class ZoneDecomposition:
         if self.n_points == 0:
             return torch.zeros(positions.shape[0], len(self.zone_names), dtype=torch.bool)
         return self.memberships[self.nearest_points(positions)]
+
+    def candidate_rated_zones(self, positions_world: torch.Tensor) -> torch.Tensor:
+        """(C, Z) bool: the zones each position is scored and counted by: the primary zone of its nearest
+        cloud point (protrusion wins over the vertical third) and that point's two side zones."""
+        memberships = self.candidate_memberships(positions_world)
+        if self.n_points == 0:
+            return memberships
+        in_protrusion = memberships[:, ZONE_INDEX["protrusion"]].unsqueeze(1)
+        overridden = torch.zeros(len(self.zone_names), dtype=torch.bool)
+        overridden[[ZONE_INDEX[name] for name in VERTICAL_ZONES]] = True
+        return memberships & ~(in_protrusion & overridden)
+
+    def candidate_zone_names(self, positions_world: torch.Tensor) -> list[tuple[str, ...]]:
+        """Names of ``candidate_rated_zones`` for each position, primary zone first (for trial records)."""
+        rated = self.candidate_rated_zones(positions_world)
+        primary = self.candidate_zone(positions_world).tolist()
+        names = []
+        for first, row in zip(primary, rated.tolist()):
+            others = tuple(name for index, (name, member) in enumerate(zip(self.zone_names, row)) if member and index != first)
+            names.append(((self.zone_names[first],) if first != UNZONED else ()) + others)
+        return names
 
     def candidate_zone(self, positions_world: torch.Tensor) -> torch.Tensor:
         """(C,) int64 primary zone of each position's nearest cloud point; UNZONED on an empty cloud."""

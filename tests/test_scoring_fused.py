@@ -118,6 +118,25 @@ def test_danger_dominates_a_point_in_several_rated_zones():
     assert zone_affordance(memberships, phi, torch.tensor([False, True, False])).tolist() == [0.0, 1.0, 0.0]
 
 
+def test_a_handle_point_in_the_top_third_is_rated_as_the_handle_not_as_the_rim():
+    zones, config = mug_zones(), Config()
+    upper_handle = [0.05 + 0.038 * math.cos(math.pi / 6), 0.0, 0.04 + 0.038 * math.sin(math.pi / 6)]  # outer surface
+    batch = candidates([upper_handle, RIM], [SIDEWAYS, DOWN], [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], s_geom=[0.6, 0.9])
+    members = zones.candidate_memberships(batch.position_world)[0]
+    assert members[ZONE_NAMES.index("protrusion")] and members[ZONE_NAMES.index("top")], "premise: handle point in the top third"
+    assert zones.candidate_zone_names(batch.position_world)[0][0] == "protrusion"
+    assert "top" not in zones.candidate_zone_names(batch.position_world)[0]
+    given = rating(ratings={"top": "dangerous", "protrusion": "good"}, avoid=frozenset({"top"}))
+    scored = score_candidates(batch, given, config.weights, zones, config)
+    handle, rim = in_geometric_order(scored, "s_afford")[1], in_geometric_order(scored, "s_afford")[0]
+    assert (handle, rim) == (1.0, -1.0)
+    assert in_geometric_order(scored, "s_avoid") == [1.0, 0.0]
+    # A side zone's rating still reaches the handle point: danger dominates.
+    side = "left" if members[ZONE_NAMES.index("left")] else "right"
+    sided = score_candidates(batch, rating(ratings={"protrusion": "good", side: "dangerous"}), config.weights, zones, config)
+    assert in_geometric_order(sided, "s_afford")[1] == -1.0
+
+
 def in_geometric_order(scored, field_name):
     """``field_name`` of ``scored`` (ranked by score) back in the candidates' original, S_geom-descending order."""
     return getattr(scored, field_name)[torch.argsort(scored.s_geom, descending=True)].tolist()
