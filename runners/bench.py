@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from sagp_batched.benchmark import BenchmarkSettings, benchmark_ik, benchmark_object, mesh_cloud
+from sagp_batched.benchmark import BenchmarkSettings, benchmark_ik, benchmark_object, benchmark_world, mesh_cloud
 from sagp_batched.config import load_config
 from sagp_batched.objects import load_object_set
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
@@ -41,6 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache-dir", type=Path, default=Path("~/.cache/sagp_batched/clouds").expanduser())
     parser.add_argument("--profile", default=None)
     parser.add_argument("--threads", type=int, default=DEFAULT_TORCH_THREADS)
+    parser.add_argument("--world-object", default="005_tomato_soup_can", help="object of the PyBullet timing runs")
+    parser.add_argument("--world-runs", type=int, default=20, help="trials timed in PyBullet (reset, capture, plan, attempt); 0 skips")
     args = parser.parse_args(argv)
 
     configure_torch(args.threads)
@@ -69,9 +71,18 @@ def main(argv: list[str] | None = None) -> int:
     ik = benchmark_ik(clouds, config, settings)
     print(f"IK: {ik['targets']} targets, {ik['targets_per_s']:.0f} targets/s, success {ik['success_rate']:.1%}, feasible {ik['feasible_rate']:.1%}")
     print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
+    world = None
+    if args.world_runs > 0:
+        world = benchmark_world(object_set.get(args.world_object), config, args.world_runs)
+        print(
+            f"PyBullet, {world['object']}, medians of {world['runs']} trials: reset {world['reset_s']:.3f} s, "
+            f"capture (3 views) {world['capture_s']:.3f} s, plan {world['plan_s']:.3f} s, "
+            f"attempt {world['attempt_s']:.3f} s, first-attempt success {world['first_attempt_success']:.0%}"
+        )
     report = {
         "results": results,
         "ik": ik,
+        "world": world,
         "provenance": {
             "torch": torch.__version__,
             "threads": torch.get_num_threads(),

@@ -136,3 +136,37 @@ def benchmark_ik(clouds: list[PerceivedCloud], config: Config, settings: Benchma
         "success_rate": success,
         "feasible_rate": float(feasible.float().mean()),
     }
+
+
+def benchmark_world(spec: ObjectSpec, config: Config, runs: int) -> dict[str, Any]:
+    """Medians over ``runs`` trials of one object: scene reset (with settling), capture (three views,
+    merge, normals, crop), planning on the captured cloud, and one executed attempt (the best GO grasp)."""
+    from .execution import execute_ranked
+    from .perception import capture
+    from .scene import Scene
+
+    timings: dict[str, list[float]] = {"reset_s": [], "capture_s": [], "plan_s": [], "attempt_s": []}
+    successes = 0
+    with Scene(config) as scene:
+        for trial in range(runs):
+            start = time.perf_counter()
+            scene.reset(spec, trial)
+            timings["reset_s"].append(time.perf_counter() - start)
+            start = time.perf_counter()
+            cloud = capture(scene, config)
+            timings["capture_s"].append(time.perf_counter() - start)
+            start = time.perf_counter()
+            candidates = plan(cloud, config, seed=trial)
+            timings["plan_s"].append(time.perf_counter() - start)
+            if len(candidates) == 0:
+                continue
+            start = time.perf_counter()
+            (attempt,) = execute_ranked(scene, config, candidates, [0])
+            timings["attempt_s"].append(time.perf_counter() - start)
+            successes += attempt.success
+    return {
+        "object": spec.id,
+        "runs": runs,
+        **{name: _median(values) if values else None for name, values in timings.items()},
+        "first_attempt_success": successes / max(1, len(timings["attempt_s"])),
+    }

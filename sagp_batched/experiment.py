@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
-import torch
 from scipy.spatial.transform import Rotation
 
 from .config import GEOMETRY_ONLY_WEIGHTS, Config

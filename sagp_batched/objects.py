@@ -1,6 +1,6 @@
 """The object registry: which objects exist, where their URDFs are, and what the study knows of them.
 
-Two sources: a YCB directory laid out like ``/work/shared/ycb`` (``objects.json`` + ``<id>/model.urdf``),
+Two sources: a YCB directory laid out like the project's ``shared/ycb`` (``objects.json`` + ``<id>/model.urdf``),
 chosen by argument or the ``SAGP_YCB_DIR`` environment variable, or, without either, a built-in set
 made of objects that ship inside ``pybullet_data`` so the pipeline runs on a fresh machine.
 """

@@ -142,11 +142,38 @@ class ScreenedCandidates:
     s_geom: torch.Tensor  # (A,)
     approach: torch.Tensor  # (A, K, 3)
     rotation_world: torch.Tensor  # (A, K, 3, 3)
-    usable: torch.Tensor  # (A, K) bool: clear of the table (grasp and pre-grasp), under the occupancy limits
+    clear_of_table: torch.Tensor  # (A, K) bool: table-clear at grasp and pre-grasp, and the jaws fit the width
+    occupancy_points: torch.Tensor  # (B, M, 3) per-cloud occupancy subsets (object then obstacles), NaN-padded
+    occupancy_total: torch.Tensor  # (B,) object points of each subset: the occupancy fractions' denominator
+    planner: PlannerConfig
+    pregrasp_offset_m: float
 
     @property
     def centre_world(self) -> torch.Tensor:
         return self.contacts_world.mean(dim=1)
+
+    def occupancy_ok(self, rows: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: the gripper volumes of candidates ``rows`` are under the occupancy limits.
+
+        The most expensive check of the planner, so ``plan_batch`` runs it only on candidates that
+        can still enter the kept set, in S_geom order.
+        """
+        planner = self.planner
+        occupancy = gripper_occupancy(
+            self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows],
+            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements, self.pregrasp_offset_m,
+        )
+        total = self.occupancy_total[self.object_index[rows], None]
+        return (
+            (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total)
+            & (occupancy.palm.to(torch.float32) <= planner.palm_max_fraction * total)
+            & (occupancy.descent.to(torch.float32) <= planner.descent_max_fraction * total)
+        )
+
+    @property
+    def usable(self) -> torch.Tensor:
+        """(A, K) bool: every check on every candidate (the eager form, for references and benchmarks)."""
+        return self.clear_of_table & self.occupancy_ok(torch.arange(self.width_m.shape[0]))
 
 
 def screen_candidates(
@@ -191,16 +218,6 @@ def screen_candidates(
     padded = torch.full((n_objects, max(len(s.occupancy_points) for s in sampled), 3), float("nan"))
     for index, inputs in enumerate(sampled):
         padded[index, : len(inputs.occupancy_points)] = inputs.occupancy_points
-    occupancy = gripper_occupancy(
-        padded, candidate_object, centre, rotation, width, geometry, planner.occupancy_chunk_elements, config.execution.pregrasp_offset_m
-    )
-    occupancy_total = torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32)
-    total_of_candidate = occupancy_total[candidate_object, None]
-    occupancy_ok = (
-        (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total_of_candidate)
-        & (occupancy.palm.to(torch.float32) <= planner.palm_max_fraction * total_of_candidate)
-        & (occupancy.descent.to(torch.float32) <= planner.descent_max_fraction * total_of_candidate)
-    )
     stage_time["frames_volume"] = time.perf_counter() - clock
     return ScreenedCandidates(
         object_index=candidate_object,
@@ -211,7 +228,11 @@ def screen_candidates(
         s_geom=pair_eval["s_geom"][antipodal],
         approach=approach,
         rotation_world=rotation,
-        usable=occupancy_ok & ~through_table & (width <= jaw_width_limit(planner))[:, None],
+        clear_of_table=~through_table & (width <= jaw_width_limit(planner))[:, None],
+        occupancy_points=padded,
+        occupancy_total=torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32),
+        planner=planner,
+        pregrasp_offset_m=config.execution.pregrasp_offset_m,
     )
 
 
@@ -239,9 +260,10 @@ def plan_batch(
     Returns:
         One ``GraspCandidates`` per cloud: at most ``max_candidates`` IK-feasible candidates ranked
         by S_geom (ties in sampling order), ``score = s_geom``, zone -1, semantic terms 0, and
-        ``counts`` with ``sampled``, ``antipodal``, ``collision_free`` (antipodal candidates with at
-        least one approach clear of the table and under the occupancy limit), ``ik_feasible``
-        (feasible candidates found; IK stops once ``max_candidates`` are known).
+        ``counts`` with ``sampled``, ``antipodal``, ``collision_free`` (screened candidates with at
+        least one approach clear of the table and under the occupancy limits; volumes are screened
+        in S_geom order only until ``max_candidates`` are feasible), ``ik_feasible`` (feasible
+        candidates found; IK stops once ``max_candidates`` are known).
     """
     planner = config.planner
     seeds = [planner.seed] * len(clouds) if seeds is None else [planner.seed if s is None else s for s in seeds]
@@ -257,25 +279,39 @@ def plan_batch(
     clock = time.perf_counter()
     candidate_object = screened.object_index
     contacts, closing_axis, width, s_geom = screened.contacts_world, screened.closing_axis, screened.width_m, screened.s_geom
-    centre, approach, rotation, usable = screened.centre_world, screened.approach, screened.rotation_world, screened.usable
+    centre, approach, rotation = screened.centre_world, screened.approach, screened.rotation_world
 
+    usable = screened.clear_of_table.clone()
     n_candidates, n_approaches = usable.shape
-    approach_slots = torch.arange(n_approaches).expand(n_candidates, n_approaches)
-    # next_usable[c, k]: first usable approach at or after prior position k (K when none left).
-    next_usable = torch.where(usable, approach_slots, torch.full_like(approach_slots, n_approaches))
-    next_usable = torch.cat((next_usable, torch.full((n_candidates, 1), n_approaches)), dim=1)
-    next_usable = next_usable.flip(1).cummin(1).values.flip(1)
-    rows = torch.arange(n_candidates)
-    cursor = next_usable[:, 0].clone()
-    status = torch.where(cursor < n_approaches, UNDECIDED, EXHAUSTED)
-    collision_free = status == UNDECIDED
+    approach_slots = torch.arange(n_approaches)
+    # next_usable[c, k]: first usable approach at or after prior position k (K when none left);
+    # filled for a candidate once its gripper volume is screened.
+    next_usable = torch.full((n_candidates, n_approaches + 1), n_approaches)
+    cursor = torch.full((n_candidates,), n_approaches)
+    volume_screened = torch.zeros(n_candidates, dtype=torch.bool)
+    status = torch.where(usable.any(dim=1), UNDECIDED, EXHAUSTED)
     chosen_joints = torch.zeros(n_candidates, 7)
     chosen_reach = torch.zeros(n_candidates)
     ik = panda_ik(config)
     ik_targets = 0
+    volume_s = 0.0
     while True:
         alive = (status != EXHAUSTED).to(torch.int64)
         in_window = _segment_exclusive_cumsum(alive, candidate_object, n_objects) < planner.max_candidates
+        # Gripper volumes are screened lazily, only for candidates that can still be kept: most
+        # antipodal candidates rank below the first max_candidates feasible ones and never need it.
+        to_screen = (in_window & (status == UNDECIDED) & ~volume_screened).nonzero().squeeze(1)
+        if to_screen.numel():
+            volume_clock = time.perf_counter()
+            usable[to_screen] &= screened.occupancy_ok(to_screen)
+            volume_screened[to_screen] = True
+            first_usable = torch.where(usable[to_screen], approach_slots, n_approaches)
+            first_usable = torch.cat((first_usable, torch.full((to_screen.numel(), 1), n_approaches)), dim=1)
+            next_usable[to_screen] = first_usable.flip(1).cummin(1).values.flip(1)
+            cursor[to_screen] = next_usable[to_screen, 0]
+            status[to_screen] = torch.where(cursor[to_screen] < n_approaches, UNDECIDED, EXHAUSTED)
+            volume_s += time.perf_counter() - volume_clock
+            continue
         pending = (in_window & (status == UNDECIDED)).nonzero().squeeze(1)
         if pending.numel() == 0:
             break
@@ -292,7 +328,9 @@ def plan_batch(
         retry = pending[~reached]
         cursor[retry] = next_usable[retry, slot[~reached] + 1]
         status[retry] = torch.where(cursor[retry] < n_approaches, UNDECIDED, EXHAUSTED)
-    stage_time["ik"] = time.perf_counter() - clock
+    collision_free = volume_screened & usable.any(dim=1)
+    stage_time["frames_volume"] += volume_s
+    stage_time["ik"] = time.perf_counter() - clock - volume_s
 
     feasible = status == FEASIBLE
     rank_in_object = _segment_exclusive_cumsum(feasible.to(torch.int64), candidate_object, n_objects)

@@ -1,16 +1,12 @@
-import os
 from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parent.parent
+from ycb_paths import HAVE_YCB, YCB_DIR
 
 
 @pytest.fixture(scope="session")
 def ycb_dir() -> Path:
     """The YCB models beside the checkout (../shared/ycb) or $SAGP_YCB_DIR."""
-    candidates = [os.environ.get("SAGP_YCB_DIR"), REPO.parent / "shared" / "ycb"]
-    for candidate in candidates:
-        if candidate and (Path(candidate) / "objects.json").is_file():
-            return Path(candidate)
-    pytest.skip("no YCB directory: set SAGP_YCB_DIR or place shared/ycb beside the checkout")
+    if not HAVE_YCB:
+        pytest.skip(f"no YCB directory at {YCB_DIR}: set SAGP_YCB_DIR or place shared/ycb beside the checkout")
+    return YCB_DIR

@@ -1,6 +1,5 @@
 """The study runner end to end in PyBullet: records, resume, workers, Ray, failures, CI slice."""
 import json
-import os
 import signal
 import subprocess
 import sys

@@ -1,8 +1,6 @@
 """Grasp execution: a sound top-down grasp lifts the soup can; the same grasp beside it lifts nothing."""
 from __future__ import annotations
 
-import os
-from pathlib import Path
 
 import numpy as np
 import pybullet
@@ -12,10 +10,10 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config, GraspCandidates
 from sagp_batched.execution import InvalidGraspError, execute_grasp, execute_ranked
-from sagp_batched.objects import YCB_DIR_ENV, load_object_set
+from sagp_batched.objects import load_object_set
 from sagp_batched.scene import Scene
 
-YCB_DIR = Path(os.environ.get(YCB_DIR_ENV, "/work/shared/ycb"))
+from ycb_paths import YCB_DIR
 DOWN = np.array([0.0, 0.0, -1.0])
 
 

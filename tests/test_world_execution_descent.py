@@ -1,8 +1,6 @@
 """Descent checks: fingertips grazing the table on a flat object are no collision; driving them into it is."""
 from __future__ import annotations
 
-import os
-from pathlib import Path
 
 import numpy as np
 import pybullet
@@ -11,10 +9,10 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config
 from sagp_batched.execution import execute_grasp
-from sagp_batched.objects import YCB_DIR_ENV, load_object_set
+from sagp_batched.objects import load_object_set
 from sagp_batched.scene import Scene
 
-YCB_DIR = Path(os.environ.get(YCB_DIR_ENV, "/work/shared/ycb"))
+from ycb_paths import YCB_DIR
 DOWN = np.array([0.0, 0.0, -1.0])
 
 

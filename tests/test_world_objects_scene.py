@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from pathlib import Path
 
@@ -20,8 +19,7 @@ from sagp_batched.objects import (
 )
 from sagp_batched.scene import Scene
 
-YCB_DIR = Path(os.environ.get(YCB_DIR_ENV, "/work/shared/ycb"))
-needs_ycb = pytest.mark.skipif(not (YCB_DIR / "objects.json").is_file(), reason=f"YCB models not found at {YCB_DIR}")
+from ycb_paths import YCB_DIR, needs_ycb
 
 
 @pytest.fixture(scope="module")

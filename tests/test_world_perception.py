@@ -1,8 +1,6 @@
 """Three-camera perception: exact back-projection, outward normals, views that agree, clear failures."""
 from __future__ import annotations
 
-import os
-from pathlib import Path
 
 import numpy as np
 import pybullet
@@ -17,7 +15,7 @@ from sagp_batched.perception import backproject_views, camera_rig, capture, rend
 from sagp_batched.scene import Scene
 from sagp_batched_kernels.camera import backproject_to_world, linearize_depth
 
-YCB_DIR = Path(os.environ.get(YCB_DIR_ENV, "/work/shared/ycb"))
+from ycb_paths import YCB_DIR
 
 
 @pytest.fixture(scope="module")
