@@ -54,6 +54,10 @@ class GripperGeometry(NamedTuple):
     palm_span_m: float
     palm_depth_m: float
     contact_clearance_m: float
+    # The wrist (Panda link 7 and flange) behind the palm: only the table check uses it, since it
+    # never reaches the object before the palm does but hangs below low side grasps.
+    wrist_half_width_m: float = 0.0
+    wrist_length_m: float = 0.0
 
 
 def gripper_occupancy(
@@ -136,7 +140,8 @@ def gripper_corners_local(geometry: GripperGeometry) -> torch.Tensor:
     """Corners of the open gripper's finger and palm boxes in the grasp frame.
 
     Returns:
-        (24, 3) float32 corner positions, metres: 8 per finger (at the fully open width) and 8 for the palm.
+        (M, 3) float32 corner positions, metres: 8 per finger (at the fully open width), 8 for the
+        palm and, when the geometry has a wrist, 8 for it (M = 24 or 32).
     """
     finger_z_max = geometry.fingertip_offset_m
     finger_z_min = finger_z_max - geometry.finger_length_m
@@ -151,6 +156,10 @@ def gripper_corners_local(geometry: GripperGeometry) -> torch.Tensor:
             (finger_z_min - geometry.palm_depth_m, finger_z_min),
         ),
     ]
+    if geometry.wrist_length_m > 0.0:
+        palm_back = finger_z_min - geometry.palm_depth_m
+        half = geometry.wrist_half_width_m
+        boxes.append(((-half, half), (-half, half), (palm_back - geometry.wrist_length_m, palm_back)))
     corners = [torch.cartesian_prod(torch.tensor(xs), torch.tensor(ys), torch.tensor(zs)) for xs, ys, zs in boxes]
     return torch.cat(corners).to(torch.float32)
 

@@ -60,6 +60,8 @@ def gripper_geometry(config: PlannerConfig) -> GripperGeometry:
         palm_span_m=config.palm_span_m,
         palm_depth_m=config.palm_depth_m,
         contact_clearance_m=config.contact_clearance_m,
+        wrist_half_width_m=config.wrist_half_width_m,
+        wrist_length_m=config.wrist_length_m,
     )
 
 

@@ -121,6 +121,8 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
         ((-planner.finger_width_m / 2, planner.finger_width_m / 2), (planner.gripper_open_width_m / 2, finger_y_max), (finger_z_min, finger_z_max)),
         ((-planner.finger_width_m / 2, planner.finger_width_m / 2), (-finger_y_max, -planner.gripper_open_width_m / 2), (finger_z_min, finger_z_max)),
         ((-planner.palm_width_m / 2, planner.palm_width_m / 2), (-planner.palm_span_m / 2, planner.palm_span_m / 2), (palm_z_min, finger_z_min)),
+        ((-planner.wrist_half_width_m, planner.wrist_half_width_m), (-planner.wrist_half_width_m, planner.wrist_half_width_m),
+         (palm_z_min - planner.wrist_length_m, palm_z_min)),
     ):
         corners += [(x, y, z) for x in xs for y in ys for z in zs]
     corners = np.array(corners)

@@ -99,7 +99,14 @@ def test_grasp_through_the_table_is_rejected():
     approaches = torch.tensor([[[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]])  # down, up (from below), sideways
     rotation = grasp_rotations(closing[:, None, :], approaches)
     blocked = table_penetration(centre, rotation, corners, 0.10, table_z)
-    assert blocked.tolist() == [[False, True, False]]
+    # Sideways 4 cm up, the palm clears the table but the 9 cm-wide wrist behind it does not;
+    # 7 cm up it clears, and without the wrist in the model it would have passed (the arm then
+    # hit the table in PyBullet).
+    assert blocked.tolist() == [[False, True, True]]
+    higher = table_penetration(centre + torch.tensor([0.0, 0.0, 0.03]), rotation, corners, 0.10, table_z)
+    assert higher.tolist() == [[False, True, False]]
+    no_wrist = gripper_corners_local(geometry._replace(wrist_length_m=0.0))
+    assert table_penetration(centre, rotation, no_wrist, 0.10, table_z).tolist() == [[False, True, False]]
     # A side grasp whose closing axis is vertical puts the 20 cm-wide palm through the table.
     vertical = grasp_rotations(torch.tensor([[[0.0, 0.0, 1.0]]]), torch.tensor([[[1.0, 0.0, 0.0]]]))
     assert table_penetration(centre, vertical, corners, 0.10, table_z).all()
@@ -142,3 +149,4 @@ def test_occupancy_ignores_nan_padding_and_matches_across_chunks():
     chunked = gripper_occupancy(padded, index, centre, rotation, result["width_m"][keep], geometry, 5000).total
     assert torch.equal(whole, chunked)
     assert whole.max() > 0
+
