@@ -72,13 +72,13 @@ def main(argv: list[str] | None = None) -> int:
     methods = list(config.run.methods)
     not_run: dict[str, str] = {}
     if "vd" in methods and config.rating.backend not in MODEL_BACKENDS:
-        reason = f"VLM-Direct needs a model backend ({', '.join(MODEL_BACKENDS)}); the rater is '{config.rating.backend}'"
+        reason = f"needs a model backend ({', '.join(MODEL_BACKENDS)}); the rater is '{config.rating.backend}'"
         if args.methods is not None:
-            print(f"error: {reason}: choose --rater transformers|openai or drop vd from --methods", file=sys.stderr)
+            print(f"error: VLM-Direct {reason}: choose --rater transformers|openai or drop vd from --methods", file=sys.stderr)
             return 2
         methods.remove("vd")
         not_run["vd"] = reason + " (not run)"
-        print(f"note: {not_run['vd']}", file=sys.stderr)
+        print(f"note: VLM-Direct {not_run['vd']}", file=sys.stderr)
 
     print(f"objects: {objects.source}", file=sys.stderr)
     print(f"rater: {config.rating.backend}" + (" (an offline prior table, not a VLM)" if config.rating.backend == "prior" else f" ({config.rating.model})"), file=sys.stderr)
