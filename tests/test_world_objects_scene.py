@@ -126,7 +126,8 @@ def test_same_trial_gives_the_same_settled_pose_and_trials_differ(scene, ycb):
     assert abs(first[0][2] - config.scene.table_top_z_m) < 0.003  # link frame at the bottom face: resting on the table
 
 
-def test_table_top_is_exactly_at_the_configured_height(scene):
+def test_table_top_is_exactly_at_the_configured_height(scene, monkeypatch):
+    monkeypatch.delenv(YCB_DIR_ENV, raising=False)
     scene.reset(load_object_set(None).get("cube_small"), trial=0)
     config = Config()
     hit = pybullet.rayTest([0.9, 0.3, 2.0], [0.9, 0.3, 0.0], physicsClientId=scene.client)[0]
