@@ -131,7 +131,7 @@ class GraspCandidates:
         zone = int(self.zone[i])
         return {
             "position": self.position_world[i].tolist(),
-            "quat_xyzw": self.quat_xyzw()[i].tolist(),
+            "quat_xyzw": self.select(torch.tensor([i])).quat_xyzw()[0].tolist(),
             "width": float(self.width_m[i]),
             "approach": self.approach[i].tolist(),
             "contacts_world": self.contacts_world[i].tolist(),
