@@ -14,13 +14,7 @@ Points between the contacts (|y| < width/2) are the part being grasped and are n
 ``contact_clearance`` keeps the grasped surfaces' own points (which lie at |y| ~ width/2) out of
 the count.
 
-Apart from that closing sweep, the open gripper reaches the grasp by a straight descent of
-``descent_m`` along +z, so it also sweeps the union of its boxes over that stroke: the open finger
-columns (|y| from open_width/2 to the finger's back face) from the fingertip back to the finger
-root minus ``descent_m``, and the palm's footprint from the finger root back to the palm's back
-face minus ``descent_m``. The palm footprint holds the finger columns' footprint, so this union
-is the palm column plus the two open-finger boxes below it. Anything in it is hit before the
-fingers close.
+The table check (``table_penetration``) takes any set of gripper points in the grasp frame.
 """
 from __future__ import annotations
 
@@ -34,7 +28,6 @@ class GripperOccupancy(NamedTuple):
 
     fingers: torch.Tensor  # inside the two swept finger slabs
     palm: torch.Tensor  # inside the palm box
-    descent: torch.Tensor  # inside the open gripper's straight-descent sweep (overlaps the other two)
 
     @property
     def total(self) -> torch.Tensor:
@@ -54,10 +47,6 @@ class GripperGeometry(NamedTuple):
     palm_span_m: float
     palm_depth_m: float
     contact_clearance_m: float
-    # The wrist (Panda link 7 and flange) behind the palm: only the table check uses it, since it
-    # never reaches the object before the palm does but hangs below low side grasps.
-    wrist_half_width_m: float = 0.0
-    wrist_length_m: float = 0.0
 
 
 def gripper_occupancy(
@@ -68,10 +57,8 @@ def gripper_occupancy(
     width_m: torch.Tensor,
     geometry: GripperGeometry,
     chunk_elements: int,
-    descent_m: float = 0.0,
 ) -> GripperOccupancy:
-    """Count the points inside each candidate gripper's swept finger slabs, its palm, and the
-    volume the open gripper sweeps on its straight descent.
+    """Count the points inside each candidate gripper's swept finger slabs and its palm.
 
     Args:
         points: (B, N, 3) points of B scenes (object plus obstacle points), world frame, metres.
@@ -83,19 +70,14 @@ def gripper_occupancy(
         geometry: gripper dimensions.
         chunk_elements: bound on the number of (candidate, approach, point) triples held in
             memory at once; work is split over candidates to respect it.
-        descent_m: length of the straight descent onto the grasp along the approach, metres, >= 0
-            (0: the open gripper at the grasp pose only).
 
     Returns:
-        ``GripperOccupancy`` of (C, K) int64 counts: finger slabs, palm, their ``total``, and the
-        descent sweep.
+        ``GripperOccupancy`` of (C, K) int64 counts: finger slabs, palm and their ``total``.
     """
     if points.ndim != 3 or points.shape[-1] != 3:
         raise ValueError(f"points must be (B, N, 3), got {tuple(points.shape)}")
     if rotation.ndim != 4 or rotation.shape[-2:] != (3, 3) or rotation.shape[0] != centre.shape[0]:
         raise ValueError(f"rotation must be (C, K, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
-    if descent_m < 0.0:
-        raise ValueError(f"descent_m must be >= 0, got {descent_m}")
     n_candidates, n_approaches = rotation.shape[:2]
     n_points = points.shape[1]
     finger_z_max = geometry.fingertip_offset_m
@@ -104,11 +86,8 @@ def gripper_occupancy(
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
     finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
     palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
-    column_z_mid, column_z_half = (palm_z_min - descent_m + finger_z_min) / 2, (finger_z_min - palm_z_min + descent_m) / 2
     finger_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
     palm_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
-    open_y_mid, open_y_half = (geometry.open_width_m / 2 + finger_y_max) / 2, geometry.finger_thickness_m / 2
-    descent_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
     step = max(1, chunk_elements // max(1, n_approaches * n_points))
     for start in range(0, n_candidates, step):
         stop = min(start + step, n_candidates)
@@ -128,46 +107,15 @@ def gripper_occupancy(
         in_fingers = in_finger_y & in_finger_xz
         in_palm_xy = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2)
         in_palm = in_palm_xy & ((z - palm_z_mid).abs() <= palm_z_half)
-        in_open_fingers = in_finger_xz & ((abs_y - open_y_mid).abs() <= open_y_half)
-        in_descent = (in_palm_xy & ((z - column_z_mid).abs() <= column_z_half)) | in_open_fingers
         finger_counts[start:stop] = in_fingers.sum(dim=-1)
         palm_counts[start:stop] = in_palm.sum(dim=-1)
-        descent_counts[start:stop] = in_descent.sum(dim=-1)
-    return GripperOccupancy(finger_counts, palm_counts, descent_counts)
-
-
-def gripper_corners_local(geometry: GripperGeometry) -> torch.Tensor:
-    """Corners of the open gripper's finger and palm boxes in the grasp frame.
-
-    Returns:
-        (M, 3) float32 corner positions, metres: 8 per finger (at the fully open width), 8 for the
-        palm and, when the geometry has a wrist, 8 for it (M = 24 or 32).
-    """
-    finger_z_max = geometry.fingertip_offset_m
-    finger_z_min = finger_z_max - geometry.finger_length_m
-    inner_y = geometry.open_width_m / 2
-    outer_y = inner_y + geometry.finger_thickness_m
-    boxes = [
-        ((-geometry.finger_width_m / 2, geometry.finger_width_m / 2), (inner_y, outer_y), (finger_z_min, finger_z_max)),
-        ((-geometry.finger_width_m / 2, geometry.finger_width_m / 2), (-outer_y, -inner_y), (finger_z_min, finger_z_max)),
-        (
-            (-geometry.palm_width_m / 2, geometry.palm_width_m / 2),
-            (-geometry.palm_span_m / 2, geometry.palm_span_m / 2),
-            (finger_z_min - geometry.palm_depth_m, finger_z_min),
-        ),
-    ]
-    if geometry.wrist_length_m > 0.0:
-        palm_back = finger_z_min - geometry.palm_depth_m
-        half = geometry.wrist_half_width_m
-        boxes.append(((-half, half), (-half, half), (palm_back - geometry.wrist_length_m, palm_back)))
-    corners = [torch.cartesian_prod(torch.tensor(xs), torch.tensor(ys), torch.tensor(zs)) for xs, ys, zs in boxes]
-    return torch.cat(corners).to(torch.float32)
+    return GripperOccupancy(finger_counts, palm_counts)
 
 
 def table_penetration(
     centre: torch.Tensor,
     rotation: torch.Tensor,
-    corners_local: torch.Tensor,
+    gripper_points_local: torch.Tensor,
     retreat_m: float,
     table_top_z_m: float,
 ) -> torch.Tensor:
@@ -178,17 +126,18 @@ def table_penetration(
     Args:
         centre: (C, 3) grasp centres, world frame, metres.
         rotation: (C, K, 3, 3) grasp rotations (grasp frame -> world).
-        corners_local: (M, 3) gripper box corners in the grasp frame (``gripper_corners_local``).
+        gripper_points_local: (M, 3) points bounding the open gripper (e.g. its collision hulls'
+            vertices) in the grasp frame, metres.
         retreat_m: pre-grasp distance back along the approach, metres.
         table_top_z_m: world height of the table top, metres.
 
     Returns:
-        (C, K) bool, True where some corner is below the table top at either pose.
+        (C, K) bool, True where some gripper point is below the table top at either pose.
     """
-    # Only world z matters: z_world = centre_z + R[2, :] . corner.
+    # Only world z matters: z_world = centre_z + R[2, :] . point.
     row_z = rotation[..., 2, :]  # (C, K, 3)
-    corner_z = centre[:, 2, None, None] + row_z @ corners_local.to(rotation).T  # (C, K, M)
-    lowest_grasp = corner_z.min(dim=-1).values
-    # Retreating along -approach changes every corner's height by -retreat * approach_z.
+    point_z = centre[:, 2, None, None] + row_z @ gripper_points_local.to(rotation).T  # (C, K, M)
+    lowest_grasp = point_z.min(dim=-1).values
+    # Retreating along -approach changes every point's height by -retreat * approach_z.
     lowest_pregrasp = lowest_grasp - retreat_m * rotation[..., 2, 2]
     return (lowest_grasp < table_top_z_m) | (lowest_pregrasp < table_top_z_m)

@@ -117,3 +117,27 @@ def sample_subset_indices(n_points: int, max_points: int, generator: torch.Gener
     if n_points <= max_points:
         return torch.arange(n_points)
     return torch.randperm(n_points, generator=generator)[:max_points].sort().values
+
+
+def voxel_representatives(points: torch.Tensor, voxel_m: float) -> torch.Tensor:
+    """One point per occupied voxel: the first (lowest index) point in each cubic cell.
+
+    Unlike a random subset, the kept points cover every surface patch the cloud covers, with at
+    most one ``voxel_m`` cell between neighbours, so a thin part (a rim, a handle) keeps points.
+
+    Args:
+        points: (N, 3) positions, metres.
+        voxel_m: cell edge, metres, > 0.
+
+    Returns:
+        (V,) int64 indices into ``points``, sorted ascending.
+    """
+    if voxel_m <= 0.0:
+        raise ValueError(f"voxel_m must be > 0, got {voxel_m}")
+    if points.shape[0] == 0:
+        return torch.zeros(0, dtype=torch.int64)
+    cells = torch.floor(points / voxel_m).to(torch.int64)
+    _, inverse = torch.unique(cells, dim=0, return_inverse=True)
+    first = torch.full((int(inverse.max()) + 1,), points.shape[0], dtype=torch.int64)
+    first.scatter_reduce_(0, inverse, torch.arange(points.shape[0]), reduce="amin")
+    return first.sort().values

@@ -98,15 +98,6 @@ class PlannerConfig:
     max_contact_angle_deg: float = 45.0
     n_approaches: int = 8
     occupancy_max_fraction: float = 0.12
-    # The SPEC's 12 % bounds the whole gripper volume; the palm alone cannot brush past the object
-    # the way a finger edge can, so it gets its own bound (1 % tolerates depth noise): without it
-    # top-down grasps low on a mug drive the palm into the rim.
-    palm_max_fraction: float = 0.01
-    # The straight descent from the pre-grasp drags the open gripper through object points the
-    # closing sweep never sees (a finger landing on a mug rim, the palm on a bottle cap). Any solid
-    # in that path stops the hand, and a thin rim is only ~0.5 % of a mug's points, so the bound
-    # tolerates stray points only (2 of the 1,024-point occupancy subset).
-    descent_max_fraction: float = 0.002
     max_candidates: int = 200
     min_reach: float = 0.5
     # 20 iterations x 2 seeds: 4,700 grasp targets/s at 81 % success on YCB grasp poses versus
@@ -116,11 +107,12 @@ class PlannerConfig:
     ik_pos_tolerance_m: float = 0.005
     ik_rot_tolerance_rad: float = 0.05
     seed: int = 0
-    # PyBullet collides the Panda hand and fingers as the convex hulls of panda.urdf's
-    # meshes/collision/{hand,finger}.obj: measured from the grasp target (0.105 m past the hand
-    # origin) the finger hulls reach 0.0073 m beyond it, the hand hull's face is 0.039 m short of it
-    # and the hull is 0.092 m deep, 0.063 m wide and 0.204 m across; a finger hull is 0.021 m wide,
-    # 0.026 m thick at the hand and 0.014 m at the tip.
+    # The boxes of the published 12 % gripper-volume proxy, sized to the hulls PyBullet collides
+    # the hand with (panda.urdf's meshes/collision/{hand,finger}.obj): from the grasp target the
+    # finger hulls reach 0.0073 m beyond it, the hand hull's face is 0.039 m short of it and the
+    # hull is 0.092 m deep, 0.063 m wide and 0.204 m across; a finger hull is 0.021 m wide, 0.026 m
+    # thick at the hand and 0.014 m at the tip. Executability is checked on the hulls themselves
+    # (``sagp_batched.hand``), not on these boxes.
     gripper_open_width_m: float = 0.08
     # Each open finger must clear its contact by this much to descend without brushing the object:
     # a 7.9 cm pair under an 8 cm jaw passes the SPEC's width filter but hits the fingers in practice.
@@ -133,10 +125,6 @@ class PlannerConfig:
     palm_width_m: float = 0.065
     palm_span_m: float = 0.204
     palm_depth_m: float = 0.092
-    # Panda link 7 and the flange behind the hand (~9 cm across, ~10 cm long in panda.urdf's
-    # collision meshes): low side grasps that clear the table with the palm still drove it into the table.
-    wrist_half_width_m: float = 0.045
-    wrist_length_m: float = 0.10
     # Cloud points within this of a contact plane belong to the grasped surface (3 mm voxels + normal noise).
     contact_clearance_m: float = 0.004
     # The occupancy fraction is estimated on a seeded subset of at most this many object points
@@ -155,6 +143,22 @@ class PlannerConfig:
     )
     # Clamped refinement steps pytorch-kinematics runs after solving to pull solutions inside the limits.
     ik_limit_refinement_iterations: int = 5
+    # The whole executed motion (pre-grasp, descent, lift) is solved from the grasp solution by
+    # damped least squares: waypoints lie at most 20 cm from the grasp, which these steps close
+    # to well under the IK tolerances while staying on the grasp solution's branch.
+    path_ik_iterations: int = 8
+    # Damping of those steps (rad-scale): keeps steps bounded near singular wrist poses.
+    path_ik_damping: float = 0.01
+    # The hand's collision hulls (derived from the robot URDF) swept along the descent must keep
+    # this far from every object and obstacle point: the cloud's 3 mm voxels put the true surface
+    # up to ~2 mm from its points.
+    hand_clearance_margin_m: float = 0.003
+    # The swept-hand check tests one cloud point per cell of this size (object and obstacles):
+    # every surface patch keeps points no farther apart than the 2 cm finger is wide, thin rims
+    # included, at a third of the cost of the full 3 mm cloud.
+    hand_check_voxel_m: float = 0.006
+    # (candidate, hull, direction, point) elements the swept-hand check holds at once.
+    hand_check_chunk_elements: int = 4_194_304
 
     def __post_init__(self) -> None:
         # Checked here, at load, so a misspelt profile fails before a study starts rather than in every trial.

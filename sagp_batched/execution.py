@@ -1,16 +1,19 @@
 """Grasp execution in PyBullet with the published sequence, and the judgement of each attempt.
 
 Sequence: open the gripper, teleport (``resetJointState``) to a pre-grasp ``pregrasp_offset_m`` back
-along the approach and hold it for ``settle_steps``, descend in a straight line through IK
-waypoints under position control, close, lift ``lift_height_m``, hold ``hold_steps``. Success: the
-object's centre of mass at least ``success_height_above_table_m`` above the table and both fingers
-still touching it.
+along the approach and hold it for ``settle_steps``, descend in a straight line through the
+waypoints of ``motion.motion_waypoints`` under position control, close, lift ``lift_height_m``,
+hold ``hold_steps``. Success: the object's centre of mass at least
+``success_height_above_table_m`` above the table and both fingers still touching it.
 
-IK: PyBullet's ``calculateInverseKinematics`` (``ik_iterations``) with joint limits, ranges and rest
-poses, seeded by the planner's joints, then Franka's ready pose, mid-limits and seeded random joints;
-every solution is checked against the joint limits and by forward kinematics (``getLinkState`` on
-``panda_grasptarget``). Where PyBullet fails, the batched ``PandaIK`` is tried. The descent and lift
-waypoints are each seeded by their neighbour and must stay on the grasp solution's IK branch.
+Joints: the planner's joint path, the motion it checked, is executed as planned once PyBullet's
+forward kinematics confirms it reaches every waypoint. Without a planned path (or when it fails
+that check) the motion is solved here, and the attempt says so: PyBullet's
+``calculateInverseKinematics`` (``ik_iterations``) with joint limits, ranges and rest poses, seeded
+by the planner's joints, then Franka's ready pose, mid-limits and seeded random joints, every
+solution checked against the limits and by forward kinematics; the batched ``PandaIK`` where
+PyBullet fails. Those waypoints are each seeded by their neighbour and must stay on the grasp
+solution's IK branch.
 """
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ import pybullet
 import torch
 
 from .config import Config
+from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
 from .scene import PANDA_ARM_JOINTS, PANDA_FINGER_JOINTS, PANDA_GRASPTARGET_LINK, Scene
 from .types import GraspAttempt, GraspCandidates
@@ -152,30 +156,42 @@ class _ArmIK:
             solutions.append(arm_joints)
         return solutions[1:]
 
-    def plan(
-        self, position: np.ndarray, quat: np.ndarray, seeds: Sequence[np.ndarray], descent: Sequence[np.ndarray], lift: Sequence[np.ndarray]
-    ) -> tuple[list[np.ndarray], list[np.ndarray]] | None:
-        """(descent joints ending at the grasp, lift joints): the first grasp solution from which both
-        straight-line paths stay on one IK branch. ``descent`` lists positions from the pre-grasp to just
-        before the grasp; they are solved backwards from the grasp."""
-        for grasp_joints in self.grasp_solutions(position, quat, seeds):
-            backwards = self.path(grasp_joints, list(descent)[::-1], quat)
-            lift_joints = self.path(grasp_joints, lift, quat) if backwards is not None else None
+    def plan(self, waypoints: np.ndarray, quat: np.ndarray, seeds: Sequence[np.ndarray], grasp_index: int) -> np.ndarray | None:
+        """(W, 7) joints through ``waypoints`` (the motion's positions, the grasp at ``grasp_index``)
+        from the first grasp solution whose descent and lift both stay on one IK branch; the
+        descent is solved backwards from the grasp."""
+        for grasp_joints in self.grasp_solutions(waypoints[grasp_index], quat, seeds):
+            backwards = self.path(grasp_joints, list(waypoints[:grasp_index])[::-1], quat)
+            lift_joints = self.path(grasp_joints, list(waypoints[grasp_index + 1:]), quat) if backwards is not None else None
             if lift_joints is not None:
-                return [*backwards[::-1], grasp_joints], lift_joints
+                return np.array([*backwards[::-1], grasp_joints, *lift_joints])
         return None
 
+    def reproduces(self, joint_path: np.ndarray, waypoints: np.ndarray, quat: np.ndarray) -> bool:
+        """Whether PyBullet's own kinematics puts the grasp target on every waypoint with these joints."""
+        return all(self.check(joints, position, quat)[0] for joints, position in zip(joint_path, waypoints))
 
-def _robot_touches(scene: Scene, other_body: int) -> bool:
-    """Any robot link other than the fixed base (which stands on the table) in contact with ``other_body``."""
+
+def _robot_contacts(scene: Scene, other_body: int) -> list[tuple]:
+    """The last step's contacts between robot links other than the fixed base (which stands on the table) and ``other_body``."""
     contacts = pybullet.getContactPoints(bodyA=scene.robot_id, bodyB=other_body, physicsClientId=scene.client)
-    return any(contact[3] != -1 for contact in contacts)
+    return [contact for contact in contacts if contact[3] != -1]
 
 
 def _robot_push_n(scene: Scene, other_body: int) -> float:
-    """Total normal force (N) of the last step's contacts between robot links (not the base) and ``other_body``."""
-    contacts = pybullet.getContactPoints(bodyA=scene.robot_id, bodyB=other_body, physicsClientId=scene.client)
-    return float(sum(contact[9] for contact in contacts if contact[3] != -1))
+    """Total normal force (N) of the last step's contacts between robot links and ``other_body``."""
+    return float(sum(contact[9] for contact in _robot_contacts(scene, other_body)))
+
+
+def _touching_links(scene: Scene, bodies: Sequence[int]) -> list[str]:
+    """'robot link -> body' names of the robot's current contacts with ``bodies`` (why a collision was called)."""
+    names = {scene.table_id: "table", scene.target_id: "target", **{body: f"distractor_{i}" for i, body in enumerate(scene.distractor_ids)}}
+    touching = set()
+    for body in bodies:
+        for contact in _robot_contacts(scene, body):
+            link = pybullet.getJointInfo(scene.robot_id, contact[3], physicsClientId=scene.client)[12].decode()
+            touching.add(f"{link}->{names.get(body, body)}")
+    return sorted(touching)
 
 
 def _fingers_holding(scene: Scene) -> bool:
@@ -190,6 +206,20 @@ def _step(scene: Scene, steps: int) -> None:
         pybullet.stepSimulation(physicsClientId=scene.client)
 
 
+def _track(scene: Scene, config: Config, joint_path: np.ndarray, after_each=None) -> float:
+    """Command each waypoint of ``joint_path`` in turn for ``steps_per_waypoint`` steps; the largest
+    deviation (rad) of the arm's joints from a waypoint when its steps end. ``after_each`` may stop
+    the motion early by returning True."""
+    deviation = 0.0
+    for joints in joint_path:
+        scene.command_arm(joints)
+        _step(scene, config.execution.steps_per_waypoint)
+        deviation = max(deviation, float(np.abs(scene.arm_joints() - joints).max()))
+        if after_each is not None and after_each():
+            break
+    return deviation
+
+
 def execute_grasp(
     scene: Scene,
     config: Config,
@@ -198,6 +228,7 @@ def execute_grasp(
     width_m: float,
     approach_world: Any,
     ik_seed: Any = None,
+    joint_path: Any = None,
     record_frames: bool = False,
 ) -> GraspAttempt:
     """Execute one grasp from the scene's current state and judge it.
@@ -207,11 +238,17 @@ def execute_grasp(
         quat_xyzw: (4,) grasp orientation (columns: x = y cross z, y = closing axis, z = approach).
         width_m: object width between the contacts; the gripper opens fully regardless (published sequence).
         approach_world: (3,) direction the gripper moves in toward the object.
-        ik_seed: (7,) arm joints reaching the grasp (the planner's), used as the first IK seed.
-        record_frames: put RGB images at contact and after the lift in ``details["frames"]``.
+        ik_seed: (7,) arm joints reaching the grasp (the planner's), the first seed of the fallback IK.
+        joint_path: (W, 7) the planner's joints at every waypoint of ``motion.motion_waypoints``:
+            executed as given once PyBullet's kinematics confirms they reach the waypoints. Without
+            it, or when it does not, the motion is solved with PyBullet IK (``details["ik_source"]``
+            says which was executed, ``details["ik_fallback"]`` why the plan was not).
+        record_frames: put RGB images at contact and after the lift (or when the attempt failed)
+            in ``details["frames"]``.
 
     Returns a ``GraspAttempt`` whose ``failure_reason`` is None, "unreachable", "collision",
-    "slipped" or "not_lifted".
+    "slipped" or "not_lifted", and whose ``details["failed_at"]`` says in which phase ("plan",
+    "pregrasp", "descent", "close", "lift").
     """
     execution = config.execution
     position = _as_vector(position_world, 3, "position_world")
@@ -223,19 +260,34 @@ def execute_grasp(
         raise InvalidGraspError(f"width_m {float(width_m)} is outside the gripper's 0..{execution.finger_open_width_m} m")
     quat = quat / np.linalg.norm(quat)
     approach = approach / np.linalg.norm(approach)
+    waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), execution)[0].double().numpy()
+    grasp_index = grasp_waypoint_index(execution)
+    if joint_path is not None:
+        joint_path = np.asarray(joint_path.detach().cpu().numpy() if isinstance(joint_path, torch.Tensor) else joint_path, dtype=float)
+        if joint_path.shape != (len(waypoints), 7) or not np.all(np.isfinite(joint_path)):
+            raise InvalidGraspError(f"joint_path must be ({len(waypoints)}, 7) finite joints, got shape {joint_path.shape}")
 
     client, target = scene.client, scene.target_id
     table_top = config.scene.table_top_z_m
     rest_com, rest_quat = scene.centre_of_mass(target)
     distractor_start = [scene.centre_of_mass(body)[0] for body in scene.distractor_ids]
     details: dict[str, Any] = {}
+    frames: dict[str, np.ndarray] = {}
+    camera = None
+    if record_frames:
+        camera = make_camera("frames", config, rest_com + np.asarray(execution.frame_camera_offset_m), rest_com, (0.0, 0.0, 1.0))
 
-    def finish(success: bool, reason: str | None) -> GraspAttempt:
+    def finish(success: bool, reason: str | None, phase: str | None) -> GraspAttempt:
         com, com_quat = scene.centre_of_mass(target)
         moved = [float(np.linalg.norm(scene.centre_of_mass(body)[0] - start)) for body, start in zip(scene.distractor_ids, distractor_start)]
+        details["failed_at"] = phase
         details["distractors_max_displacement_m"] = max(moved, default=0.0)
         details["object_height_above_table_m"] = float(com[2] - table_top)
-        details["ik_source"] = ik.source
+        if reason == "collision":
+            details["collision_links"] = _touching_links(scene, [scene.table_id, target, *scene.distractor_ids])
+        if camera is not None:
+            frames["lifted" if success else f"failed_{phase}"] = render(scene, camera)[0]
+            details["frames"] = frames
         return GraspAttempt(
             success=success,
             failure_reason=reason,
@@ -253,64 +305,58 @@ def execute_grasp(
             physicsClientId=client,
         )
 
-    # Plan every waypoint before stepping: IK teleports the arm, which is harmless while time stands still.
+    # Every joint is known before stepping: IK and checks teleport the arm, harmless while time stands still.
     ik = _ArmIK(scene, config)
     start_joints = scene.arm_joints()
-    seeds = [_as_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
-    pregrasp = position - approach * execution.pregrasp_offset_m
-    descent_fractions = np.linspace(0.0, 1.0, execution.descent_waypoints + 1)[:-1]
-    lift_offsets = np.linspace(0.0, execution.lift_height_m, execution.lift_waypoints + 1)[1:]
-    plan = ik.plan(
-        position,
-        quat,
-        seeds,
-        [pregrasp + (position - pregrasp) * f for f in descent_fractions],
-        [position + np.array([0.0, 0.0, dz]) for dz in lift_offsets],
-    )
-    if plan is None:
+    if joint_path is not None and ik.reproduces(joint_path, waypoints, quat):
+        details["ik_source"] = "planner"
+    else:
+        details["ik_fallback"] = "no planned path" if joint_path is None else "planned joints miss a waypoint in PyBullet"
+        seeds = [_as_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
+        joint_path = ik.plan(waypoints, quat, seeds, grasp_index)
+        details["ik_source"] = ik.source
+    if joint_path is None:
         scene.set_arm_joints(start_joints)
-        return finish(False, "unreachable")
-    descent, lift = plan
+        return finish(False, "unreachable", "plan")
 
     scene.set_finger_width(execution.finger_open_width_m)
-    scene.set_arm_joints(descent[0])
+    scene.set_arm_joints(joint_path[0])
     pybullet.performCollisionDetection(physicsClientId=client)
-    if _robot_touches(scene, scene.table_id) or _robot_touches(scene, target):
-        details["collision_at"] = "pregrasp"
-        return finish(False, "collision")
+    if _robot_contacts(scene, scene.table_id) or _robot_contacts(scene, target) or any(
+        _robot_contacts(scene, body) for body in scene.distractor_ids
+    ):
+        return finish(False, "collision", "pregrasp")
     _step(scene, execution.settle_steps)
 
-    for joints in descent[1:]:
-        scene.command_arm(joints)
-        _step(scene, execution.steps_per_waypoint)
+    def descent_blocked() -> bool:
         knocked = np.linalg.norm(scene.centre_of_mass(target)[0] - rest_com) > execution.knock_tolerance_m
-        if _robot_push_n(scene, scene.table_id) > execution.table_contact_max_force_n or knocked:
-            details["collision_at"] = "descent"
-            return finish(False, "collision")
+        return knocked or _robot_push_n(scene, scene.table_id) > execution.table_contact_max_force_n
+
+    details["descent_tracking_error_rad"] = _track(scene, config, joint_path[1 : grasp_index + 1], descent_blocked)
+    if descent_blocked():
+        return finish(False, "collision", "descent")
 
     scene.command_fingers(0.0)
     _step(scene, execution.close_steps)
     details["fingers_touching_after_close"] = _fingers_holding(scene)
-    frames: dict[str, np.ndarray] = {}
-    if record_frames:
-        camera = make_camera("frames", config, rest_com + np.asarray(execution.frame_camera_offset_m), rest_com, (0.0, 0.0, 1.0))
+    if camera is not None:
         frames["contact"] = render(scene, camera)[0]
 
-    highest_rise = 0.0
-    for joints in lift:
-        scene.command_arm(joints)
-        _step(scene, execution.steps_per_waypoint)
-        highest_rise = max(highest_rise, float(scene.centre_of_mass(target)[0][2] - rest_com[2]))
+    highest_rise = [0.0]
+
+    def note_rise() -> bool:
+        highest_rise[0] = max(highest_rise[0], float(scene.centre_of_mass(target)[0][2] - rest_com[2]))
+        return False
+
+    details["lift_tracking_error_rad"] = _track(scene, config, joint_path[grasp_index + 1 :], note_rise)
     _step(scene, execution.hold_steps)
-    if record_frames:
-        frames["lifted"] = render(scene, camera)[0]
-        details["frames"] = frames
 
     com = scene.centre_of_mass(target)[0]
     high_enough = com[2] - table_top >= execution.success_height_above_table_m
     if high_enough and _fingers_holding(scene):
-        return finish(True, None)
-    return finish(False, "slipped" if highest_rise >= execution.lifted_detect_height_m else "not_lifted")
+        return finish(True, None, None)
+    phase = "lift" if details["fingers_touching_after_close"] else "close"
+    return finish(False, "slipped" if highest_rise[0] >= execution.lifted_detect_height_m else "not_lifted", phase)
 
 
 def execute_ranked(
@@ -322,7 +368,8 @@ def execute_ranked(
 ) -> list[GraspAttempt]:
     """Execute candidates in ``order`` (at most ``max_attempts``), each from the restored settled scene.
 
-    Stops at the first success. Each attempt's ``details["candidate_index"]`` names the candidate.
+    Stops at the first success. Each attempt's ``details`` name the candidate (``candidate_index``)
+    and what the planner predicted for it (``predicted``: reachable, collision_free, clearance_m).
     """
     attempts: list[GraspAttempt] = []
     positions = candidates.position_world
@@ -331,6 +378,7 @@ def execute_ranked(
         if not 0 <= int(index) < len(candidates):
             raise IndexError(f"candidate index {index} outside the {len(candidates)} candidates")
         scene.restore_state()
+        planned = candidates.joint_path is not None
         attempt = execute_grasp(
             scene,
             config,
@@ -339,9 +387,16 @@ def execute_ranked(
             float(candidates.width_m[index]),
             candidates.approach[index],
             ik_seed=candidates.ik_solution[index],
+            joint_path=candidates.joint_path[index] if planned else None,
             record_frames=record_frames,
         )
         attempt.details["candidate_index"] = int(index)
+        # Planned candidates passed the motion and swept-hand checks; others only the grasp-pose IK.
+        attempt.details["predicted"] = {
+            "reachable": True,
+            "collision_free": planned,
+            "clearance_m": float(candidates.hand_clearance_m[index]) if candidates.hand_clearance_m is not None else None,
+        }
         attempts.append(attempt)
         if attempt.success:
             break

@@ -7,7 +7,6 @@ solutions.
 """
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,8 +17,8 @@ import pytorch_kinematics as pk
 import torch
 
 from .config import PlannerConfig, SceneConfig
+from .hand import quiet_urdf
 
-log = logging.getLogger(__name__)
 PANDA_URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
 END_LINK = "panda_grasptarget"
 N_ARM_JOINTS = 7
@@ -36,20 +35,18 @@ class IKResult:
     s_reach: torch.Tensor  # (N,) (1 + cos(rotation_error)) / 2, in [0, 1]
 
 
+@dataclass
+class PathResult:
+    """Joints along N straight-line motions of W waypoints each, continued from known joints."""
+
+    joints: torch.Tensor  # (N, W, 7) arm joints, radians, clamped to the joint limits
+    position_error_m: torch.Tensor  # (N, W) distance of the reached grasp target from each waypoint
+    rotation_error_rad: torch.Tensor  # (N, W) angle between the reached and requested orientation
+
+
 def _panda_chain() -> pk.SerialChain:
-    """The Panda arm chain up to ``END_LINK``.
-
-    pybullet_data's panda.urdf carries PyBullet-only tags (``<contact>``, collision ``<material>``)
-    that pytorch-kinematics' parser reports on stderr once per link; they do not affect kinematics,
-    so its reports go to the debug log instead of every run's console.
-    """
-    from pytorch_kinematics.urdf_parser_py.xml_reflection import core
-
-    previous, core.on_error = core.on_error, lambda message: log.debug("panda.urdf: %s", message)
-    try:
-        return pk.build_serial_chain_from_urdf(PANDA_URDF.read_text(), END_LINK)
-    finally:
-        core.on_error = previous
+    """The Panda arm chain up to ``END_LINK``."""
+    return quiet_urdf(lambda text: pk.build_serial_chain_from_urdf(text, END_LINK), PANDA_URDF)
 
 
 class PandaIK:
@@ -160,3 +157,50 @@ class PandaIK:
             rotation_error_rad=best_rotation_error,
             s_reach=(1.0 + torch.cos(best_rotation_error)) / 2.0,
         )
+
+    def follow(self, start_joints: torch.Tensor, positions_world: torch.Tensor, rotations_world: torch.Tensor) -> PathResult:
+        """Joints reaching W waypoints of each of N motions, continued from ``start_joints``.
+
+        Every waypoint starts from its motion's ``start_joints`` (the grasp solution) and takes
+        ``path_ik_iterations`` damped-least-squares steps on pytorch-kinematics' Jacobian, clamped
+        to the joint limits, all N x W waypoints in one batch. Starting every waypoint from the
+        same solution keeps them on its IK branch; the caller checks that neighbours stay close
+        in joint space. pytorch-kinematics' ``PseudoInverseIK`` would draw its own seeds per retry
+        and pick among branches, which is the opposite of following one branch.
+
+        Args:
+            start_joints: (N, 7) joints of each motion's known pose (inside the limits).
+            positions_world: (N, W, 3) ``panda_grasptarget`` waypoints, world frame, metres.
+            rotations_world: (N, 3, 3) orientation held along each motion (grasp frame -> world).
+
+        Returns:
+            ``PathResult`` with (N, W, ...) tensors.
+        """
+        n_motions, n_waypoints = positions_world.shape[:2]
+        if start_joints.shape != (n_motions, N_ARM_JOINTS) or rotations_world.shape != (n_motions, 3, 3):
+            raise ValueError(
+                f"start_joints must be (N, 7) and rotations_world (N, 3, 3) for positions_world (N, W, 3), got "
+                f"{tuple(start_joints.shape)}, {tuple(rotations_world.shape)} and {tuple(positions_world.shape)}"
+            )
+        joints = start_joints.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
+        target_position = (positions_world.to(torch.float32) - self.base_xyz_world).reshape(-1, 3)
+        target_rotation = rotations_world.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
+        damping = torch.eye(6) * self.config.path_ik_damping**2
+        for _ in range(self.config.path_ik_iterations):
+            jacobian, pose = self.chain.jacobian(joints, ret_eef_pose=True)
+            error = torch.cat((target_position - pose[:, :3, 3], _rotation_error_vector(target_rotation, pose[:, :3, :3])), dim=1)
+            step = jacobian.transpose(1, 2) @ torch.linalg.solve(jacobian @ jacobian.transpose(1, 2) + damping, error.unsqueeze(-1))
+            joints = torch.minimum(torch.maximum(joints + step.squeeze(-1), self.lower), self.upper)
+        pose = self.chain.forward_kinematics(joints).get_matrix()
+        position_error = (target_position - pose[:, :3, 3]).norm(dim=1)
+        rotation_error = _rotation_error_vector(target_rotation, pose[:, :3, :3]).norm(dim=1)
+        return PathResult(
+            joints=joints.view(n_motions, n_waypoints, N_ARM_JOINTS),
+            position_error_m=position_error.view(n_motions, n_waypoints),
+            rotation_error_rad=rotation_error.view(n_motions, n_waypoints),
+        )
+
+
+def _rotation_error_vector(target: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
+    """(M, 3) rotation vector (axis x angle, base frame) turning ``current`` into ``target``, both (M, 3, 3)."""
+    return pk.matrix_to_axis_angle(target @ current.transpose(1, 2))

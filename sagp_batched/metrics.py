@@ -2,18 +2,25 @@
 
 Definitions, per method x task x group:
 - GSR: grasp success rate, the object lifted and held (the T1 criterion) over all trials.
+- FAS: first-attempt success, trials whose first executed attempt lifted the object, over the trials
+  that executed at least one attempt (errors, perception failures and "no_candidates" trials are
+  left out of its denominator, unlike GSR's), so it measures the ranking's top choice, not the retries.
 - TSR: task success rate, GSR plus the task's own conditions (t2: preferred zone and orientation
   kept; t3: no distractor moved more than 5 cm). Reported beside GSR so t2/t3 stay comparable to t1.
 - PZA, AC, OP: over successful grasps, the fraction in a preferred zone, outside every avoid zone,
   and keeping the object within 15 deg of its resting orientation.
 - MPT_s: mean planning time per trial (perception excluded), with the rating model's mean time
   reported separately as ``rating_s`` and geometry as ``geometry_s``.
+- n_attempts: executed attempts over the group's trials; attempt_failures: failed attempts by
+  "reason@stage" (e.g. "collision@descent"; "unknown" where a record predates the field);
+  prediction_mismatches: failed attempts the planner had predicted reachable and collision-free,
+  where planner and robot disagree.
 """
 from __future__ import annotations
 
 import math
-from collections import defaultdict
-from typing import Any, Iterable
+from collections import Counter, defaultdict
+from typing import Any, Callable, Iterable
 
 WILSON_Z_95 = 1.959963984540054
 
@@ -44,10 +51,33 @@ def groups_of(record: dict[str, Any]) -> list[str]:
     return groups
 
 
+def failure_key(attempt: dict[str, Any]) -> str:
+    """'reason@stage' of a failed attempt, 'unknown' for what an older record did not log."""
+    return f"{attempt.get('failure_reason') or 'unknown'}@{attempt.get('failed_at') or 'unknown'}"
+
+
+def _predicted_feasible(attempt: dict[str, Any]) -> bool:
+    predicted = attempt.get("predicted") or {}
+    return predicted.get("reachable") is True and predicted.get("collision_free") is True
+
+
+def attempt_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per-attempt outcomes, so a failure's stage and the planner's prediction are visible beside the rates."""
+    attempts = [a for r in records for a in r.get("attempt_log") or []]
+    failed = [a for a in attempts if not a.get("success")]
+    return {
+        "n_attempts": len(attempts),
+        "attempt_failures": dict(sorted(Counter(failure_key(a) for a in failed).items())),
+        "prediction_mismatches": sum(1 for a in failed if _predicted_feasible(a)),
+    }
+
+
 def group_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
     """Metrics of one group of trial records (errors count as failed trials)."""
     n = len(records)
     lifted = [r for r in records if r.get("success")]
+    attempted = [r for r in records if r.get("attempt_log")]
+    first_lifted = [r for r in attempted if r["attempt_log"][0].get("success")]
     in_zone = [r for r in lifted if r.get("in_preferred_zone")]
     clear_of_avoid = [r for r in lifted if r.get("in_avoid_zone") is False]
     orientation_kept = [r for r in lifted if r.get("orientation_kept")]
@@ -55,6 +85,7 @@ def group_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
     times = [r.get("times_s") or {} for r in records]
     counts = {
         "GSR": (len(lifted), n),
+        "FAS": (len(first_lifted), len(attempted)),
         "TSR": (len(task_done), n),
         "PZA": (len(in_zone), len(lifted)),
         "AC": (len(clear_of_avoid), len(lifted)),
@@ -69,18 +100,30 @@ def group_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
         "MPT_s": _mean([t["total_plan"] for t in times if t.get("total_plan") is not None]),
         "geometry_s": _mean([t["geometry"] for t in times if t.get("geometry") is not None]),
         "rating_s": _mean([t["rating"] for t in times if t.get("rating") is not None]),
+        **attempt_metrics(records),
+    }
+
+
+def _by_method_and_task(records: Iterable[dict[str, Any]], keys_of: Callable[[dict[str, Any]], list[str]]) -> dict[str, Any]:
+    """method -> task -> key -> metrics over records that were actually run (not skipped); a record
+    counts under every key that ``keys_of`` gives it."""
+    buckets: dict[str, dict[str, dict[str, list]]] = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
+    for record in records:
+        if record.get("skipped"):
+            continue
+        for key in keys_of(record):
+            buckets[record["method"]][record["task"]][key].append(record)
+    return {
+        method: {task: {key: group_metrics(rs) for key, rs in sorted(by_key.items())} for task, by_key in sorted(by_task.items())}
+        for method, by_task in sorted(buckets.items())
     }
 
 
 def summarise(records: Iterable[dict[str, Any]]) -> dict[str, Any]:
     """method -> task -> group -> metrics, over records that were actually run (not skipped)."""
-    buckets: dict[str, dict[str, dict[str, list]]] = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
-    for record in records:
-        if record.get("skipped"):
-            continue
-        for group in groups_of(record):
-            buckets[record["method"]][record["task"]][group].append(record)
-    return {
-        method: {task: {group: group_metrics(rs) for group, rs in sorted(by_group.items())} for task, by_group in sorted(by_task.items())}
-        for method, by_task in sorted(buckets.items())
-    }
+    return _by_method_and_task(records, groups_of)
+
+
+def per_object(records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """method -> task -> object id -> metrics, over records that were actually run (not skipped)."""
+    return _by_method_and_task(records, lambda record: [record["object"]])

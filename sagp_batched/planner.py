@@ -20,16 +20,19 @@ import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.gripper_volume import (
-    GripperGeometry,
-    gripper_corners_local,
-    gripper_occupancy,
-    table_penetration,
+from sagp_batched_kernels.gripper_volume import GripperGeometry, gripper_occupancy, table_penetration
+from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
+from sagp_batched_kernels.sampling import (
+    sample_guided_pair_indices,
+    sample_pair_indices,
+    sample_subset_indices,
+    voxel_representatives,
 )
-from sagp_batched_kernels.sampling import sample_guided_pair_indices, sample_pair_indices, sample_subset_indices
 
 from .config import Config, PlannerConfig
-from .ik import PandaIK
+from .hand import DOP_DIRECTIONS, HandGeometry, load_hand_geometry
+from .ik import PANDA_URDF, PandaIK
+from .motion import grasp_waypoint_index, motion_waypoints
 from .types import GraspCandidates, PerceivedCloud
 
 # Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
@@ -60,9 +63,12 @@ def gripper_geometry(config: PlannerConfig) -> GripperGeometry:
         palm_span_m=config.palm_span_m,
         palm_depth_m=config.palm_depth_m,
         contact_clearance_m=config.contact_clearance_m,
-        wrist_half_width_m=config.wrist_half_width_m,
-        wrist_length_m=config.wrist_length_m,
     )
+
+
+def hand_geometry(config: PlannerConfig) -> HandGeometry:
+    """The open Panda hand's collision hulls, derived from the robot's URDF."""
+    return load_hand_geometry(PANDA_URDF, config.gripper_open_width_m)
 
 
 def _check_cloud(cloud: PerceivedCloud, position: int) -> None:
@@ -85,6 +91,7 @@ class SampledInputs:
     pair_indices: torch.Tensor  # (P, 2) int64 indices into the cloud's points
     occupancy_points: torch.Tensor  # (M, 3) object points then obstacle points the occupancy check counts
     occupancy_total: int  # object points in ``occupancy_points``: the occupancy fraction's denominator
+    hand_check_points: torch.Tensor  # (H, 3) object then obstacle points the swept-hand check tests
 
 
 def sample_inputs(cloud: PerceivedCloud, planner: PlannerConfig, seed: int) -> SampledInputs:
@@ -115,7 +122,9 @@ def sample_inputs(cloud: PerceivedCloud, planner: PlannerConfig, seed: int) -> S
             cloud.obstacle_points_world.to(torch.float32)[obstacle_subset],
         )
     )
-    return SampledInputs(pair_indices, occupancy_points, len(object_subset))
+    scene_points = torch.cat((cloud.points_world.to(torch.float32), cloud.obstacle_points_world.to(torch.float32)))
+    hand_check_points = scene_points[voxel_representatives(scene_points, planner.hand_check_voxel_m)]
+    return SampledInputs(pair_indices, occupancy_points, len(object_subset), hand_check_points)
 
 
 def _segment_exclusive_cumsum(values: torch.Tensor, object_index: torch.Tensor, n_objects: int) -> torch.Tensor:
@@ -147,6 +156,7 @@ class ScreenedCandidates:
     clear_of_table: torch.Tensor  # (A, K) bool: table-clear at grasp and pre-grasp, and the jaws fit the width
     occupancy_points: torch.Tensor  # (B, M, 3) per-cloud occupancy subsets (object then obstacles), NaN-padded
     occupancy_total: torch.Tensor  # (B,) object points of each subset: the occupancy fractions' denominator
+    hand_check_points: torch.Tensor  # (B, H, 3) per-cloud points for the swept-hand check, NaN-padded
     planner: PlannerConfig
     pregrasp_offset_m: float
 
@@ -155,21 +165,25 @@ class ScreenedCandidates:
         return self.contacts_world.mean(dim=1)
 
     def occupancy_ok(self, rows: torch.Tensor) -> torch.Tensor:
-        """(R, K) bool: the gripper volumes of candidates ``rows`` are under the occupancy limits.
+        """(R, K) bool: the gripper volumes of candidates ``rows`` are under the published 12 % limit.
 
-        The most expensive check of the planner, so ``plan_batch`` runs it only on candidates that
-        can still enter the kept set, in S_geom order.
+        ``plan_batch`` runs it only on candidates that can still enter the kept set, in S_geom order.
         """
         planner = self.planner
         occupancy = gripper_occupancy(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows],
-            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements, self.pregrasp_offset_m,
+            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements,
         )
         total = self.occupancy_total[self.object_index[rows], None]
-        return (
-            (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total)
-            & (occupancy.palm.to(torch.float32) <= planner.palm_max_fraction * total)
-            & (occupancy.descent.to(torch.float32) <= planner.descent_max_fraction * total)
+        return occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total
+
+    def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
+        """Clearance of the real hand (its collision hulls) swept along the descent of candidates
+        ``rows`` with approaches ``slots``, from the scene's object and obstacle points."""
+        low, high = hand_geometry(self.planner).swept((0.0, 0.0, -self.pregrasp_offset_m))
+        return hand_clearance(
+            self.hand_check_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows, slots],
+            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
         )
 
     @property
@@ -213,13 +227,9 @@ def screen_candidates(
 
     approach = approach_directions(closing_axis, planner.n_approaches, WORLD_DOWN)  # (A, K, 3), prior order
     rotation = grasp_rotations(closing_axis[:, None, :], approach)  # (A, K, 3, 3)
-    geometry = gripper_geometry(planner)
     through_table = table_penetration(
-        centre, rotation, gripper_corners_local(geometry), config.execution.pregrasp_offset_m, config.scene.table_top_z_m
+        centre, rotation, hand_geometry(planner).all_vertices, config.execution.pregrasp_offset_m, config.scene.table_top_z_m
     )
-    padded = torch.full((n_objects, max(len(s.occupancy_points) for s in sampled), 3), float("nan"))
-    for index, inputs in enumerate(sampled):
-        padded[index, : len(inputs.occupancy_points)] = inputs.occupancy_points
     stage_time["frames_volume"] = time.perf_counter() - clock
     return ScreenedCandidates(
         object_index=candidate_object,
@@ -231,16 +241,87 @@ def screen_candidates(
         approach=approach,
         rotation_world=rotation,
         clear_of_table=~through_table & (width <= jaw_width_limit(planner))[:, None],
-        occupancy_points=padded,
+        occupancy_points=_padded([s.occupancy_points for s in sampled]),
         occupancy_total=torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32),
+        hand_check_points=_padded([s.hand_check_points for s in sampled]),
         planner=planner,
         pregrasp_offset_m=config.execution.pregrasp_offset_m,
     )
 
 
+def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
+    """(B, max N, 3) the point sets stacked, shorter ones padded with NaN rows (never inside anything)."""
+    padded = torch.full((len(point_sets), max(len(points) for points in point_sets), 3), float("nan"))
+    for index, points in enumerate(point_sets):
+        padded[index, : len(points)] = points
+    return padded
+
+
 def jaw_width_limit(planner) -> float:
     """Widest pair the open jaws can descend around with ``jaw_clearance_m`` on each side."""
     return planner.gripper_open_width_m - 2.0 * planner.jaw_clearance_m
+
+
+@dataclass
+class MotionCheck:
+    """Whether R (candidate, approach) grasps can be executed as planned, with their joint paths."""
+
+    STAGES = ("grasp_ik", "motion")  # the check that rejected a grasp, in the order they run
+
+    feasible: torch.Tensor  # (R,) bool: grasp pose and whole motion reachable on one IK branch
+    joint_path: torch.Tensor  # (R, W, 7) joints at every waypoint of ``motion_waypoints`` (zeros where infeasible)
+    s_reach: torch.Tensor  # (R,) IK margin of the grasp pose
+    rejected_by: torch.Tensor  # (R, 2) int64 one-hot over ``STAGES``: the check that rejected it
+    ik_targets: int  # grasp poses and waypoints handed to IK
+
+
+def check_motions(screened: "ScreenedCandidates", rows: torch.Tensor, slots: torch.Tensor, ik: PandaIK, config: Config) -> MotionCheck:
+    """The reachability checks execution's motion has to pass, the second on the survivors of the first.
+
+    1. The grasp pose is reachable (IK within tolerance and S_reach over its floor): execution
+       sends the requested pose, so the reached orientation must match it.
+    2. Every waypoint of the motion (pre-grasp, descent, lift) is reachable from the grasp
+       solution on its IK branch: within tolerance, inside the limits, and no joint moving more
+       than ``max_waypoint_joint_step_rad`` between neighbouring waypoints.
+    """
+    planner, execution = config.planner, config.execution
+    n_rows = rows.numel()
+    rotation = screened.rotation_world[rows, slots]
+    approach = screened.approach[rows, slots]
+    centre = screened.centre_world[rows]
+    waypoints = motion_waypoints(centre, approach, execution)
+    grasp_index = grasp_waypoint_index(execution)
+    joint_path = torch.zeros(n_rows, waypoints.shape[1], 7)
+    s_reach = torch.zeros(n_rows)
+    rejected_by = torch.zeros(n_rows, len(MotionCheck.STAGES), dtype=torch.int64)
+
+    grasp = ik.solve(centre, rotation)
+    reached = grasp.success & (grasp.s_reach >= planner.min_reach)
+    rejected_by[~reached, 0] = 1
+    candidates, grasp_joints = reached.nonzero().squeeze(1), grasp.joints[reached]
+    s_reach[candidates] = grasp.s_reach[reached]
+
+    others = torch.arange(waypoints.shape[1]) != grasp_index
+    path = ik.follow(grasp_joints, waypoints[candidates][:, others], rotation[candidates])
+    joints = torch.zeros(candidates.numel(), waypoints.shape[1], 7)
+    joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
+    steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
+    motion_ok = (
+        (path.position_error_m < planner.ik_pos_tolerance_m).all(dim=1)
+        & (path.rotation_error_rad < planner.ik_rot_tolerance_rad).all(dim=1)
+        & (steps <= execution.max_waypoint_joint_step_rad)
+    )
+    rejected_by[candidates[~motion_ok], 1] = 1
+    joint_path[candidates[motion_ok]] = joints[motion_ok]
+    feasible = torch.zeros(n_rows, dtype=torch.bool)
+    feasible[candidates[motion_ok]] = True
+    return MotionCheck(
+        feasible=feasible,
+        joint_path=joint_path,
+        s_reach=s_reach,
+        rejected_by=rejected_by,
+        ik_targets=n_rows + int(candidates.numel()) * int(others.sum()),
+    )
 
 
 def plan_batch(
@@ -292,8 +373,11 @@ def plan_batch(
     cursor = torch.full((n_candidates,), n_approaches)
     volume_screened = torch.zeros(n_candidates, dtype=torch.bool)
     status = torch.where(usable.any(dim=1), UNDECIDED, EXHAUSTED)
-    chosen_joints = torch.zeros(n_candidates, 7)
+    n_waypoints = motion_waypoints(centre[:0], approach[:0, 0], config.execution).shape[1]
+    chosen_path = torch.zeros(n_candidates, n_waypoints, 7)
     chosen_reach = torch.zeros(n_candidates)
+    clearance = torch.full((n_candidates, n_approaches), float("inf"))
+    rejected = torch.zeros(n_candidates, 3, dtype=torch.int64)  # per candidate: hand, grasp IK, motion
     ik = panda_ik(config)
     ik_targets = 0
     volume_s = 0.0
@@ -306,6 +390,13 @@ def plan_batch(
         if to_screen.numel():
             volume_clock = time.perf_counter()
             usable[to_screen] &= screened.occupancy_ok(to_screen)
+            # The real hand on every approach still usable, so IK rounds only retry for reachability.
+            rows, slots = usable[to_screen].nonzero(as_tuple=True)
+            swept = screened.hand_clearance(to_screen[rows], slots)
+            clearance[to_screen[rows], slots] = swept.clearance_m
+            hand_blocked = swept.points_within > 0
+            usable[to_screen[rows[hand_blocked]], slots[hand_blocked]] = False
+            rejected[:, 0].index_add_(0, to_screen[rows[hand_blocked]], torch.ones(int(hand_blocked.sum()), dtype=torch.int64))
             volume_screened[to_screen] = True
             first_usable = torch.where(usable[to_screen], approach_slots, n_approaches)
             first_usable = torch.cat((first_usable, torch.full((to_screen.numel(), 1), n_approaches)), dim=1)
@@ -318,17 +409,15 @@ def plan_batch(
         if pending.numel() == 0:
             break
         slot = cursor[pending]
-        result = ik.solve(centre[pending], rotation[pending, slot])
-        ik_targets += pending.numel()
-        # Execution sends the requested pose, so the reached orientation must match it too
-        # (``success``), besides the SPEC's S_reach floor.
-        reached = result.success & (result.s_reach >= planner.min_reach)
-        done = pending[reached]
+        motion = check_motions(screened, pending, slot, ik, config)
+        ik_targets += motion.ik_targets
+        rejected[pending, 1:] += motion.rejected_by
+        done = pending[motion.feasible]
         status[done] = FEASIBLE
-        chosen_joints[done] = result.joints[reached]
-        chosen_reach[done] = result.s_reach[reached]
-        retry = pending[~reached]
-        cursor[retry] = next_usable[retry, slot[~reached] + 1]
+        chosen_path[done] = motion.joint_path[motion.feasible]
+        chosen_reach[done] = motion.s_reach[motion.feasible]
+        retry = pending[~motion.feasible]
+        cursor[retry] = next_usable[retry, slot[~motion.feasible] + 1]
         status[retry] = torch.where(cursor[retry] < n_approaches, UNDECIDED, EXHAUSTED)
     collision_free = volume_screened & usable.any(dim=1)
     stage_time["frames_volume"] += volume_s
@@ -352,7 +441,9 @@ def plan_batch(
                 approach=approach[mine, final_slot[mine]],
                 rotation_world=rotation[mine, final_slot[mine]],
                 s_reach=chosen_reach[mine],
-                ik_solution=chosen_joints[mine],
+                ik_solution=chosen_path[mine, grasp_waypoint_index(config.execution)],
+                joint_path=chosen_path[mine],
+                hand_clearance_m=clearance[mine, final_slot[mine]],
                 zone=torch.full((count,), -1, dtype=torch.int64),
                 s_afford=zeros.clone(),
                 s_avoid=zeros.clone(),
@@ -363,6 +454,10 @@ def plan_batch(
                     "antipodal": int((candidate_object == index).sum()),
                     "collision_free": int((collision_free & (candidate_object == index)).sum()),
                     "ik_feasible": int((feasible & (candidate_object == index)).sum()),
+                    **{
+                        f"rejected_{stage}": int(rejected[candidate_object == index, column].sum())
+                        for column, stage in enumerate(("hand", *MotionCheck.STAGES))
+                    },
                 },
             )
         )

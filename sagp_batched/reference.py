@@ -1,9 +1,11 @@
 """The grasp planner written the straightforward way: a Python loop over pairs and approaches,
 PyBullet's ``calculateInverseKinematics`` one pose at a time.
 
-It is the correctness oracle and speed baseline for ``planner.plan``: same random draws
-(``planner.sample_inputs``), same tests and thresholds, same order of trying candidates
-(S_geom order) and approaches (top-down-first prior), but no batching anywhere. Geometry is
+It is the correctness oracle and speed baseline for ``planner.plan``'s published part: same random
+draws (``planner.sample_inputs``), same candidate tests and thresholds (antipodal filter, table,
+the 12 % gripper volume, grasp-pose IK), same order of trying candidates (S_geom order) and
+approaches (top-down-first prior), but no batching anywhere. It stops there: the planner's
+whole-motion reachability and swept-hand checks are beyond the published method. Geometry is
 hand-written with NumPy on purpose, independently of the kernels it checks.
 """
 from __future__ import annotations
@@ -17,7 +19,7 @@ import torch
 
 from .config import Config
 from .ik import END_LINK, N_ARM_JOINTS, PANDA_URDF
-from .planner import jaw_width_limit, sample_inputs
+from .planner import hand_geometry, jaw_width_limit, sample_inputs
 from .types import GraspCandidates, PerceivedCloud
 
 
@@ -115,17 +117,8 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
     finger_z_min = finger_z_max - planner.finger_length_m
     palm_z_min = finger_z_min - planner.palm_depth_m
     finger_y_max = planner.gripper_open_width_m / 2 + planner.finger_thickness_m
-    descent = config.execution.pregrasp_offset_m
-    corners = []
-    for xs, ys, zs in (
-        ((-planner.finger_width_m / 2, planner.finger_width_m / 2), (planner.gripper_open_width_m / 2, finger_y_max), (finger_z_min, finger_z_max)),
-        ((-planner.finger_width_m / 2, planner.finger_width_m / 2), (-finger_y_max, -planner.gripper_open_width_m / 2), (finger_z_min, finger_z_max)),
-        ((-planner.palm_width_m / 2, planner.palm_width_m / 2), (-planner.palm_span_m / 2, planner.palm_span_m / 2), (palm_z_min, finger_z_min)),
-        ((-planner.wrist_half_width_m, planner.wrist_half_width_m), (-planner.wrist_half_width_m, planner.wrist_half_width_m),
-         (palm_z_min - planner.wrist_length_m, palm_z_min)),
-    ):
-        corners += [(x, y, z) for x in xs for y in ys for z in zs]
-    corners = np.array(corners)
+    # The table check tests the hand's collision hulls (derived from the robot's URDF), as the planner does.
+    hull_points = hand_geometry(planner).all_vertices.double().numpy()
 
     ranked_pairs, s_geoms, all_approaches, usable_rows, rotations_rows = [], [], [], [], []
     for negative_quality, _, i, j, width, axis in survivors:
@@ -146,9 +139,9 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
         row_usable, row_rotations = [], []
         for approach in candidate_approaches:
             rotation = np.stack((np.cross(axis, approach), axis, approach), axis=1)
-            corner_z = centre[2] + corners @ rotation[2]
-            through_table = corner_z.min() < config.scene.table_top_z_m or (
-                corner_z.min() - config.execution.pregrasp_offset_m * approach[2] < config.scene.table_top_z_m
+            hull_z = centre[2] + hull_points @ rotation[2]
+            through_table = hull_z.min() < config.scene.table_top_z_m or (
+                hull_z.min() - config.execution.pregrasp_offset_m * approach[2] < config.scene.table_top_z_m
             )
             local = (occupancy_points - centre) @ rotation
             abs_x, abs_y, z = np.abs(local[:, 0]), np.abs(local[:, 1]), local[:, 2]
@@ -162,20 +155,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
             under_palm = (abs_x <= planner.palm_width_m / 2) & (abs_y <= planner.palm_span_m / 2)
             in_palm = under_palm & (z >= palm_z_min) & (z <= finger_z_min)
             occupied = int(np.count_nonzero(in_fingers | in_palm))
-            in_palm_count = int(np.count_nonzero(in_palm))
-            # The straight descent drags the open gripper's boxes back by the pre-grasp offset.
-            in_palm_column = under_palm & (z >= palm_z_min - descent) & (z <= finger_z_min)
-            in_open_fingers = (
-                (abs_x <= planner.finger_width_m / 2)
-                & (abs_y >= planner.gripper_open_width_m / 2)
-                & (abs_y <= finger_y_max)
-                & (z >= finger_z_min)
-                & (z <= finger_z_max)
-            )
-            in_descent_count = int(np.count_nonzero(in_palm_column | in_open_fingers))
             row_usable.append(not through_table and occupied <= planner.occupancy_max_fraction * inputs.occupancy_total
-                              and in_palm_count <= planner.palm_max_fraction * inputs.occupancy_total
-                              and in_descent_count <= planner.descent_max_fraction * inputs.occupancy_total
                               and width <= jaw_width_limit(planner))
             row_rotations.append(rotation)
         ranked_pairs.append((i, j))

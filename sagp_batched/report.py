@@ -5,7 +5,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-RATE_METRICS = ("GSR", "TSR", "PZA", "AC", "OP")
+from .metrics import per_object
+
+RATE_METRICS = ("GSR", "FAS", "TSR", "PZA", "AC", "OP")
 METHOD_LABELS = {"go": "Geometry-Only", "sagp": "SAGP", "vd": "VLM-Direct"}
 
 
@@ -22,33 +24,82 @@ def _seconds(value: float | None) -> str:
     return "-" if value is None else f"{value:.3f}"
 
 
-def summary_markdown(summary: dict[str, Any], not_run: dict[str, str]) -> str:
+def _label(method: str) -> str:
+    return METHOD_LABELS.get(method, method)
+
+
+def _task_table(summary: dict[str, Any], task: str) -> list[str]:
+    lines = ["| method | " + " | ".join(RATE_METRICS) + " | MPT s | geometry s | rating s |", "|---|" + "---|" * (len(RATE_METRICS) + 3)]
+    for method, by_task in summary.items():
+        if task not in by_task:
+            continue
+        m = by_task[task]["all"]
+        rates = " | ".join(format_rate(m, key) for key in RATE_METRICS)
+        lines.append(f"| {_label(method)} | {rates} | {_seconds(m['MPT_s'])} | {_seconds(m['geometry_s'])} | {_seconds(m['rating_s'])} |")
+    return lines
+
+
+def _group_table(summary: dict[str, Any], task: str, methods: list[str]) -> list[str]:
+    groups = sorted({g for method in methods for g in summary[method][task]} - {"all"})
+    lines = ["| group | " + " | ".join(f"{_label(m)} GSR | {_label(m)} PZA" for m in methods) + " |", "|---|" + "---|---|" * len(methods)]
+    for group in groups:
+        cells = []
+        for method in methods:
+            metrics = summary[method][task].get(group)
+            cells += [format_rate(metrics, "GSR"), format_rate(metrics, "PZA")] if metrics else ["-", "-"]
+        lines.append(f"| {group} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _failure_table(summary: dict[str, Any], task: str, methods: list[str]) -> list[str]:
+    """Failed attempts by reason@stage, one column per key any method hit, so methods compare cell by cell."""
+    keys = sorted({key for method in methods for key in summary[method][task]["all"]["attempt_failures"]})
+    lines = ["| method | " + " | ".join(keys + ["prediction mismatches", "attempts"]) + " |", "|---|" + "---|" * (len(keys) + 2)]
+    for method in methods:
+        m = summary[method][task]["all"]
+        cells = [str(m["attempt_failures"].get(key, 0)) for key in keys] + [str(m["prediction_mismatches"]), str(m["n_attempts"])]
+        lines.append(f"| {_label(method)} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _failures_list(metrics: dict[str, Any]) -> str:
+    """'collision@descent×2, slipped@lift×1': compact enough for one cell per object and method."""
+    return ", ".join(f"{key}×{count}" for key, count in metrics["attempt_failures"].items()) or "-"
+
+
+def _object_table(by_object: dict[str, Any], task: str) -> list[str]:
+    methods = [m for m in by_object if task in by_object[m]]
+    objects = sorted({obj for method in methods for obj in by_object[method][task]})
+    lines = ["| object | " + " | ".join(f"{_label(m)} FAS | {_label(m)} GSR | {_label(m)} failed attempts" for m in methods) + " |",
+             "|---|" + "---|---|---|" * len(methods)]
+    for obj in objects:
+        cells = []
+        for method in methods:
+            metrics = by_object[method][task].get(obj)
+            cells += [format_rate(metrics, "FAS"), format_rate(metrics, "GSR"), _failures_list(metrics)] if metrics else ["-", "-", "-"]
+        lines.append(f"| {obj} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def summary_markdown(summary: dict[str, Any], not_run: dict[str, str], by_object: dict[str, Any] | None = None) -> str:
+    """The study's tables; ``by_object`` (``metrics.per_object``) adds a per-object table to each task."""
     lines = ["# Study summary", "", "Rates are successes/trials (rate, 95 % Wilson interval). "
-             "GSR: lifted and held; TSR: the task's own success; PZA/AC/OP are over successful grasps. "
-             "MPT: mean planning time per trial in seconds (geometry + rating + ranking; perception excluded).", ""]
+             "GSR: lifted and held; FAS: lifted by the first attempt, over trials that made an attempt; "
+             "TSR: the task's own success; PZA/AC/OP are over successful grasps. "
+             "MPT: mean planning time per trial in seconds (geometry + rating + ranking; perception excluded). "
+             "Failed attempts are counted by reason@stage; prediction mismatches are failed attempts "
+             "the planner had predicted reachable and collision-free.", ""]
     tasks = sorted({task for by_task in summary.values() for task in by_task})
     for task in tasks:
-        lines += [f"## Task {task}", "", "| method | GSR | TSR | PZA | AC | OP | MPT s | geometry s | rating s |", "|---|---|---|---|---|---|---|---|---|"]
-        for method, by_task in summary.items():
-            if task not in by_task:
-                continue
-            m = by_task[task]["all"]
-            rates = " | ".join(format_rate(m, key) for key in RATE_METRICS)
-            lines.append(f"| {METHOD_LABELS.get(method, method)} | {rates} | {_seconds(m['MPT_s'])} | {_seconds(m['geometry_s'])} | {_seconds(m['rating_s'])} |")
-        lines += ["", f"### Task {task} by group (GSR / PZA)", ""]
-        groups = sorted({g for by_task in summary.values() if task in by_task for g in by_task[task]} - {"all"})
         methods = [m for m in summary if task in summary[m]]
-        lines.append("| group | " + " | ".join(f"{METHOD_LABELS.get(m, m)} GSR | {METHOD_LABELS.get(m, m)} PZA" for m in methods) + " |")
-        lines.append("|---|" + "---|---|" * len(methods))
-        for group in groups:
-            cells = []
-            for method in methods:
-                metrics = summary[method][task].get(group)
-                cells += [format_rate(metrics, "GSR"), format_rate(metrics, "PZA")] if metrics else ["-", "-"]
-            lines.append(f"| {group} | " + " | ".join(cells) + " |")
+        lines += [f"## Task {task}", ""] + _task_table(summary, task)
+        lines += ["", f"### Task {task} by group (GSR / PZA)", ""] + _group_table(summary, task, methods)
+        lines += ["", f"### Task {task} failed attempts", ""] + _failure_table(summary, task, methods)
+        if by_object is not None:
+            lines += ["", f"### Task {task} by object (FAS / GSR / failed attempts)", ""] + _object_table(by_object, task)
         lines.append("")
     if not_run:
-        lines += ["## Not run", ""] + [f"- {METHOD_LABELS.get(m, m)}: {why}" for m, why in not_run.items()] + [""]
+        lines += ["## Not run", ""] + [f"- {_label(m)}: {why}" for m, why in not_run.items()] + [""]
     return "\n".join(lines)
 
 
@@ -119,5 +170,6 @@ def write_plots(out_dir: Path, summary: dict[str, Any]) -> list[Path]:
 
 def write_reports(out_dir: Path, records: list[dict[str, Any]], summary: dict[str, Any], not_run: dict[str, str]) -> None:
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
-    (out_dir / "summary.md").write_text(summary_markdown(summary, not_run))
+    # The failed-attempt lists use "×", which a non-UTF-8 default locale could not encode.
+    (out_dir / "summary.md").write_text(summary_markdown(summary, not_run, by_object=per_object(records)), encoding="utf-8")
     write_plots(out_dir, summary)

@@ -93,6 +93,11 @@ class GraspCandidates:
     # (C,) int64 position of each candidate in the planner's output: it follows the candidates
     # through re-ranking, so every method's choices name the same candidate by the same id.
     candidate_id: torch.Tensor | None = None
+    # (C, W, 7) planned arm joints at every waypoint of ``motion.motion_waypoints`` (pre-grasp,
+    # descent, grasp, lift): execution tracks exactly these. None for grasps planned without a motion.
+    joint_path: torch.Tensor | None = None
+    # (C,) smallest separation (m) of the hand's hulls swept along the descent from the cloud's points.
+    hand_clearance_m: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.candidate_id is None:

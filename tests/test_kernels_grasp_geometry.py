@@ -5,10 +5,10 @@ import torch
 
 from planner_clouds import box_surface
 from sagp_batched.config import Config
-from sagp_batched.planner import gripper_geometry
+from sagp_batched.planner import gripper_geometry, hand_geometry
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.gripper_volume import gripper_corners_local, gripper_occupancy, table_penetration
+from sagp_batched_kernels.gripper_volume import gripper_occupancy, table_penetration
 from sagp_batched_kernels.sampling import sample_pair_indices
 
 PLANNER = Config().planner
@@ -91,25 +91,25 @@ def test_approaches_are_perpendicular_and_rotations_right_handed():
 
 
 def test_grasp_through_the_table_is_rejected():
-    geometry = gripper_geometry(PLANNER)
-    corners = gripper_corners_local(geometry)
+    hand = hand_geometry(PLANNER)
+    hulls = hand.all_vertices
     table_z = 0.625
     centre = torch.tensor([[0.5, 0.0, table_z + 0.04]])
     closing = torch.tensor([[0.0, 1.0, 0.0]])
     approaches = torch.tensor([[[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]])  # down, up (from below), sideways
     rotation = grasp_rotations(closing[:, None, :], approaches)
-    blocked = table_penetration(centre, rotation, corners, 0.10, table_z)
-    # Sideways 4 cm up, the palm clears the table but the 9 cm-wide wrist behind it does not;
-    # 7 cm up it clears, and without the wrist in the model it would have passed (the arm then
-    # hit the table in PyBullet).
+    blocked = table_penetration(centre, rotation, hulls, 0.10, table_z)
+    # Sideways 4 cm up, the hand (6.3 cm across) clears the table but the wrist behind it (link 7,
+    # 8.8 cm across) does not; 7 cm up it clears, and without link 7 in the model it would have
+    # passed (the arm then hit the table in PyBullet).
     assert blocked.tolist() == [[False, True, True]]
-    higher = table_penetration(centre + torch.tensor([0.0, 0.0, 0.03]), rotation, corners, 0.10, table_z)
+    higher = table_penetration(centre + torch.tensor([0.0, 0.0, 0.03]), rotation, hulls, 0.10, table_z)
     assert higher.tolist() == [[False, True, False]]
-    no_wrist = gripper_corners_local(geometry._replace(wrist_length_m=0.0))
-    assert table_penetration(centre, rotation, no_wrist, 0.10, table_z).tolist() == [[False, True, False]]
-    # A side grasp whose closing axis is vertical puts the 20 cm-wide palm through the table.
+    without_wrist = torch.cat([hull for name, hull in zip(hand.links, hand.hull_vertices) if name != "panda_link7"])
+    assert table_penetration(centre, rotation, without_wrist, 0.10, table_z).tolist() == [[False, True, False]]
+    # A side grasp whose closing axis is vertical puts the 20 cm-wide hand through the table.
     vertical = grasp_rotations(torch.tensor([[[0.0, 0.0, 1.0]]]), torch.tensor([[[1.0, 0.0, 0.0]]]))
-    assert table_penetration(centre, vertical, corners, 0.10, table_z).all()
+    assert table_penetration(centre, vertical, hulls, 0.10, table_z).all()
 
 
 def test_finger_sweeping_through_a_protrusion_is_rejected():

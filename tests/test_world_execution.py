@@ -98,3 +98,20 @@ def test_malformed_grasps_are_rejected_with_a_clear_error(can_scene):
         execute_grasp(can_scene, Config(), position[:2], quat, 0.05, DOWN)
     with pytest.raises(InvalidGraspError, match="width_m"):
         execute_grasp(can_scene, Config(), position, quat, 0.2, DOWN)
+
+
+def test_the_executed_joint_path_is_the_planned_one(can_scene):
+    """Execution tracks the planner's joints: at the end of every descent waypoint the arm is
+    within 1e-3 rad of the planned joints, and no PyBullet IK was needed."""
+    from sagp_batched import capture, plan
+
+    config = Config()
+    can_scene.restore_state()
+    candidates = plan(capture(can_scene, config), config, seed=0)
+    assert len(candidates) > 0 and candidates.joint_path.shape[1:] == (19, 7)
+    attempts = execute_ranked(can_scene, config, candidates, order=[0])
+    details = attempts[0].details
+    assert details["ik_source"] == "planner" and "ik_fallback" not in details
+    assert details["descent_tracking_error_rad"] < 1e-3
+    assert details["predicted"]["collision_free"] and details["predicted"]["clearance_m"] >= config.planner.hand_clearance_margin_m
+    assert attempts[0].success, attempts[0].failure_reason

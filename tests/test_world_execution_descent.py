@@ -54,4 +54,5 @@ def test_driving_the_fingers_into_the_table_is_a_collision(marker_scene):
     position, quat = _across_marker(marker_scene, -0.001)
     attempt = execute_grasp(marker_scene, Config(), position, quat, 0.019, DOWN)
     assert attempt.failure_reason == "collision"
-    assert attempt.details["collision_at"] == "descent"
+    assert attempt.details["failed_at"] == "descent"
+    assert any(link.endswith("->table") for link in attempt.details["collision_links"])
