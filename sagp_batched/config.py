@@ -157,6 +157,15 @@ class PlannerConfig:
     # every surface patch keeps points no farther apart than the 2 cm finger is wide, thin rims
     # included, at a third of the cost of the full 3 mm cloud.
     hand_check_voxel_m: float = 0.006
+    # Height the fingers' hulls must keep above the table at the grasp and pre-grasp: soft finger
+    # contacts pressing 0.3 mm into the table already push with the 10 N execution calls a
+    # collision, and the position-controlled descent overshoots by about a millimetre.
+    finger_table_clearance_m: float = 0.002
+    # Height every other link (hand, wrist, forearm, elbow) must keep above the table at every
+    # waypoint of the motion: PyBullet reports contacts within its 4 mm collision margin.
+    arm_table_clearance_m: float = 0.005
+    # Links of the arm checked against the table along the motion (links 0-2 stand above the base).
+    arm_table_links: tuple[str, ...] = ("panda_link3", "panda_link4", "panda_link5", "panda_link6", "panda_link7", "panda_hand")
     # (candidate, hull, direction, point) elements the swept-hand check holds at once.
     hand_check_chunk_elements: int = 4_194_304
 

@@ -339,6 +339,10 @@ def execute_grasp(
     scene.command_fingers(0.0)
     _step(scene, execution.close_steps)
     details["fingers_touching_after_close"] = _fingers_holding(scene)
+    # Against the planned contact width this tells a squeeze from fingers stopped by a wider
+    # collision shape than the cloud showed.
+    details["finger_width_after_close_m"] = scene.finger_width()
+    details["planned_width_m"] = float(width_m)
     if camera is not None:
         frames["contact"] = render(scene, camera)[0]
 

@@ -31,6 +31,7 @@ log = logging.getLogger(__name__)
 HAND_COLLISION_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger", "panda_link7")
 GRASP_LINK = "panda_grasptarget"
 FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
+FINGER_LINKS = ("panda_leftfinger", "panda_rightfinger")
 
 
 def _dop_directions() -> torch.Tensor:
@@ -106,11 +107,30 @@ class HandGeometry:
 
 
 @functools.lru_cache(maxsize=4)
-def load_hand_geometry(urdf_path: Path, open_width_m: float, links: tuple[str, ...] = HAND_COLLISION_LINKS) -> HandGeometry:
-    """The hand's collision hulls from ``urdf_path`` with the fingers ``open_width_m`` apart."""
+def link_hulls(urdf_path: Path, links: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Per link, the vertices (V, 3) of the convex hull of its collision meshes, in the link's own frame."""
     from pytorch_kinematics.urdf_parser_py.urdf import URDF
 
     robot = quiet_urdf(URDF.from_xml_string, urdf_path)
+    by_name = {link.name: link for link in robot.links}
+    hulls = {}
+    for name in links:
+        if name not in by_name or not by_name[name].collisions:
+            raise ValueError(f"{urdf_path.name}: link '{name}' has no collision geometry")
+        link_vertices = []
+        for collision in by_name[name].collisions:
+            mesh_path = urdf_path.parent / collision.geometry.filename.removeprefix("package://")
+            vertices = _mesh_vertices(mesh_path) * np.asarray(collision.geometry.scale or (1.0, 1.0, 1.0))
+            origin = _origin_matrix(collision.origin)
+            link_vertices.append(vertices @ origin[:3, :3].T + origin[:3, 3])
+        vertices = np.concatenate(link_vertices)
+        hulls[name] = vertices[ConvexHull(vertices).vertices]
+    return hulls
+
+
+@functools.lru_cache(maxsize=4)
+def load_hand_geometry(urdf_path: Path, open_width_m: float, links: tuple[str, ...] = HAND_COLLISION_LINKS) -> HandGeometry:
+    """The hand's collision hulls from ``urdf_path`` with the fingers ``open_width_m`` apart."""
     chain = quiet_urdf(pk.build_chain_from_urdf, urdf_path)
     joint_names = chain.get_joint_parameter_names()
     joints = torch.zeros(1, len(joint_names), dtype=torch.float64)
@@ -118,21 +138,10 @@ def load_hand_geometry(urdf_path: Path, open_width_m: float, links: tuple[str, .
         joints[0, joint_names.index(name)] = open_width_m / 2.0
     poses = chain.to(dtype=torch.float64).forward_kinematics(joints)
     grasp_from_base = torch.linalg.inv(poses[GRASP_LINK].get_matrix()[0]).numpy()
-    by_name = {link.name: link for link in robot.links}
     hulls = []
-    for name in links:
-        if name not in by_name or not by_name[name].collisions:
-            raise ValueError(f"{urdf_path.name}: link '{name}' has no collision geometry")
-        link_vertices = []
-        for collision in by_name[name].collisions:
-            filename = collision.geometry.filename
-            mesh_path = urdf_path.parent / filename.removeprefix("package://")
-            vertices = _mesh_vertices(mesh_path) * np.asarray(collision.geometry.scale or (1.0, 1.0, 1.0))
-            link_vertices.append(vertices @ _origin_matrix(collision.origin)[:3, :3].T + _origin_matrix(collision.origin)[:3, 3])
-        vertices = np.concatenate(link_vertices)
+    for name, vertices in link_hulls(urdf_path, links).items():
         transform = grasp_from_base @ poses[name].get_matrix()[0].numpy()
-        in_grasp = vertices @ transform[:3, :3].T + transform[:3, 3]
-        hulls.append(torch.tensor(in_grasp[ConvexHull(in_grasp).vertices], dtype=torch.float32))
+        hulls.append(torch.tensor(vertices @ transform[:3, :3].T + transform[:3, 3], dtype=torch.float32))
     projections = [hull @ DOP_DIRECTIONS.T for hull in hulls]  # (V_i, D)
     return HandGeometry(
         links=tuple(links),

@@ -88,6 +88,19 @@ class PandaIK:
         matrix[:, :3, 3] += self.base_xyz_world
         return matrix
 
+    def lowest_link_point_z(self, joints: torch.Tensor, hulls: dict[str, torch.Tensor]) -> torch.Tensor:
+        """(M,) lowest world height (m) of any hull vertex of the named links at each of M (M, 7) joint configurations.
+
+        ``hulls`` maps link names of the chain to (V, 3) hull vertices in that link's frame.
+        """
+        poses = self.chain.forward_kinematics(joints.to(torch.float32), end_only=False)
+        lowest = torch.full((joints.shape[0],), float("inf"))
+        for name, vertices in hulls.items():
+            matrix = poses[name].get_matrix()  # (M, 4, 4), base frame
+            heights = matrix[:, 2, :3] @ vertices.T + matrix[:, 2, 3:]
+            lowest = torch.minimum(lowest, heights.amin(dim=1))
+        return lowest + self.base_xyz_world[2]
+
     def _retry_seeds(self, positions_base: torch.Tensor, seed_joints: torch.Tensor | None) -> torch.Tensor:
         """(N, R, 7) per-target retry seeds: the configured seeds turned toward the target."""
         azimuth = torch.atan2(positions_base[:, 1], positions_base[:, 0])

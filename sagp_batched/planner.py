@@ -30,7 +30,7 @@ from sagp_batched_kernels.sampling import (
 )
 
 from .config import Config, PlannerConfig
-from .hand import DOP_DIRECTIONS, HandGeometry, load_hand_geometry
+from .hand import DOP_DIRECTIONS, FINGER_LINKS, HandGeometry, link_hulls, load_hand_geometry
 from .ik import PANDA_URDF, PandaIK
 from .motion import grasp_waypoint_index, motion_waypoints
 from .types import GraspCandidates, PerceivedCloud
@@ -227,8 +227,12 @@ def screen_candidates(
 
     approach = approach_directions(closing_axis, planner.n_approaches, WORLD_DOWN)  # (A, K, 3), prior order
     rotation = grasp_rotations(closing_axis[:, None, :], approach)  # (A, K, 3, 3)
-    through_table = table_penetration(
-        centre, rotation, hand_geometry(planner).all_vertices, config.execution.pregrasp_offset_m, config.scene.table_top_z_m
+    hand = hand_geometry(planner)
+    fingers = torch.cat([hull for name, hull in zip(hand.links, hand.hull_vertices) if name in FINGER_LINKS])
+    rest = torch.cat([hull for name, hull in zip(hand.links, hand.hull_vertices) if name not in FINGER_LINKS])
+    table_z, retreat = config.scene.table_top_z_m, config.execution.pregrasp_offset_m
+    through_table = table_penetration(centre, rotation, fingers, retreat, table_z + planner.finger_table_clearance_m) | table_penetration(
+        centre, rotation, rest, retreat, table_z + planner.arm_table_clearance_m
     )
     stage_time["frames_volume"] = time.perf_counter() - clock
     return ScreenedCandidates(
@@ -247,6 +251,10 @@ def screen_candidates(
         planner=planner,
         pregrasp_offset_m=config.execution.pregrasp_offset_m,
     )
+
+
+def _arm_hulls(planner: PlannerConfig) -> dict[str, torch.Tensor]:
+    return {name: torch.tensor(vertices, dtype=torch.float32) for name, vertices in link_hulls(PANDA_URDF, planner.arm_table_links).items()}
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
@@ -282,7 +290,9 @@ def check_motions(screened: "ScreenedCandidates", rows: torch.Tensor, slots: tor
        sends the requested pose, so the reached orientation must match it.
     2. Every waypoint of the motion (pre-grasp, descent, lift) is reachable from the grasp
        solution on its IK branch: within tolerance, inside the limits, and no joint moving more
-       than ``max_waypoint_joint_step_rad`` between neighbouring waypoints.
+       than ``max_waypoint_joint_step_rad`` between neighbouring waypoints; and at every
+       waypoint the arm's links (their URDF collision hulls placed by forward kinematics) stay
+       ``arm_table_clearance_m`` above the table.
     """
     planner, execution = config.planner, config.execution
     n_rows = rows.numel()
@@ -306,10 +316,12 @@ def check_motions(screened: "ScreenedCandidates", rows: torch.Tensor, slots: tor
     joints = torch.zeros(candidates.numel(), waypoints.shape[1], 7)
     joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
     steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
+    arm_lowest_z = ik.lowest_link_point_z(joints.view(-1, 7), _arm_hulls(planner)).view(joints.shape[:2]).amin(dim=1)
     motion_ok = (
         (path.position_error_m < planner.ik_pos_tolerance_m).all(dim=1)
         & (path.rotation_error_rad < planner.ik_rot_tolerance_rad).all(dim=1)
         & (steps <= execution.max_waypoint_joint_step_rad)
+        & (arm_lowest_z >= config.scene.table_top_z_m + planner.arm_table_clearance_m)
     )
     rejected_by[candidates[~motion_ok], 1] = 1
     joint_path[candidates[motion_ok]] = joints[motion_ok]

@@ -136,6 +136,11 @@ class Scene:
             pybullet.resetJointState(self.robot_id, joint, float(angle), physicsClientId=self.client)
         self.command_arm(joints)
 
+    def finger_width(self) -> float:
+        """Current distance between the fingers, metres (each finger joint is half of it)."""
+        states = pybullet.getJointStates(self.robot_id, PANDA_FINGER_JOINTS, physicsClientId=self.client)
+        return float(sum(state[0] for state in states))
+
     def set_finger_width(self, width_m: float) -> None:
         for joint in PANDA_FINGER_JOINTS:
             pybullet.resetJointState(self.robot_id, joint, width_m / 2.0, physicsClientId=self.client)
