@@ -19,6 +19,7 @@ import torch
 
 from .config import Config
 from .ik import END_LINK, N_ARM_JOINTS, PANDA_URDF
+from .hand import FINGER_LINKS
 from .planner import hand_geometry, jaw_width_limit, sample_inputs
 from .types import GraspCandidates, PerceivedCloud
 
@@ -117,8 +118,13 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
     finger_z_min = finger_z_max - planner.finger_length_m
     palm_z_min = finger_z_min - planner.palm_depth_m
     finger_y_max = planner.gripper_open_width_m / 2 + planner.finger_thickness_m
-    # The table check tests the hand's collision hulls (derived from the robot's URDF), as the planner does.
-    hull_points = hand_geometry(planner).all_vertices.double().numpy()
+    # The table check tests the hand's collision hulls (derived from the robot's URDF), as the
+    # planner does: the fingers and the rest of the hand each with their own clearance.
+    hand = hand_geometry(planner)
+    table_levels = [
+        (hull.double().numpy(), planner.finger_table_clearance_m if name in FINGER_LINKS else planner.arm_table_clearance_m)
+        for name, hull in zip(hand.links, hand.hull_vertices)
+    ]
 
     ranked_pairs, s_geoms, all_approaches, usable_rows, rotations_rows = [], [], [], [], []
     for negative_quality, _, i, j, width, axis in survivors:
@@ -139,10 +145,11 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
         row_usable, row_rotations = [], []
         for approach in candidate_approaches:
             rotation = np.stack((np.cross(axis, approach), axis, approach), axis=1)
-            hull_z = centre[2] + hull_points @ rotation[2]
-            through_table = hull_z.min() < config.scene.table_top_z_m or (
-                hull_z.min() - config.execution.pregrasp_offset_m * approach[2] < config.scene.table_top_z_m
-            )
+            through_table = False
+            for hull_points, clearance in table_levels:
+                lowest = float((centre[2] + hull_points @ rotation[2]).min())
+                lowest_pregrasp = lowest - config.execution.pregrasp_offset_m * approach[2]
+                through_table |= min(lowest, lowest_pregrasp) < config.scene.table_top_z_m + clearance
             local = (occupancy_points - centre) @ rotation
             abs_x, abs_y, z = np.abs(local[:, 0]), np.abs(local[:, 1]), local[:, 2]
             in_fingers = (
