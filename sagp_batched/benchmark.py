@@ -23,7 +23,7 @@ from .planner import plan, screen_candidates
 from .reference import plan_reference
 from .types import PerceivedCloud
 
-STAGES = ("sampling", "antipodal", "frames_volume", "ik")
+STAGES = ("sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion")
 
 
 @dataclasses.dataclass

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .config import GEOMETRY_ONLY_WEIGHTS, Config
+from .functional_regions import region_membership
 from .objects import ObjectSet, ObjectSpec
 from .types import GraspCandidates, PerceivedCloud, PerceptionFailure
 
@@ -95,6 +96,8 @@ def base_record(spec: ObjectSpec, unit: TrialUnit, method: str, config: Config) 
         "failure_reason": None,
         "in_preferred_zone": None,
         "in_avoid_zone": None,
+        "in_functional_region": None,
+        "in_avoid_region": None,
         "orientation_change_deg": None,
         "orientation_kept": None,
         "distractors_max_displacement_m": None,
@@ -293,6 +296,8 @@ class TrialRunner:
         grasp["zones"] = list(zone_names)
         record["in_preferred_zone"] = grasp["zone"] in rating.preferred
         record["in_avoid_zone"] = any(name in rating.avoid for name in zone_names)
+        # FRA/FAR measure the grasp against the object's annotated parts, not the pipeline's own zones.
+        record.update(region_membership(record["object"], np.asarray(grasp["midpoint_object"])))
         task_success = record["success"]
         if unit.task == "t2":
             task_success = task_success and bool(record["in_preferred_zone"]) and record["orientation_kept"]

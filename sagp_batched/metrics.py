@@ -8,7 +8,13 @@ Definitions, per method x task x group:
 - TSR: task success rate, GSR plus the task's own conditions (t2: preferred zone and orientation
   kept; t3: no distractor moved more than 5 cm). Reported beside GSR so t2/t3 stay comparable to t1.
 - PZA, AC, OP: over successful grasps, the fraction in a preferred zone, outside every avoid zone,
-  and keeping the object within 15 deg of its resting orientation.
+  and keeping the object within 15 deg of its resting orientation. PZA and AC judge a grasp by the
+  pipeline's own zones (and its rater's choice of them).
+- FRA, FAR: the same question asked of the object itself (``functional_regions.json``): over successful
+  grasps on annotated objects (``in_functional_region`` not None), the fraction whose contact midpoint
+  lies in the object's functional region (FRA: mug handle, drill grip, ...) and in its avoid region
+  (FAR: mug rim, drill chuck, ...; lower is better). Grasps on objects without an annotation are left
+  out of both denominators.
 - MPT_s: mean planning time per trial (perception excluded), with the rating model's mean time
   reported separately as ``rating_s`` and geometry as ``geometry_s``.
 - n_attempts: executed attempts over the group's trials; attempt_failures: failed attempts by
@@ -81,6 +87,9 @@ def group_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
     in_zone = [r for r in lifted if r.get("in_preferred_zone")]
     clear_of_avoid = [r for r in lifted if r.get("in_avoid_zone") is False]
     orientation_kept = [r for r in lifted if r.get("orientation_kept")]
+    annotated = [r for r in lifted if r.get("in_functional_region") is not None]
+    in_functional = [r for r in annotated if r["in_functional_region"]]
+    in_avoid_region = [r for r in annotated if r.get("in_avoid_region")]
     task_done = [r for r in records if r.get("task_success")]
     times = [r.get("times_s") or {} for r in records]
     counts = {
@@ -90,6 +99,8 @@ def group_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
         "PZA": (len(in_zone), len(lifted)),
         "AC": (len(clear_of_avoid), len(lifted)),
         "OP": (len(orientation_kept), len(lifted)),
+        "FRA": (len(in_functional), len(annotated)),
+        "FAR": (len(in_avoid_region), len(annotated)),
     }
     return {
         "n": n,

@@ -283,7 +283,14 @@ class MotionCheck:
     ik_targets: int  # grasp poses and waypoints handed to IK
 
 
-def check_motions(screened: "ScreenedCandidates", rows: torch.Tensor, slots: torch.Tensor, ik: PandaIK, config: Config) -> MotionCheck:
+def check_motions(
+    screened: "ScreenedCandidates",
+    rows: torch.Tensor,
+    slots: torch.Tensor,
+    ik: PandaIK,
+    config: Config,
+    stage_time: dict[str, float] | None = None,
+) -> MotionCheck:
     """The reachability checks execution's motion has to pass, the second on the survivors of the first.
 
     1. The grasp pose is reachable (IK within tolerance and S_reach over its floor): execution
@@ -293,7 +300,11 @@ def check_motions(screened: "ScreenedCandidates", rows: torch.Tensor, slots: tor
        than ``max_waypoint_joint_step_rad`` between neighbouring waypoints; and at every
        waypoint the arm's links (their URDF collision hulls placed by forward kinematics) stay
        ``arm_table_clearance_m`` above the table.
+
+    ``stage_time``, if given, accumulates seconds under ``ik`` (grasp poses) and ``motion``.
     """
+    stage_time = {"ik": 0.0, "motion": 0.0} if stage_time is None else stage_time
+    clock = time.perf_counter()
     planner, execution = config.planner, config.execution
     n_rows = rows.numel()
     rotation = screened.rotation_world[rows, slots]
@@ -310,6 +321,8 @@ def check_motions(screened: "ScreenedCandidates", rows: torch.Tensor, slots: tor
     rejected_by[~reached, 0] = 1
     candidates, grasp_joints = reached.nonzero().squeeze(1), grasp.joints[reached]
     s_reach[candidates] = grasp.s_reach[reached]
+    now = time.perf_counter()
+    stage_time["ik"], clock = stage_time["ik"] + now - clock, now
 
     others = torch.arange(waypoints.shape[1]) != grasp_index
     path = ik.follow(grasp_joints, waypoints[candidates][:, others], rotation[candidates])
@@ -327,6 +340,7 @@ def check_motions(screened: "ScreenedCandidates", rows: torch.Tensor, slots: tor
     joint_path[candidates[motion_ok]] = joints[motion_ok]
     feasible = torch.zeros(n_rows, dtype=torch.bool)
     feasible[candidates[motion_ok]] = True
+    stage_time["motion"] += time.perf_counter() - clock
     return MotionCheck(
         feasible=feasible,
         joint_path=joint_path,
@@ -350,7 +364,8 @@ def plan_batch(
             ``scene.robot_base_xyz_m``, ``execution.pregrasp_offset_m``).
         seeds: one sampling seed per cloud (``None`` entries, or no list, use ``config.planner.seed``).
         timings: if given, filled with seconds spent per stage (``sampling``, ``antipodal``,
-            ``frames_volume``, ``ik``) and ``ik_targets``.
+            ``frames_volume`` (frames, table and the 12 % volume), ``hand_sweep``, ``ik`` (grasp
+            poses), ``motion`` (the whole motion's IK and arm clearance)) and ``ik_targets``.
 
     Returns:
         One ``GraspCandidates`` per cloud: at most ``max_candidates`` IK-feasible candidates ranked
@@ -371,7 +386,6 @@ def plan_batch(
     stage_time: dict[str, float] = {}
     n_objects = len(clouds)
     screened = screen_candidates(clouds, config, seeds, stage_time)
-    clock = time.perf_counter()
     candidate_object = screened.object_index
     contacts, closing_axis, width, s_geom = screened.contacts_world, screened.closing_axis, screened.width_m, screened.s_geom
     centre, approach, rotation = screened.centre_world, screened.approach, screened.rotation_world
@@ -392,7 +406,8 @@ def plan_batch(
     rejected = torch.zeros(n_candidates, 3, dtype=torch.int64)  # per candidate: hand, grasp IK, motion
     ik = panda_ik(config)
     ik_targets = 0
-    volume_s = 0.0
+    volume_s = hand_s = 0.0
+    motion_time = {"ik": 0.0, "motion": 0.0}
     while True:
         alive = (status != EXHAUSTED).to(torch.int64)
         in_window = _segment_exclusive_cumsum(alive, candidate_object, n_objects) < planner.max_candidates
@@ -402,6 +417,8 @@ def plan_batch(
         if to_screen.numel():
             volume_clock = time.perf_counter()
             usable[to_screen] &= screened.occupancy_ok(to_screen)
+            hand_clock = time.perf_counter()
+            volume_s += hand_clock - volume_clock
             # The real hand on every approach still usable, so IK rounds only retry for reachability.
             rows, slots = usable[to_screen].nonzero(as_tuple=True)
             swept = screened.hand_clearance(to_screen[rows], slots)
@@ -410,18 +427,18 @@ def plan_batch(
             usable[to_screen[rows[hand_blocked]], slots[hand_blocked]] = False
             rejected[:, 0].index_add_(0, to_screen[rows[hand_blocked]], torch.ones(int(hand_blocked.sum()), dtype=torch.int64))
             volume_screened[to_screen] = True
+            hand_s += time.perf_counter() - hand_clock
             first_usable = torch.where(usable[to_screen], approach_slots, n_approaches)
             first_usable = torch.cat((first_usable, torch.full((to_screen.numel(), 1), n_approaches)), dim=1)
             next_usable[to_screen] = first_usable.flip(1).cummin(1).values.flip(1)
             cursor[to_screen] = next_usable[to_screen, 0]
             status[to_screen] = torch.where(cursor[to_screen] < n_approaches, UNDECIDED, EXHAUSTED)
-            volume_s += time.perf_counter() - volume_clock
             continue
         pending = (in_window & (status == UNDECIDED)).nonzero().squeeze(1)
         if pending.numel() == 0:
             break
         slot = cursor[pending]
-        motion = check_motions(screened, pending, slot, ik, config)
+        motion = check_motions(screened, pending, slot, ik, config, motion_time)
         ik_targets += motion.ik_targets
         rejected[pending, 1:] += motion.rejected_by
         done = pending[motion.feasible]
@@ -433,7 +450,8 @@ def plan_batch(
         status[retry] = torch.where(cursor[retry] < n_approaches, UNDECIDED, EXHAUSTED)
     collision_free = volume_screened & usable.any(dim=1)
     stage_time["frames_volume"] += volume_s
-    stage_time["ik"] = time.perf_counter() - clock - volume_s
+    stage_time["hand_sweep"] = hand_s
+    stage_time.update(motion_time)
 
     feasible = status == FEASIBLE
     rank_in_object = _segment_exclusive_cumsum(feasible.to(torch.int64), candidate_object, n_objects)

@@ -5,9 +5,10 @@ import json
 from pathlib import Path
 from typing import Any
 
+from .functional_regions import load_regions
 from .metrics import per_object
 
-RATE_METRICS = ("GSR", "FAS", "TSR", "PZA", "AC", "OP")
+RATE_METRICS = ("GSR", "FAS", "TSR", "PZA", "AC", "OP", "FRA", "FAR")
 METHOD_LABELS = {"go": "Geometry-Only", "sagp": "SAGP", "vd": "VLM-Direct"}
 
 
@@ -67,6 +68,24 @@ def _failures_list(metrics: dict[str, Any]) -> str:
     return ", ".join(f"{key}×{count}" for key, count in metrics["attempt_failures"].items()) or "-"
 
 
+def _count_and_rate(metrics: dict[str, Any] | None, name: str) -> str:
+    """'3/4 (75.0 %)', or '-' where there is nothing to count."""
+    k, n = metrics["counts"][name] if metrics else (0, 0)
+    return f"{k}/{n} ({100 * k / n:.1f} %)" if n else "-"
+
+
+def _functional_object_table(by_object: dict[str, Any], task: str, annotated: set[str]) -> list[str]:
+    """FRA per annotated object and method; empty when no annotated object was run in ``task``."""
+    methods = [m for m in by_object if task in by_object[m]]
+    objects = sorted({obj for method in methods for obj in by_object[method][task]} & annotated)
+    if not objects:
+        return []
+    lines = ["| object | " + " | ".join(f"{_label(m)} FRA" for m in methods) + " |", "|---|" + "---|" * len(methods)]
+    for obj in objects:
+        lines.append(f"| {obj} | " + " | ".join(_count_and_rate(by_object[m][task].get(obj), "FRA") for m in methods) + " |")
+    return lines
+
+
 def _object_table(by_object: dict[str, Any], task: str) -> list[str]:
     methods = [m for m in by_object if task in by_object[m]]
     objects = sorted({obj for method in methods for obj in by_object[method][task]})
@@ -86,6 +105,8 @@ def summary_markdown(summary: dict[str, Any], not_run: dict[str, str], by_object
     lines = ["# Study summary", "", "Rates are successes/trials (rate, 95 % Wilson interval). "
              "GSR: lifted and held; FAS: lifted by the first attempt, over trials that made an attempt; "
              "TSR: the task's own success; PZA/AC/OP are over successful grasps. "
+             "FRA/FAR: successful grasps on annotated objects whose contact midpoint lies in the object's "
+             "functional region (handle, grip) / avoid region (rim, chuck, blades), over those grasps. "
              "MPT: mean planning time per trial in seconds (geometry + rating + ranking; perception excluded). "
              "Failed attempts are counted by reason@stage; prediction mismatches are failed attempts "
              "the planner had predicted reachable and collision-free.", ""]
@@ -97,6 +118,9 @@ def summary_markdown(summary: dict[str, Any], not_run: dict[str, str], by_object
         lines += ["", f"### Task {task} failed attempts", ""] + _failure_table(summary, task, methods)
         if by_object is not None:
             lines += ["", f"### Task {task} by object (FAS / GSR / failed attempts)", ""] + _object_table(by_object, task)
+            functional = _functional_object_table(by_object, task, set(load_regions()))
+            if functional:
+                lines += ["", f"### Task {task} FRA by object", ""] + functional
         lines.append("")
     if not_run:
         lines += ["## Not run", ""] + [f"- {_label(m)}: {why}" for m, why in not_run.items()] + [""]

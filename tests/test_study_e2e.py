@@ -39,8 +39,10 @@ def test_end_to_end_trial_records_hold_every_field(tmp_path, ycb_dir):
     result = _run(_config(tmp_path, ycb_dir, "fields", n_trials=1))
     (record,) = result.records
     for key in ("object", "category", "asymmetric", "task", "method", "trial", "seed", "success", "attempts",
-                "grasp", "failure_reason", "n_candidates", "times_s", "error"):
+                "grasp", "failure_reason", "n_candidates", "times_s", "error", "in_functional_region", "in_avoid_region"):
         assert key in record
+    # The soup can has no functional-region annotation, so its grasp is measured against none.
+    assert record["in_functional_region"] is None and record["in_avoid_region"] is None
     assert record["error"] is None and record["seed"] == 42
     assert record["n_candidates"]["sampled"] == 5000 and record["n_candidates"]["ik_feasible"] > 0
     assert set(record["grasp"]["terms"]) == {"geom", "reach", "afford", "avoid", "task"}
