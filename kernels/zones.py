@@ -155,6 +155,70 @@ def far_points(
     return far, distance, median_distance
 
 
+def fit_body_axis(
+    points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, axes: torch.Tensor, trim_factor: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A point on the axis of an upright body: the centre of the circle fitted (algebraic least
+    squares, Kasa's fit) to the points' projection on the horizontal principal plane, refitted
+    once on the points within ``trim_factor`` x the first radius so a handle does not pull it.
+
+    The centroid is no such point: a cloud seen from one side (a half shell) has its centroid
+    inside the shell, and a handle drags it sideways; a circle through the visible wall does not move.
+
+    Args:
+        points: (B, N, 3) world frame, metres; valid: (B, N) bool.
+        centroid: (B, 3) world frame; axes: (B, 3, 3) columns (vertical, lateral, depth).
+        trim_factor: points farther than this multiple of the first fit's radius are left out of the refit.
+
+    Returns:
+        axis_point: (B, 3) a point of each body's vertical axis (at the centroid's height), world frame.
+        roundness_error: (B,) median |distance from the axis - radius| / radius of the refit's
+            points: near 0 for a round wall (can, mug, pitcher), large for a box or an oval bottle.
+    """
+    planar = ((points - centroid.unsqueeze(1)) @ axes)[..., 1:]  # (B, N, 2) lateral, depth
+    weight = valid.to(points.dtype)
+    centre = torch.zeros(points.shape[0], 2, dtype=points.dtype)
+    for _ in range(2):
+        # x^2 + y^2 = 2 a x + 2 b y + c for a circle of centre (a, b); rows out of the fit are zeroed.
+        design = torch.cat((2.0 * planar, torch.ones_like(planar[..., :1])), dim=-1) * weight.unsqueeze(-1)
+        target = (planar**2).sum(dim=-1, keepdim=True) * weight.unsqueeze(-1)
+        solution = torch.linalg.lstsq(design, target).solution[..., 0]  # (B, 3)
+        centre = solution[:, :2]
+        radius = torch.sqrt((solution[:, 2] + (centre**2).sum(dim=-1)).clamp_min(0.0))
+        distance = torch.linalg.vector_norm(planar - centre.unsqueeze(1), dim=-1)
+        fitted = valid & (distance <= trim_factor * radius.unsqueeze(1))
+        weight = fitted.to(points.dtype)
+    deviation = torch.where(fitted, (distance - radius.unsqueeze(1)).abs(), torch.full_like(distance, float("nan")))
+    roundness_error = torch.nan_to_num(torch.nanmedian(deviation, dim=1).values / radius.clamp_min(1e-9), nan=float("inf"))
+    return centroid + (axes[:, :, 1:] @ centre.unsqueeze(-1)).squeeze(-1), roundness_error
+
+
+def far_from_axis(
+    points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, axis: torch.Tensor, distance_factor: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Points farther from a body axis than ``distance_factor`` x the body's radius (the median
+    distance of the valid points from that axis): a handle or spout beside an upright body.
+
+    Args:
+        points: (B, N, 3) world frame, metres; valid: (B, N) bool.
+        centroid: (B, 3) a point of each axis (``fit_body_axis``), world frame; axis: (B, 3) unit axis directions.
+        distance_factor: multiple of the body radius beyond which a point is far.
+
+    Returns:
+        far: (B, N) bool, valid far points (protrusion candidates, to be clustered).
+        distance: (B, N) distance of each point from the axis, metres (padding: 0).
+        radius: (B,) median axis distance of the valid points, metres (0 if none).
+    """
+    relative = points - centroid.unsqueeze(1)
+    along = (relative * axis.unsqueeze(1)).sum(dim=-1, keepdim=True)
+    distance = torch.linalg.vector_norm(relative - along * axis.unsqueeze(1), dim=-1)
+    distance = torch.where(valid, distance, torch.zeros_like(distance))
+    masked = torch.where(valid, distance, torch.full_like(distance, float("nan")))
+    radius = torch.nan_to_num(torch.nanmedian(masked, dim=1).values, nan=0.0)
+    far = valid & (distance > distance_factor * radius.unsqueeze(1))
+    return far, distance, radius
+
+
 def nearest_point_index(queries: torch.Tensor, points: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """Index of the nearest valid cloud point to each query.
 

@@ -35,7 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--workers", type=int, help="trial processes, each with its own PyBullet client")
     parser.add_argument("--backend", choices=("local", "ray"), help="where trials run")
     parser.add_argument("--address", dest="ray_address", help="Ray cluster address for --backend ray")
-    parser.add_argument("--rater", choices=("prior", "transformers", "openai"), help="zone-rating backend")
+    parser.add_argument("--rater", choices=("prior", "transformers", "openai", "oracle"),
+                        help="zone-rating backend (oracle: rates zones from annotated regions with the true pose, an upper bound)")
     parser.add_argument("--model", help="model id or local path (transformers) or served model name (openai)")
     parser.add_argument("--endpoint", help="OpenAI-compatible base URL, e.g. http://127.0.0.1:8000/v1")
     parser.add_argument("--pairs", type=int, dest="n_pairs", help="sampled point pairs per trial")
@@ -81,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"note: VLM-Direct {not_run['vd']}", file=sys.stderr)
 
     print(f"objects: {objects.source}", file=sys.stderr)
-    print(f"rater: {config.rating.backend}" + (" (an offline prior table, not a VLM)" if config.rating.backend == "prior" else f" ({config.rating.model})"), file=sys.stderr)
+    labels = {"prior": " (an offline prior table, not a VLM)", "oracle": " (UPPER BOUND: annotated regions and the true object pose, not a model)"}
+    print(f"rater: {config.rating.backend}" + labels.get(config.rating.backend, f" ({config.rating.model})"), file=sys.stderr)
     configure_torch()
     try:
         result = run_study(config, objects, methods, objects_dir=config.run.objects_dir,

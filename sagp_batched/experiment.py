@@ -73,9 +73,15 @@ def _raise_timeout(signum: int, frame: Any) -> None:
     raise TrialTimeout("trial exceeded its time limit")
 
 
-def _midpoint_object(cloud: PerceivedCloud, midpoint_world: np.ndarray) -> list[float]:
-    rotation = Rotation.from_quat(cloud.object_quat_xyzw)
-    return rotation.inv().apply(midpoint_world - cloud.object_position_world).tolist()
+def _in_object_frame(cloud: PerceivedCloud, points_world: np.ndarray) -> np.ndarray:
+    """(..., 3) world points in the object's own (URDF link) frame, from the ground-truth pose."""
+    return Rotation.from_quat(cloud.object_quat_xyzw).inv().apply(points_world - cloud.object_position_world)
+
+
+def _zone_points_object(cloud: PerceivedCloud, decomposition) -> dict[str, np.ndarray]:
+    """Each zone's cloud points in the object frame: what a ground-truth (oracle) rater rates."""
+    points_object = _in_object_frame(cloud, decomposition.points_world.numpy())
+    return {name: points_object[decomposition.memberships[:, index].numpy()] for index, name in enumerate(decomposition.zone_names)}
 
 
 def base_record(spec: ObjectSpec, unit: TrialUnit, method: str, config: Config) -> dict[str, Any]:
@@ -193,7 +199,9 @@ class TrialRunner:
 
         # Rated for every method, GO included: PZA and AC of GO are measured against the same zones.
         start = time.perf_counter()
-        rating = self.rater.rate(spec.id, spec.name, unit.task, cloud.crop_rgb, decomposition.describe())
+        # Only a ground-truth rater (the oracle, an upper bound) is handed the object's true pose.
+        zone_points = _zone_points_object(cloud, decomposition) if self.rater.uses_ground_truth else None
+        rating = self.rater.rate(spec.id, spec.name, unit.task, cloud.crop_rgb, decomposition.describe(), zone_points)
         rating_s = time.perf_counter() - start
 
         scored_by_method: dict[str, GraspCandidates] = {}
@@ -282,7 +290,7 @@ class TrialRunner:
         final_index = int(order[len(attempts) - 1])
         final = attempts[-1]
         grasp = candidates.record(final_index)
-        grasp["midpoint_object"] = _midpoint_object(cloud, np.asarray(grasp["position"]))
+        grasp["midpoint_object"] = _in_object_frame(cloud, np.asarray(grasp["position"])).tolist()
         record["grasp"] = grasp
         record["success"] = bool(final.success)
         record["failure_reason"] = final.failure_reason
@@ -294,8 +302,8 @@ class TrialRunner:
         # uses every zone the midpoint lies in (its third or protrusion, and its sides), as S_avoid does.
         zone_names = decomposition.candidate_zone_names(candidates.position_world[final_index:final_index + 1])[0]
         grasp["zones"] = list(zone_names)
-        record["in_preferred_zone"] = grasp["zone"] in rating.preferred
-        record["in_avoid_zone"] = any(name in rating.avoid for name in zone_names)
+        record["in_preferred_zone"] = grasp["zone"] is not None and rating.prefers(grasp["zone"])
+        record["in_avoid_zone"] = any(rating.avoids(name) for name in zone_names)
         # FRA/FAR measure the grasp against the object's annotated parts, not the pipeline's own zones.
         record.update(region_membership(record["object"], np.asarray(grasp["midpoint_object"])))
         task_success = record["success"]

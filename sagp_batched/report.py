@@ -192,8 +192,23 @@ def write_plots(out_dir: Path, summary: dict[str, Any]) -> list[Path]:
     return written
 
 
+RATER_NOTES = {
+    "prior": "an offline prior table written from common knowledge, not a VLM",
+    "oracle": "UPPER BOUND: zones rated from the objects' annotated regions with the true object pose (privileged simulation knowledge), not a model",
+}
+
+
+def rater_note(records: list[dict[str, Any]]) -> str:
+    """A line naming the zone raters behind the records (a prior or an upper bound is said to be one)."""
+    backends = sorted({(r.get("rating") or {}).get("backend") for r in records} - {None})
+    if not backends:
+        return ""
+    return "Zone rater: " + "; ".join(f"{b} ({RATER_NOTES[b]})" if b in RATER_NOTES else b for b in backends) + "\n\n"
+
+
 def write_reports(out_dir: Path, records: list[dict[str, Any]], summary: dict[str, Any], not_run: dict[str, str]) -> None:
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     # The failed-attempt lists use "×", which a non-UTF-8 default locale could not encode.
-    (out_dir / "summary.md").write_text(summary_markdown(summary, not_run, by_object=per_object(records)), encoding="utf-8")
+    markdown = summary_markdown(summary, not_run, by_object=per_object(records))
+    (out_dir / "summary.md").write_text(rater_note(records) + markdown, encoding="utf-8")
     write_plots(out_dir, summary)

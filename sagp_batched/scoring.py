@@ -68,9 +68,11 @@ def score_candidates(
         raise ScoringInputError(f"candidates carry zones {candidates.zone_names}, the decomposition {zones.zone_names}")
     positions = candidates.position_world
     memberships = zones.candidate_rated_zones(positions)
-    zone_phi = torch.tensor([PHI.get(zone_rating.ratings.get(z, ""), 0.0) for z in zones.zone_names])
-    zone_rated = torch.tensor([z in zone_rating.ratings for z in zones.zone_names], dtype=torch.bool)
-    zone_avoid = torch.tensor([z in zone_rating.avoid for z in zones.zone_names], dtype=torch.bool)
+    # A protrusion_<n> zone without a rating of its own takes the rating of "protrusion".
+    levels = [zone_rating.level(z) for z in zones.zone_names]
+    zone_phi = torch.tensor([PHI.get(level or "", 0.0) for level in levels])
+    zone_rated = torch.tensor([level is not None for level in levels], dtype=torch.bool)
+    zone_avoid = torch.tensor([zone_rating.avoids(z) for z in zones.zone_names], dtype=torch.bool)
     s_afford = score_kernels.zone_affordance(memberships, zone_phi, zone_rated)
     s_avoid = score_kernels.zone_avoidance(memberships, zone_avoid)
 

@@ -7,11 +7,35 @@ name says ``wxyz``.
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
+
+
+# The coarse-zone vocabulary. Each protrusion cluster of a cloud is a zone of its own,
+# ``protrusion_1``, ``protrusion_2``, ... (largest first); the general name ``protrusion`` is what
+# a rating uses to speak of all of them at once.
+PROTRUSION = "protrusion"
+ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "left", "right", "front", "back", PROTRUSION)
+_NUMBERED_PROTRUSION = re.compile(r"protrusion_[1-9][0-9]*")
+
+
+def protrusion_zone(number: int) -> str:
+    """Name of the ``number``-th protrusion zone (1-based, largest cluster first)."""
+    return f"{PROTRUSION}_{number}"
+
+
+def is_zone_name(name: str) -> bool:
+    """Whether ``name`` is in the zone vocabulary: a ``ZONE_NAMES`` entry or ``protrusion_<n>``."""
+    return name in ZONE_NAMES or bool(_NUMBERED_PROTRUSION.fullmatch(name))
+
+
+def general_zone(name: str) -> str | None:
+    """The zone a rating of ``name`` falls back to: ``protrusion`` for ``protrusion_<n>``, else None."""
+    return PROTRUSION if _NUMBERED_PROTRUSION.fullmatch(name) else None
 
 
 class PerceptionFailure(RuntimeError):

@@ -2,12 +2,20 @@
 
 Every cloud point belongs to exactly three geometric zones: one vertical third (bottom / middle /
 top), one lateral side (left / right) and one depth side (front / back); a point of a protrusion
-cluster belongs to ``protrusion`` as well. ``memberships`` keeps all of them, so a rating of any
-zone can reach the points it names.
+cluster belongs to that cluster's zone as well, ``protrusion_1``, ``protrusion_2``, ... (largest
+first), so a model can rate a pitcher's handle and its spout apart; a rating of plain
+``protrusion`` applies to all of them (``ZoneRating.level``). ``memberships`` keeps every zone of
+every point, so a rating of any zone can reach the points it names.
+
+Protrusions are found by ``zones.protrusion_rule``: "body" (default) takes points farther than
+``body_radius_factor`` x the body's radius from the vertical principal axis, for upright clouds
+(lying clouds keep the centroid rule, see ``ZonesConfig``); "centroid" is the published rule,
+points farther than ``protrusion_distance_factor`` x the median centroid distance. Either way the
+candidates are clustered with DBSCAN and clusters of ``min_protrusion_points`` are protrusions.
 
 One zone per candidate (``GraspCandidates.zone``, used for reporting, preferred-zone and avoid-zone
-metrics) is the *primary* zone of its contact midpoint's nearest cloud point: ``protrusion`` if the
-point is in a protrusion, else its vertical third (SPEC: protrusion wins over the vertical thirds).
+metrics) is the *primary* zone of its contact midpoint's nearest cloud point: its protrusion if the
+point is in one, else its vertical third (protrusion wins over the vertical thirds).
 Side zones never become primary because they split the same points a second and third time.
 A candidate is *rated* by its primary zone and its two side zones (``candidate_rated_zones``): a
 handle point in the top third is the handle, so a dangerous rim must not reach it, while a rating of
@@ -32,10 +40,11 @@ from sagp_batched_kernels import zones as zone_kernels
 
 from ._open3d import o3d
 from .config import ZonesConfig
-from .types import GraspCandidates, PerceivedCloud
+from .types import PROTRUSION, ZONE_NAMES, GraspCandidates, PerceivedCloud, protrusion_zone
 
-ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "left", "right", "front", "back", "protrusion")
-ZONE_INDEX: dict[str, int] = {name: i for i, name in enumerate(ZONE_NAMES)}
+# Zones every cloud has, in this order; its numbered protrusion zones follow them.
+GEOMETRIC_ZONES: tuple[str, ...] = tuple(name for name in ZONE_NAMES if name != PROTRUSION)
+ZONE_INDEX: dict[str, int] = {name: i for i, name in enumerate(GEOMETRIC_ZONES)}
 VERTICAL_ZONES: tuple[str, ...] = ("top", "middle", "bottom")
 # Kernel codes BOTTOM, MIDDLE, TOP -> zone indices.
 _VERTICAL_ZONE = torch.tensor([ZONE_INDEX["bottom"], ZONE_INDEX["middle"], ZONE_INDEX["top"]])
@@ -55,10 +64,15 @@ class ZoneDecomposition:
     points_world: torch.Tensor  # (N, 3) metres
     point_zone: torch.Tensor  # (N,) int64 primary zone index
     memberships: torch.Tensor  # (N, Z) bool, every zone each point belongs to
-    protrusion_label: torch.Tensor  # (N,) int64 protrusion cluster id, -1 outside every protrusion
+    protrusion_label: torch.Tensor  # (N,) int64 protrusion cluster id (0 = largest), -1 outside every protrusion
     centroid_world: torch.Tensor  # (3,) metres; the predicted centre of mass
     axes_world: torch.Tensor  # (3, 3) columns (vertical, lateral, depth), unit
     median_centroid_distance_m: float
+    protrusion_rule: str = "centroid"  # the rule that found the protrusions ("body" or "centroid")
+    # Each point's distance by that rule (from the vertical axis or the centroid), metres, and the
+    # body's reference distance it is compared with (radius or median centroid distance).
+    protrusion_distance_m: torch.Tensor | None = None
+    protrusion_reference_m: float = 0.0
     degenerate: str | None = None  # one of DEGENERATE_OUTCOMES, None for a well-posed cloud
     degenerate_reason: str = ""
 
@@ -91,11 +105,11 @@ class ZoneDecomposition:
 
     def candidate_rated_zones(self, positions_world: torch.Tensor) -> torch.Tensor:
         """(C, Z) bool: the zones each position is scored and counted by: the primary zone of its nearest
-        cloud point (protrusion wins over the vertical third) and that point's two side zones."""
+        cloud point (its protrusion wins over the vertical third) and that point's two side zones."""
         memberships = self.candidate_memberships(positions_world)
         if self.n_points == 0:
             return memberships
-        in_protrusion = memberships[:, ZONE_INDEX["protrusion"]].unsqueeze(1)
+        in_protrusion = memberships[:, len(GEOMETRIC_ZONES):].any(dim=1, keepdim=True)
         overridden = torch.zeros(len(self.zone_names), dtype=torch.bool)
         overridden[[ZONE_INDEX[name] for name in VERTICAL_ZONES]] = True
         return memberships & ~(in_protrusion & overridden)
@@ -148,17 +162,37 @@ def _cluster_protrusions(points: np.ndarray, config: ZonesConfig) -> np.ndarray:
     return np.asarray(labels, dtype=np.int64)
 
 
+def _far_points(
+    batch_points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, config: ZonesConfig
+) -> tuple[str, torch.Tensor, torch.Tensor, float, float]:
+    """(rule applied, far (N,), distance (N,) by that rule, the body's reference distance, median
+    centroid distance) of one cloud; the body rule applies to upright clouds with a round wall."""
+    far, distance, median_distance = zone_kernels.far_points(batch_points, valid, centroid, config.protrusion_distance_factor)
+    median_centroid = float(median_distance[0])
+    if config.protrusion_rule == "body":
+        # A body standing on the table has its axis along world up; the principal axes tilt
+        # toward a handle or spout, which is what the rule must not absorb.
+        upright = _world_reference_axes(config).unsqueeze(0)
+        offsets = (batch_points[0] - centroid[0]) @ upright[0]
+        extent = offsets.amax(dim=0) - offsets.amin(dim=0)
+        if float(extent[0]) >= config.body_min_height_ratio * float(extent[1:].max()):
+            axis_point, roundness_error = zone_kernels.fit_body_axis(batch_points, valid, centroid, upright, config.body_radius_factor)
+            if float(roundness_error[0]) <= config.body_max_roundness_error:
+                far_body, radial, radius = zone_kernels.far_from_axis(batch_points, valid, axis_point, upright[:, :, 0], config.body_radius_factor)
+                return "body", far_body[0], radial[0], float(radius[0]), median_centroid
+    return "centroid", far[0], distance[0], median_centroid, median_centroid
+
+
 def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> ZoneDecomposition:
     """Coarse zones of one cloud ``points_world`` (N, 3), world frame, metres."""
     config = config or ZonesConfig()
     points = _checked_positions(points_world, "points_world")
     n = points.shape[0]
     reference_axes = _world_reference_axes(config)
-    zone_count = len(ZONE_NAMES)
     if n == 0:
         return ZoneDecomposition(
-            zone_names=ZONE_NAMES, points_world=points, point_zone=torch.zeros(0, dtype=torch.int64),
-            memberships=torch.zeros(0, zone_count, dtype=torch.bool), protrusion_label=torch.zeros(0, dtype=torch.int64),
+            zone_names=GEOMETRIC_ZONES, points_world=points, point_zone=torch.zeros(0, dtype=torch.int64),
+            memberships=torch.zeros(0, len(GEOMETRIC_ZONES), dtype=torch.bool), protrusion_label=torch.zeros(0, dtype=torch.int64),
             centroid_world=torch.zeros(3), axes_world=reference_axes, median_centroid_distance_m=0.0,
             degenerate="empty", degenerate_reason="the cloud has no points",
         )
@@ -185,30 +219,34 @@ def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> 
     third, lateral_positive, depth_positive = zone_kernels.zone_coordinates(
         batch_points, valid, centroid, axes, config.min_split_extent_m
     )
-    far, _, median_distance = zone_kernels.far_points(batch_points, valid, centroid, config.protrusion_distance_factor)
+    rule, far, protrusion_distance, reference, median_centroid = _far_points(batch_points, valid, centroid, config)
     protrusion_label = torch.full((n,), -1, dtype=torch.int64)
     if not frame_fallback:
-        far_index = far[0].nonzero().squeeze(1)
+        far_index = far.nonzero().squeeze(1)
         labels = torch.from_numpy(_cluster_protrusions(points[far_index].numpy(), config))
         cluster_ids, sizes = torch.unique(labels[labels >= 0], return_counts=True)
-        kept = cluster_ids[sizes >= config.min_protrusion_points]
-        # Renumber kept clusters 0..K-1 so labels index protrusions directly.
-        for new_id, cluster_id in enumerate(kept.tolist()):
+        large = sizes >= config.min_protrusion_points
+        # Largest first (ties by cluster id), so protrusion_1 is the biggest part that sticks out.
+        order = sorted(zip((-sizes[large]).tolist(), cluster_ids[large].tolist()))
+        for new_id, (_, cluster_id) in enumerate(order):
             protrusion_label[far_index[labels == cluster_id]] = new_id
 
-    in_protrusion = protrusion_label >= 0
+    n_protrusions = int(protrusion_label.max()) + 1
+    zone_names = GEOMETRIC_ZONES + tuple(protrusion_zone(k + 1) for k in range(n_protrusions))
     vertical_zone = _VERTICAL_ZONE[third[0]]
-    memberships = torch.zeros(n, zone_count, dtype=torch.bool)
+    memberships = torch.zeros(n, len(zone_names), dtype=torch.bool)
     rows = torch.arange(n)
     memberships[rows, vertical_zone] = True
     memberships[rows, torch.where(lateral_positive[0], ZONE_INDEX["left"], ZONE_INDEX["right"])] = True
     memberships[rows, torch.where(depth_positive[0], ZONE_INDEX["front"], ZONE_INDEX["back"])] = True
-    memberships[:, ZONE_INDEX["protrusion"]] = in_protrusion
-    point_zone = torch.where(in_protrusion, torch.tensor(ZONE_INDEX["protrusion"]), vertical_zone)
+    in_protrusion = protrusion_label >= 0
+    memberships[rows[in_protrusion], len(GEOMETRIC_ZONES) + protrusion_label[in_protrusion]] = True
+    point_zone = torch.where(in_protrusion, len(GEOMETRIC_ZONES) + protrusion_label, vertical_zone)
     return ZoneDecomposition(
-        zone_names=ZONE_NAMES, points_world=points, point_zone=point_zone, memberships=memberships,
+        zone_names=zone_names, points_world=points, point_zone=point_zone, memberships=memberships,
         protrusion_label=protrusion_label, centroid_world=centroid[0], axes_world=axes[0],
-        median_centroid_distance_m=float(median_distance[0]), degenerate=degenerate, degenerate_reason=reason,
+        median_centroid_distance_m=median_centroid, degenerate=degenerate, degenerate_reason=reason,
+        protrusion_rule=rule, protrusion_distance_m=protrusion_distance, protrusion_reference_m=reference,
     )
 
 
@@ -221,47 +259,56 @@ def assign_zones(
     return decomposition, dataclasses.replace(candidates, zone=zone, zone_names=decomposition.zone_names)
 
 
-_SIDE_WORDS = {0: ("upper part", "lower part"), 1: ("left side", "right side"), 2: ("front side", "back side")}
+_SIDE_WORDS = {1: ("left side", "right side"), 2: ("front side", "back side")}
 
 
 def describe_zones(decomposition: ZoneDecomposition) -> dict[str, str]:
-    """A short geometric description of every zone that holds points, for the rating prompt."""
+    """A short geometric description of every zone that holds points, for the rating prompt.
+
+    A protrusion is described by where it is and how it sticks out: its share of the points, its
+    height band on the object, the side it sticks out on and how far beyond the body.
+    """
     n = decomposition.n_points
     if n == 0:
         return {}
     points = decomposition.points_world
     offsets = (points - decomposition.centroid_world) @ decomposition.axes_world  # (N, 3) vertical, lateral, depth
+    lowest = offsets[:, 0].amin()
     extents_cm = 100.0 * (offsets.amax(dim=0) - offsets.amin(dim=0))
     descriptions: dict[str, str] = {}
     counts = decomposition.zone_point_counts()
     side_words = {"left": "robot's left", "right": "robot's right", "front": "side facing the robot", "back": "side away from the robot"}
-    for name in decomposition.zone_names:
+    for index, name in enumerate(decomposition.zone_names):
         count = counts[name]
-        if count == 0 or name == "protrusion":
+        if count == 0:
             continue
         share = f"{name}: {100.0 * count / n:.0f}% of points"
         if name in side_words:
             descriptions[name] = f"{share}, the half on the {side_words[name]}"
             continue
-        zone_heights = offsets[decomposition.memberships[:, ZONE_INDEX[name]], 0]
-        height_cm = 100.0 * (zone_heights.amax() - zone_heights.amin())
-        descriptions[name] = f"{share}, {name} {height_cm:.1f} cm of the object's {extents_cm[0]:.1f} cm height"
-    for label in range(int(decomposition.protrusion_label.max()) + 1 if n else 0):
-        member = decomposition.protrusion_label == label
-        distance = torch.linalg.vector_norm(points[member] - decomposition.centroid_world, dim=1)
-        sticks_out_cm = 100.0 * (float(distance.max()) - decomposition.median_centroid_distance_m)
+        member = decomposition.memberships[:, index]
+        zone_heights = offsets[member, 0]
+        if name in VERTICAL_ZONES:
+            height_cm = 100.0 * (zone_heights.amax() - zone_heights.amin())
+            descriptions[name] = f"{share}, {name} {height_cm:.1f} cm of the object's {extents_cm[0]:.1f} cm height"
+            continue
+        band = (100.0 * (float(zone_heights.amin()) - float(lowest)), 100.0 * (float(zone_heights.amax()) - float(lowest)))
         mean_offset = offsets[member].mean(dim=0)
-        axis = int(mean_offset.abs().argmax())
+        axis = 1 + int(mean_offset[1:].abs().argmax())
         side = _SIDE_WORDS[axis][0 if mean_offset[axis] >= 0 else 1]
-        text = f"{100.0 * int(member.sum()) / n:.0f}% of points, sticks out {sticks_out_cm:.1f} cm on the {side}"
-        previous = descriptions.get("protrusion")
-        descriptions["protrusion"] = f"{previous}; part {label + 1}: {text}" if previous else f"protrusion: {text}"
+        beyond_cm = 100.0 * (float(decomposition.protrusion_distance_m[member].max()) - decomposition.protrusion_reference_m)
+        reference = "the body's side" if decomposition.protrusion_rule == "body" else "the body's typical extent"
+        descriptions[name] = (
+            f"{share}, a part that sticks out on the {side}, {band[0]:.1f} to {band[1]:.1f} cm above the object's "
+            f"lowest point ({extents_cm[0]:.1f} cm tall), reaching {beyond_cm:.1f} cm beyond {reference}"
+        )
     if decomposition.degenerate is not None:
         descriptions = {k: f"{v} (degenerate cloud: {decomposition.degenerate})" for k, v in descriptions.items()}
     return descriptions
 
 
-_PRIMARY_COLOURS = {"top": "tab:blue", "middle": "tab:green", "bottom": "tab:orange", "protrusion": "tab:red"}
+_PRIMARY_COLOURS = {"top": "tab:blue", "middle": "tab:green", "bottom": "tab:orange"}
+_PROTRUSION_COLOURS = ("tab:red", "tab:brown", "tab:pink", "tab:gray", "tab:olive")
 _SIDE_COLOURS = {("left", "front"): "tab:purple", ("left", "back"): "tab:pink", ("right", "front"): "tab:cyan", ("right", "back"): "tab:olive"}
 
 
@@ -276,8 +323,10 @@ def plot_zones(decomposition: ZoneDecomposition, path: str | Path, title: str = 
     figure = plt.figure(figsize=(11, 5.5))
     primary_axes = figure.add_subplot(1, 2, 1, projection="3d")
     side_axes = figure.add_subplot(1, 2, 2, projection="3d")
-    for name, colour in _PRIMARY_COLOURS.items():
-        member = (decomposition.point_zone == ZONE_INDEX[name]).numpy()
+    protrusions = decomposition.zone_names[len(GEOMETRIC_ZONES):]
+    colours = {**_PRIMARY_COLOURS, **{name: _PROTRUSION_COLOURS[k % len(_PROTRUSION_COLOURS)] for k, name in enumerate(protrusions)}}
+    for name, colour in colours.items():
+        member = (decomposition.point_zone == decomposition.zone_names.index(name)).numpy()
         if member.any():
             primary_axes.scatter(*points[member].T, s=2, c=colour, label=f"{name} ({int(member.sum())})")
     for (lateral, depth), colour in _SIDE_COLOURS.items():

@@ -203,7 +203,7 @@ def test_bad_requests_are_named():
     with pytest.raises(RatingError, match="unknown zones"):
         rater.rate("025_mug", "mug", "t1", CROP, {"handle": "the handle"})
     with pytest.raises(RatingError, match="unknown rating backend"):
-        get_rater(RatingConfig(backend="oracle"))
+        get_rater(RatingConfig(backend="crystal_ball"))
 
 
 # --- prior and cache.
@@ -289,3 +289,25 @@ def test_a_fully_cached_rerun_never_loads_the_model(tmp_path):
     asked = first.rate("025_mug", "mug", "t2", CROP, ZONES)
     rerun = CachedRater(VLMRater("transformers", "some-vlm", 15.0, refuse), tmp_path)
     assert rerun.rate("025_mug", "mug", "t2", CROP, ZONES) == asked and rerun.queries == 0
+
+
+def test_the_oracle_rates_the_mug_handle_zone_good_and_is_labelled_an_upper_bound():
+    from sagp_batched.config import RatingConfig
+    from sagp_batched.functional_regions import load_regions
+    from sagp_batched.rating import get_rater
+    from sagp_batched.report import rater_note
+
+    oracle = get_rater(RatingConfig(backend="oracle"))
+    assert oracle.uses_ground_truth and "upper bound" in oracle.model
+    mug = load_regions()["025_mug"]
+    handle_box, rim_box = mug.functional[0], mug.avoid[0]
+    rng = np.random.default_rng(0)
+    handle_points = rng.uniform(handle_box.min, handle_box.max, (50, 3))
+    rim_points = rng.uniform(rim_box.min, rim_box.max, (50, 3))
+    zones = {"protrusion_1": handle_points, "top": np.concatenate([rim_points, handle_points[:10]]), "middle": np.zeros((30, 3))}
+    rating = oracle.rate("025_mug", "mug", "t2", np.zeros((4, 4, 3), np.uint8), {}, zones)
+    assert rating.level("protrusion_1") == "good" and rating.prefers("protrusion_1")
+    assert rating.level("top") == "dangerous" and rating.avoids("top")
+    assert rating.level("middle") == "acceptable" and rating.max_tilt_deg == 15.0
+    assert oracle.rate("005_tomato_soup_can", "can", "t2", np.zeros((4, 4, 3), np.uint8), {}, zones).is_neutral
+    assert "UPPER BOUND" in rater_note([{"rating": rating.provenance_dict()}])

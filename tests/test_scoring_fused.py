@@ -13,7 +13,7 @@ from sagp_batched.rating import PriorRater, ZoneRating, neutral_rating
 from sagp_batched.rating.types import RatingProvenance
 from sagp_batched.scoring import ScoringInputError, score_candidates
 from sagp_batched.types import GraspCandidates
-from sagp_batched.zones import ZONE_NAMES, decompose
+from sagp_batched.zones import decompose
 from sagp_batched_kernels.scoring import predicted_swing_tilt, zone_affordance
 
 BASE = np.array([0.5, 0.0, 0.625])
@@ -68,7 +68,7 @@ def test_sagp_ranks_the_mug_handle_first_for_a_functional_grasp_while_go_keeps_g
     mug_t2 = PriorRater().rate("025_mug", "mug", "t2", np.zeros((4, 4, 3), np.uint8), {})
     sagp = score_candidates(mug_candidates(), mug_t2, config.weights, zones, config)
     go = score_candidates(mug_candidates(), mug_t2, GEOMETRY_ONLY_WEIGHTS, zones, config)
-    assert ZONE_NAMES[int(zones.candidate_zone(sagp.position_world[:1])[0])] == "protrusion"
+    assert zones.zone_names[int(zones.candidate_zone(sagp.position_world[:1])[0])] == "protrusion_1"
     assert sagp.s_geom.tolist() == pytest.approx([0.6, 0.8, 0.95]), "handle, body, rim"
     assert go.s_geom.tolist() == pytest.approx([0.95, 0.8, 0.6])
     assert torch.allclose(go.score, go.s_geom)
@@ -123,8 +123,8 @@ def test_a_handle_point_in_the_top_third_is_rated_as_the_handle_not_as_the_rim()
     upper_handle = [0.05 + 0.038 * math.cos(math.pi / 6), 0.0, 0.04 + 0.038 * math.sin(math.pi / 6)]  # outer surface
     batch = candidates([upper_handle, RIM], [SIDEWAYS, DOWN], [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], s_geom=[0.6, 0.9])
     members = zones.candidate_memberships(batch.position_world)[0]
-    assert members[ZONE_NAMES.index("protrusion")] and members[ZONE_NAMES.index("top")], "premise: handle point in the top third"
-    assert zones.candidate_zone_names(batch.position_world)[0][0] == "protrusion"
+    assert members[zones.zone_names.index("protrusion_1")] and members[zones.zone_names.index("top")], "premise: handle point in the top third"
+    assert zones.candidate_zone_names(batch.position_world)[0][0] == "protrusion_1"
     assert "top" not in zones.candidate_zone_names(batch.position_world)[0]
     given = rating(ratings={"top": "dangerous", "protrusion": "good"}, avoid=frozenset({"top"}))
     scored = score_candidates(batch, given, config.weights, zones, config)
@@ -132,7 +132,7 @@ def test_a_handle_point_in_the_top_third_is_rated_as_the_handle_not_as_the_rim()
     assert (handle, rim) == (1.0, -1.0)
     assert in_geometric_order(scored, "s_avoid") == [1.0, 0.0]
     # A side zone's rating still reaches the handle point: danger dominates.
-    side = "left" if members[ZONE_NAMES.index("left")] else "right"
+    side = "left" if members[zones.zone_names.index("left")] else "right"
     sided = score_candidates(batch, rating(ratings={"protrusion": "good", side: "dangerous"}), config.weights, zones, config)
     assert in_geometric_order(sided, "s_afford")[1] == -1.0
 
@@ -191,3 +191,28 @@ def test_mismatched_inputs_are_named():
         score_candidates(mug_candidates(), rating(max_tilt_deg=15.0), config.weights, empty_zones, config)
     unzoned = score_candidates(mug_candidates(), rating(ratings={"top": "good"}), config.weights, empty_zones, config)
     assert (unzoned.s_afford == 0).all()
+
+
+def test_a_rating_that_calls_protrusion_2_dangerous_moves_grasps_off_it_while_protrusion_still_rates_both():
+    """A body with a handle (protrusion_1) and a smaller spout (protrusion_2): "protrusion: good"
+    rates both, so the spout's better geometry wins; calling protrusion_2 dangerous sends the
+    grasp to the handle."""
+    rng = np.random.default_rng(5)
+    theta, z = rng.uniform(0, 2 * math.pi, 5000), rng.uniform(0, 0.16, 5000)
+    body = np.stack([0.05 * np.cos(theta), 0.05 * np.sin(theta), z], 1)
+    arc, tube = rng.uniform(-math.pi / 2, math.pi / 2, 900), rng.uniform(0, 2 * math.pi, 900)
+    ring = 0.04 + 0.007 * np.cos(tube)
+    handle = np.stack([0.06 + ring * np.cos(arc), 0.007 * np.sin(tube), 0.08 + ring * np.sin(arc)], 1)
+    spout = np.stack([-rng.uniform(0.05, 0.085, 300), rng.uniform(-0.01, 0.01, 300), rng.uniform(0.13, 0.16, 300)], 1)
+    zones = decompose(torch.tensor(np.concatenate([body, handle, spout]) + BASE, dtype=torch.float32))
+    config = Config()
+    on_handle, on_spout = [0.1, 0.0, 0.08], [-0.08, 0.0, 0.145]
+    batch = candidates([on_handle, on_spout], [SIDEWAYS, DOWN], [[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]], s_geom=[0.6, 0.9])
+    handle_zone, spout_zone = (zones.zone_names[int(i)] for i in zones.candidate_zone(batch.position_world))
+    assert (handle_zone, spout_zone) == ("protrusion_1", "protrusion_2")
+    both_good = score_candidates(batch, rating(ratings={"protrusion": "good"}), config.weights, zones, config)
+    assert torch.allclose(both_good.s_afford, torch.ones(2)) and both_good.candidate_id[0] == 1
+    spout_dangerous = rating(ratings={"protrusion": "good", "protrusion_2": "dangerous"})
+    moved = score_candidates(batch, spout_dangerous, config.weights, zones, config)
+    assert moved.candidate_id[0] == 0 and moved.s_afford.tolist() == [1.0, -1.0]
+    assert spout_dangerous.level("protrusion_1") == "good" and spout_dangerous.level("protrusion_2") == "dangerous"

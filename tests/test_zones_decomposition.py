@@ -12,7 +12,7 @@ from sagp_batched.config import ZonesConfig
 from sagp_batched.zones import (
     UNZONED,
     ZONE_INDEX,
-    ZONE_NAMES,
+    GEOMETRIC_ZONES,
     ZoneInputError,
     decompose,
     describe_zones,
@@ -54,11 +54,12 @@ def box_cloud(size, n=5000):
 def test_mug_handle_is_a_protrusion_and_rim_is_top():
     points, n_body = mug_cloud()
     zones = decompose(points)
-    assert zones.degenerate is None
+    assert zones.degenerate is None and zones.protrusion_rule == "body"
     handle_outer = (points[:, 0] > 0.5 + 0.084).nonzero().squeeze(1)
-    protrusion = zones.point_zone == ZONE_INDEX["protrusion"]
-    # The outer part of the handle is past 1.5 x the median distance and forms one cluster.
+    protrusion = zones.protrusion_label >= 0
+    # The handle is past 1.3 x the body's radius from its vertical axis and forms one cluster, its own zone.
     assert protrusion[handle_outer].all()
+    assert zones.zone_names[-1] == "protrusion_1" and (zones.point_zone[handle_outer] == len(zones.zone_names) - 1).all()
     assert int(protrusion.sum()) >= ZonesConfig().min_protrusion_points
     assert int(zones.protrusion_label.max()) == 0
     assert not protrusion[:n_body].any(), "no body point is a protrusion"
@@ -89,9 +90,9 @@ def test_candidate_zone_is_its_midpoints_nearest_point_and_protrusion_wins():
     on_rim = torch.tensor([[0.5, 0.04, TABLE_Z + 0.079]])
     near_base = torch.tensor([[0.5 - 0.04, 0.0, TABLE_Z + 0.002]])
     zone = zones.candidate_zone(torch.cat([on_handle, on_rim, near_base]))
-    assert [ZONE_NAMES[i] for i in zone.tolist()] == ["protrusion", "top", "bottom"]
+    assert [zones.zone_names[i] for i in zone.tolist()] == ["protrusion_1", "top", "bottom"]
     members = zones.candidate_memberships(on_handle)[0]
-    assert members[ZONE_INDEX["protrusion"]] and members[ZONE_INDEX["middle"]], "the handle point keeps its third"
+    assert members[zones.zone_names.index("protrusion_1")] and members[ZONE_INDEX["middle"]], "the handle point keeps its third"
 
 
 def test_tilted_box_still_finds_its_long_vertical_axis():
@@ -109,8 +110,8 @@ def test_sphere_has_no_protrusion():
     direction = rng.normal(size=(4000, 3))
     points = 0.05 * direction / np.linalg.norm(direction, axis=1, keepdims=True) + [0.5, 0.0, 0.7]
     zones = decompose(torch.tensor(points, dtype=torch.float32))
-    assert zones.zone_point_counts()["protrusion"] == 0
-    assert "protrusion" not in describe_zones(zones)
+    assert zones.zone_names == GEOMETRIC_ZONES
+    assert not any(name.startswith("protrusion") for name in describe_zones(zones))
 
 
 @pytest.mark.parametrize(
@@ -128,7 +129,7 @@ def test_degenerate_clouds_get_a_typed_outcome_and_no_nan_zones(points, outcome)
     zones = decompose(points)
     assert zones.degenerate == outcome and zones.degenerate_reason
     assert torch.isfinite(zones.axes_world).all() and torch.isfinite(zones.centroid_world).all()
-    assert ((zones.point_zone >= 0) & (zones.point_zone < len(ZONE_NAMES))).all()
+    assert ((zones.point_zone >= 0) & (zones.point_zone < len(zones.zone_names))).all()
     assert (zones.memberships.sum(dim=1) >= 3).all()
     queries = torch.tensor([[0.5, 0.0, 0.7], [0.45, 0.02, 0.71]])
     zone = zones.candidate_zone(queries)
@@ -136,7 +137,7 @@ def test_degenerate_clouds_get_a_typed_outcome_and_no_nan_zones(points, outcome)
         assert (zone == UNZONED).all()
         assert describe_zones(zones) == {}
     else:
-        assert ((zone >= 0) & (zone < len(ZONE_NAMES))).all()
+        assert ((zone >= 0) & (zone < len(zones.zone_names))).all()
         assert all(outcome in text for text in describe_zones(zones).values())
 
 
@@ -150,7 +151,7 @@ def test_a_single_view_half_shell_still_gets_every_zone():
     assert all(counts[z] > 0.2 * zones.n_points for z in ("top", "middle", "bottom", "left", "right"))
     # The SPEC rule as written: a half shell's centroid sits inside the shell, so its far corners
     # can pass 1.5 x the median distance; they must be corners (top or bottom third), never the middle.
-    in_protrusion = zones.point_zone == ZONE_INDEX["protrusion"]
+    in_protrusion = zones.protrusion_label >= 0
     assert not (zones.memberships[in_protrusion, ZONE_INDEX["middle"]]).any()
 
 
@@ -189,11 +190,14 @@ def test_kernels_batch_padded_clouds_like_single_ones():
 
 def test_describe_zones_says_how_far_the_handle_sticks_out():
     points, _ = mug_cloud()
-    text = describe_zones(decompose(points))
-    assert set(text) == set(ZONE_NAMES)
-    assert "sticks out" in text["protrusion"] and "% of points" in text["top"]
-    sticks_out_cm = float(text["protrusion"].split("sticks out ")[1].split(" cm")[0])
-    assert 1.0 < sticks_out_cm < 5.0
+    zones = decompose(points)
+    text = describe_zones(zones)
+    assert set(text) == set(zones.zone_names)
+    assert "sticks out" in text["protrusion_1"] and "% of points" in text["top"]
+    # The handle reaches 8.8 cm from the axis of a 4 cm body: 4.8 cm beyond its side.
+    beyond_cm = float(text["protrusion_1"].split("reaching ")[1].split(" cm")[0])
+    assert 4.0 < beyond_cm < 5.2
+    assert "robot's" not in text["protrusion_1"] and "above the object's lowest point" in text["protrusion_1"]
 
 
 def test_zone_picture_is_written(tmp_path):
@@ -203,3 +207,38 @@ def test_zone_picture_is_written(tmp_path):
 
     with Image.open(path) as image:
         assert image.size[0] > 500 and image.size[1] > 300
+
+
+def test_the_published_centroid_rule_stays_selectable_and_misses_most_of_a_handle():
+    points, n_body = mug_cloud()
+    body = decompose(points)
+    centroid = decompose(points, ZonesConfig(protrusion_rule="centroid"))
+    assert centroid.protrusion_rule == "centroid"
+    handle = torch.arange(n_body, points.shape[0])
+    assert int((centroid.protrusion_label[handle] >= 0).sum()) < int((body.protrusion_label[handle] >= 0).sum())
+
+
+def test_a_pitcher_handle_and_its_spout_are_zones_of_their_own():
+    """A tall body with a large handle on one side and a smaller spout on the other: two protrusion
+    zones, the larger first, which a rating can tell apart."""
+    body = cylinder(0.06, 0.2, 6000, base=(0.0, 0.0, 0.0))
+    arc = rng.uniform(-math.pi / 2, math.pi / 2, 900)
+    tube = rng.uniform(0, 2 * math.pi, 900)
+    ring = 0.05 + 0.008 * np.cos(tube)
+    handle = np.stack([0.07 + ring * np.cos(arc), 0.008 * np.sin(tube), 0.11 + ring * np.sin(arc)], 1)
+    spout = np.stack([-rng.uniform(0.06, 0.095, 300), rng.uniform(-0.012, 0.012, 300), rng.uniform(0.17, 0.2, 300)], 1)
+    points = torch.tensor(np.concatenate([body, handle, spout]) + [0.5, 0.0, TABLE_Z], dtype=torch.float32)
+    zones = decompose(points)
+    assert "protrusion_2" in zones.zone_names
+    handle_rows = torch.arange(6000, 6900)
+    spout_rows = torch.arange(6900, 7200)
+    handle_zone = torch.mode(zones.point_zone[handle_rows][zones.protrusion_label[handle_rows] >= 0]).values
+    spout_zone = torch.mode(zones.point_zone[spout_rows][zones.protrusion_label[spout_rows] >= 0]).values
+    assert zones.zone_names[int(handle_zone)] == "protrusion_1"
+    assert zones.zone_names[int(spout_zone)].startswith("protrusion_") and spout_zone != handle_zone
+
+
+def test_a_cloud_lying_flat_keeps_the_centroid_rule():
+    points = box_cloud(np.array([0.2, 0.05, 0.03])) + [0.5, 0.0, TABLE_Z + 0.015]
+    zones = decompose(torch.tensor(points, dtype=torch.float32))
+    assert zones.protrusion_rule == "centroid"

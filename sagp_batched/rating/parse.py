@@ -11,7 +11,7 @@ import math
 import re
 from typing import Any
 
-from ..zones import ZONE_NAMES
+from ..types import is_zone_name
 from .types import APPROACH_NAMES, GRASP_STYLES, PHI, RatingProvenance, ZoneRating, neutral_rating
 
 log = logging.getLogger(__name__)
@@ -104,7 +104,7 @@ def _zone_list(value: Any, field_name: str, issues: list[str]) -> set[str]:
     zones = set()
     for item in value:
         name = str(item).strip().lower()
-        if name in ZONE_NAMES:
+        if is_zone_name(name):
             zones.add(name)
         else:
             issues.append(f"unknown zone '{item}' in '{field_name}' dropped")
@@ -170,7 +170,7 @@ def parse_zone_rating(
         raw_ratings = {}
     for zone, level in raw_ratings.items():
         zone_name, level_name = str(zone).strip().lower(), str(level).strip().lower()
-        if zone_name not in ZONE_NAMES:
+        if not is_zone_name(zone_name):
             issues.append(f"unknown zone '{zone}' in 'ratings' dropped")
         elif level_name not in PHI:
             issues.append(f"unknown level '{level}' for zone '{zone_name}' dropped")

@@ -5,10 +5,10 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..zones import ZONE_NAMES
+from ..types import PROTRUSION, ZONE_NAMES, is_zone_name
 from .types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, TASKS, RatingError
 
-PROMPT_VERSION = "sagp-zones-v1"
+PROMPT_VERSION = "sagp-zones-v2"
 
 
 def task_description(task: str) -> str:
@@ -27,10 +27,13 @@ def checked_image(image: np.ndarray, name: str = "crop_rgb") -> np.ndarray:
 
 def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[str, str]) -> str:
     """The text sent beside the object crop: task, zones with their geometry, and the JSON to answer."""
-    unknown = [z for z in zone_descriptions if z not in ZONE_NAMES]
+    unknown = [z for z in zone_descriptions if not is_zone_name(z)]
     if unknown:
-        raise RatingError(f"zone descriptions name unknown zones {unknown} (known: {', '.join(ZONE_NAMES)})")
-    zone_lines = "\n".join(f"- {zone_descriptions[z]}" for z in ZONE_NAMES if z in zone_descriptions)
+        raise RatingError(f"zone descriptions name unknown zones {unknown} (known: {', '.join(ZONE_NAMES)}, {PROTRUSION}_<n>)")
+    zone_lines = "\n".join(f"- {description}" for description in zone_descriptions.values())
+    names = list(zone_descriptions)
+    if any(name.startswith(f"{PROTRUSION}_") for name in names):
+        names.append(PROTRUSION)
     return (
         f"The image shows a {object_name} on a table, seen by a robot with a parallel-jaw gripper.\n"
         f"Task: {task_description(task)}.\n"
@@ -43,5 +46,6 @@ def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[st
         f'"approach": "<one of {"|".join(a for a in APPROACH_NAMES if a != "vector")}>", '
         f'"grasp_style": "<one of {"|".join(GRASP_STYLES)}>", '
         '"max_tilt_deg": <largest tilt of the object the task allows, in degrees, or null>}\n'
-        f"Zone names must come from: {', '.join(ZONE_NAMES)}."
+        f"Zone names must come from: {', '.join(names)}"
+        + (f" ('{PROTRUSION}' rates every {PROTRUSION}_<n> zone at once)." if PROTRUSION in names else ".")
     )

@@ -18,7 +18,7 @@ import numpy as np
 from ..config import RatingConfig
 from .parse import parse_zone_rating
 from .prompt import PROMPT_VERSION, build_zone_prompt, checked_image, task_description
-from .types import RatingError, VLMRequestError, ZoneRating, neutral_rating
+from .types import RatingError, RatingProvenance, VLMRequestError, ZoneRating, neutral_rating
 from .vlm import VLMClient, get_vlm_client
 
 log = logging.getLogger(__name__)
@@ -30,12 +30,23 @@ class Rater(ABC):
     backend: str
     model: str
     prompt_version: str
+    # A rater that reads the simulation's ground truth (the object's pose) is an upper bound, never a model.
+    uses_ground_truth: bool = False
 
     @abstractmethod
     def rate(
-        self, object_id: str, object_name: str, task: str, crop_rgb: np.ndarray, zone_descriptions: Mapping[str, str]
+        self,
+        object_id: str,
+        object_name: str,
+        task: str,
+        crop_rgb: np.ndarray,
+        zone_descriptions: Mapping[str, str],
+        zone_points_object: Mapping[str, np.ndarray] | None = None,
     ) -> ZoneRating:
-        """A validated rating; never raises for a bad model answer (that gives a neutral rating)."""
+        """A validated rating; never raises for a bad model answer (that gives a neutral rating).
+
+        ``zone_points_object`` (zone name -> (M, 3) points in the object's own frame) is handed
+        only to raters that use the ground truth."""
 
 
 class VLMRater(Rater):
@@ -60,7 +71,7 @@ class VLMRater(Rater):
             self._client = self._connect()
         return self._client
 
-    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions):
+    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions, zone_points_object=None):
         prompt = build_zone_prompt(object_name, task, zone_descriptions)
         image = checked_image(crop_rgb)
         client = self.client
@@ -112,7 +123,7 @@ class PriorRater(Rater):
         except RatingError as exc:
             raise RatingError(f"zone prior {where} is invalid: {exc}") from exc
 
-    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions):
+    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions, zone_points_object=None):
         task_description(task)
         entry = self._objects.get(object_id, {}).get(task)
         if entry is None:
@@ -171,7 +182,7 @@ class CachedRater(Rater):
             Path(temporary).unlink(missing_ok=True)
             raise
 
-    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions):
+    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions, zone_points_object=None):
         task_description(task)
         path = self._path(object_id, task)
         cached = self._load(path)
@@ -184,12 +195,69 @@ class CachedRater(Rater):
         return rating
 
 
+class OracleRater(Rater):
+    """UPPER BOUND, not a model: rates each zone from how much of it lies in the object's annotated
+    functional and avoid regions (``functional_regions``), using the simulation's ground-truth pose.
+
+    It answers how far the zone layer can carry a perfect rater. A zone mostly (>= half its points)
+    in the functional region is good and preferred, mostly in the avoid region dangerous and
+    avoided, partly (>= ``partial_share``) in the avoid region bad, else acceptable. An object
+    without annotations gets the neutral rating. Its ratings depend on the trial's zones, so they
+    are never cached.
+    """
+
+    backend = "oracle"
+    model = "annotated functional regions (upper bound)"
+    uses_ground_truth = True
+    majority_share = 0.5
+    partial_share = 0.2
+
+    def __init__(self, upright_max_tilt_deg: float):
+        from ..functional_regions import load_regions
+
+        self.regions = load_regions()
+        self.prompt_version = f"oracle-{hashlib.sha256(json.dumps(sorted(self.regions)).encode()).hexdigest()[:12]}"
+        self.upright_max_tilt_deg = upright_max_tilt_deg
+
+    def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions, zone_points_object=None):
+        task_description(task)
+        if object_id not in self.regions:
+            return neutral_rating(self.backend, self.model, self.prompt_version, 0.0, f"no annotated regions for {object_id}")
+        if zone_points_object is None:
+            raise RatingError("the oracle rater needs the zones' points in the object frame")
+        start = time.perf_counter()
+        annotation = self.regions[object_id]
+        ratings, preferred, avoid = {}, set(), set()
+        for zone, points in zone_points_object.items():
+            if len(points) == 0:
+                continue
+            functional = float(annotation.contains("functional", points).mean())
+            avoided = float(annotation.contains("avoid", points).mean())
+            if functional >= self.majority_share:
+                ratings[zone] = "good"
+                preferred.add(zone)
+            elif avoided >= self.majority_share:
+                ratings[zone] = "dangerous"
+                avoid.add(zone)
+            else:
+                ratings[zone] = "bad" if avoided >= self.partial_share else "acceptable"
+        return ZoneRating(
+            ratings=ratings, preferred=frozenset(preferred), avoid=frozenset(avoid), approach="any", grasp_style="any",
+            # The functional task's own tolerance (keep the object upright), not privileged knowledge.
+            max_tilt_deg=self.upright_max_tilt_deg if task == "t2" else None,
+            provenance=RatingProvenance(self.backend, self.model, self.prompt_version, time.perf_counter() - start, "ok"),
+        )
+
+
 def get_rater(config: RatingConfig) -> Rater:
-    """The rater of ``config.backend`` (``prior``, ``transformers`` or ``openai``), cached if ``config.use_cache``."""
+    """The rater of ``config.backend`` (``prior``, ``transformers``, ``openai``, or the upper-bound
+    ``oracle``), cached if ``config.use_cache`` (never the oracle, whose ratings follow each trial's zones)."""
+    if config.backend == "oracle":
+        return OracleRater(config.upright_max_tilt_deg)
     if config.backend == "prior":
         rater: Rater = PriorRater()
     elif config.backend in ("transformers", "openai"):
         rater = VLMRater(config.backend, config.model, config.upright_max_tilt_deg, lambda: get_vlm_client(config))
     else:
-        raise RatingError(f"unknown rating backend '{config.backend}' (known: prior, transformers, openai)")
+        raise RatingError(f"unknown rating backend '{config.backend}' (known: prior, transformers, openai, oracle)")
     return CachedRater(rater, config.cache_dir) if config.use_cache else rater

@@ -5,7 +5,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..zones import ZONE_NAMES
+from ..types import general_zone, is_zone_name
 
 # SPEC stage 4: rating levels and their affordance value phi.
 PHI: dict[str, float] = {"good": 1.0, "acceptable": 0.5, "bad": -0.5, "dangerous": -1.0}
@@ -67,6 +67,21 @@ class ZoneRating:
     def is_neutral(self) -> bool:
         return self.provenance.outcome == "neutral"
 
+    def level(self, zone: str) -> str | None:
+        """The rating level of ``zone``: its own, else (for ``protrusion_<n>``) that of ``protrusion``; None if unrated."""
+        if zone in self.ratings:
+            return self.ratings[zone]
+        general = general_zone(zone)
+        return self.ratings.get(general) if general else None
+
+    def prefers(self, zone: str) -> bool:
+        """``zone`` is in the preferred set, itself or through ``protrusion`` (unless avoided by name)."""
+        return zone in self.preferred or (general_zone(zone) in self.preferred and zone not in self.avoid)
+
+    def avoids(self, zone: str) -> bool:
+        """``zone`` is in the avoid set, itself or through ``protrusion`` (unless preferred by name)."""
+        return zone in self.avoid or (general_zone(zone) in self.avoid and zone not in self.preferred)
+
     def provenance_dict(self) -> dict[str, Any]:
         """Where the rating came from, for trial records: backend, model, prompt version, latency, outcome, cache, issues."""
         return {**dataclasses.asdict(self.provenance), "issues": list(self.issues)}
@@ -109,7 +124,7 @@ class ZoneRating:
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise RatingError(f"stored rating is malformed: {exc!r}") from exc
         bad = [
-            *(f"zone {z}" for z in [*ratings, *preferred, *avoid] if z not in ZONE_NAMES),
+            *(f"zone {z}" for z in [*ratings, *preferred, *avoid] if not is_zone_name(z)),
             *(f"level {v}" for v in ratings.values() if v not in PHI),
             *([f"approach {rating.approach}"] if rating.approach not in APPROACH_NAMES else []),
             *([f"grasp style {rating.grasp_style}"] if rating.grasp_style not in GRASP_STYLES else []),
