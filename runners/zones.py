@@ -1,7 +1,8 @@
 """Picture of an object's coarse zones: ``python -m runners.zones --object 025_mug --out mug_zones.png``.
 
 Places the object as trial ``--trial`` of the study would, captures its cloud with the three
-cameras, decomposes it into zones and saves the cloud coloured by zone with a legend. The zone
+cameras, decomposes it into zones and saves the cloud coloured by zone with a legend, beside the
+object's annotated functional and avoid regions where it has them (else its side zones). The zone
 descriptions the rating prompt would carry are printed.
 """
 from __future__ import annotations
@@ -9,7 +10,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from scipy.spatial.transform import Rotation
+
 from sagp_batched.config import ConfigError, load_config
+from sagp_batched.functional_regions import region_membership
 from sagp_batched.objects import ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.perception import capture
 from sagp_batched.scene import Scene
@@ -44,7 +48,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {spec.id} trial {args.trial}: {failure}", file=sys.stderr)
             return 1
     zones = decompose(cloud.points_world, config.zones)
-    out = plot_zones(zones, args.out or f"{spec.id}_zones.png", f"{spec.id} (trial {args.trial})")
+    points_object = Rotation.from_quat(cloud.object_quat_xyzw).inv().apply(cloud.points_world.numpy() - cloud.object_position_world)
+    membership = region_membership(spec.id, points_object)
+    regions = None if membership["in_functional_region"] is None else {
+        "functional": membership["in_functional_region"], "avoid": membership["in_avoid_region"]}
+    out = plot_zones(zones, args.out or f"{spec.id}_zones.png", f"{spec.id} (trial {args.trial})", regions)
     if zones.degenerate:
         print(f"degenerate cloud: {zones.degenerate} ({zones.degenerate_reason})", file=sys.stderr)
     for description in describe_zones(zones).values():

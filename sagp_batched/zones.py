@@ -312,8 +312,12 @@ _PROTRUSION_COLOURS = ("tab:red", "tab:brown", "tab:pink", "tab:gray", "tab:oliv
 _SIDE_COLOURS = {("left", "front"): "tab:purple", ("left", "back"): "tab:pink", ("right", "front"): "tab:cyan", ("right", "back"): "tab:olive"}
 
 
-def plot_zones(decomposition: ZoneDecomposition, path: str | Path, title: str = "") -> Path:
-    """Save a PNG of the cloud coloured by zone: primary zones (left panel) and side zones (right panel)."""
+def plot_zones(
+    decomposition: ZoneDecomposition, path: str | Path, title: str = "", regions: dict[str, np.ndarray] | None = None
+) -> Path:
+    """Save a PNG of the cloud coloured by zone: primary zones (left panel, each protrusion in its
+    own colour) and, beside them, the object's annotated regions when ``regions`` ("functional",
+    "avoid": (N,) bool per cloud point) is given, else the side zones."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -322,19 +326,29 @@ def plot_zones(decomposition: ZoneDecomposition, path: str | Path, title: str = 
     points = decomposition.points_world.numpy()
     figure = plt.figure(figsize=(11, 5.5))
     primary_axes = figure.add_subplot(1, 2, 1, projection="3d")
-    side_axes = figure.add_subplot(1, 2, 2, projection="3d")
+    right_axes = figure.add_subplot(1, 2, 2, projection="3d")
     protrusions = decomposition.zone_names[len(GEOMETRIC_ZONES):]
     colours = {**_PRIMARY_COLOURS, **{name: _PROTRUSION_COLOURS[k % len(_PROTRUSION_COLOURS)] for k, name in enumerate(protrusions)}}
     for name, colour in colours.items():
         member = (decomposition.point_zone == decomposition.zone_names.index(name)).numpy()
         if member.any():
             primary_axes.scatter(*points[member].T, s=2, c=colour, label=f"{name} ({int(member.sum())})")
-    for (lateral, depth), colour in _SIDE_COLOURS.items():
-        member = (decomposition.memberships[:, ZONE_INDEX[lateral]] & decomposition.memberships[:, ZONE_INDEX[depth]]).numpy()
+    if regions is not None:
+        functional, avoid = np.asarray(regions["functional"], dtype=bool), np.asarray(regions["avoid"], dtype=bool)
+        panels = {"functional region": (functional, "tab:green"), "avoid region": (avoid, "tab:red"),
+                  "elsewhere": (~functional & ~avoid, "lightgray")}
+        right_heading = "annotated regions"
+    else:
+        panels = {
+            f"{lateral}/{depth}": ((decomposition.memberships[:, ZONE_INDEX[lateral]] & decomposition.memberships[:, ZONE_INDEX[depth]]).numpy(), colour)
+            for (lateral, depth), colour in _SIDE_COLOURS.items()
+        }
+        right_heading = "side zones"
+    for label, (member, colour) in panels.items():
         if member.any():
-            side_axes.scatter(*points[member].T, s=2, c=colour, label=f"{lateral}/{depth} ({int(member.sum())})")
+            right_axes.scatter(*points[member].T, s=2, c=colour, label=f"{label} ({int(member.sum())})")
     subtitle = f" [degenerate: {decomposition.degenerate}]" if decomposition.degenerate else ""
-    for axes, heading in ((primary_axes, "primary zones"), (side_axes, "side zones")):
+    for axes, heading in ((primary_axes, f"primary zones, {decomposition.protrusion_rule} rule"), (right_axes, right_heading)):
         axes.set_title(f"{title} {heading}{subtitle}".strip())
         axes.set_xlabel("x (m)")
         axes.set_ylabel("y (m)")
