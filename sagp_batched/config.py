@@ -69,15 +69,33 @@ class CameraConfig:
     overhead_up_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
 
 
+# How perception orients normals: toward the camera that saw each point, or the published rule.
+NORMAL_ORIENTATIONS = ("camera", "centroid")
+
+
 @dataclass
 class PerceptionConfig:
     normal_radius_m: float = 0.02
     normal_max_neighbours: int = 30
+    # "camera" turns each normal toward the camera that saw its point: outward on every visible
+    # surface, concave ones too (a handle's inner side, a mug's inner wall), where the published
+    # "centroid" rule (away from the cloud centroid) points normals into the material and hides
+    # the antipodal pairs across a handle.
+    normal_orientation: str = "camera"
+    # Points whose normal is within ~6 deg of edge-on to their camera (|cos| < 0.1) take the
+    # centroid rule: there the camera's side says nothing (8 of 1,122 sphere normals flipped).
+    normal_grazing_cosine: float = 0.1
     min_points: int = 150
     crop_padding_fraction: float = 0.2
     # Merged clouds from three 640x480 views hold ~10-40k points; a 3 mm voxel keeps the
     # geometry (contacts are sampled at 5 mm resolution at best) and bounds planning cost.
     voxel_size_m: float = 0.003
+
+    def __post_init__(self) -> None:
+        if self.normal_orientation not in NORMAL_ORIENTATIONS:
+            raise ConfigError(
+                f"perception.normal_orientation: unknown rule {self.normal_orientation!r} (known: {', '.join(NORMAL_ORIENTATIONS)})"
+            )
 
 
 @dataclass
@@ -312,6 +330,13 @@ class RatingConfig:
     vd_num_candidates: int = 20
     vd_image_min_side_px: int = 448
     vd_marker_radius_px: int = 9
+    # Set-of-mark prompting: a model cannot tell "protrusion_2" from "middle" by a text description
+    # alone; the zones drawn on the image as labelled dots show which part is which. False sends the
+    # plain crop (and the unmarked prompt, a separate cache key).
+    zone_marks: bool = True
+    # Dots small enough that the object stays visible under them; labels as legible as VD's markers.
+    zone_mark_dot_radius_px: int = 2
+    zone_label_font_px: int = 13
 
 
 @dataclass

@@ -201,7 +201,11 @@ class TrialRunner:
         start = time.perf_counter()
         # Only a ground-truth rater (the oracle, an upper bound) is handed the object's true pose.
         zone_points = _zone_points_object(cloud, decomposition) if self.rater.uses_ground_truth else None
-        rating = self.rater.rate(spec.id, spec.name, unit.task, cloud.crop_rgb, decomposition.describe(), zone_points)
+        # What the model sees: the crop with the zones drawn on it (set-of-mark prompting), or the plain crop.
+        from .zone_marks import rating_image
+
+        shown = rating_image(cloud, decomposition, config.rating)
+        rating = self.rater.rate(spec.id, spec.name, unit.task, shown, decomposition.describe(), zone_points)
         rating_s = time.perf_counter() - start
 
         scored_by_method: dict[str, GraspCandidates] = {}

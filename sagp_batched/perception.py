@@ -108,12 +108,33 @@ def _voxel_downsample(points: np.ndarray, labels: np.ndarray, voxel_size_m: floa
     return np.asarray(down.points), labels[first_source]
 
 
-def outward_normals(points_world: np.ndarray, radius_m: float, max_neighbours: int) -> np.ndarray:
-    """Open3D normals (hybrid radius/kNN search), flipped to point away from the cloud centroid."""
+def outward_normals(
+    points_world: np.ndarray,
+    radius_m: float,
+    max_neighbours: int,
+    orientation: str,
+    viewpoints_world: np.ndarray | None = None,
+    grazing_cosine: float = 0.0,
+) -> np.ndarray:
+    """Open3D normals (hybrid radius/kNN search), oriented outward from the surface.
+
+    ``orientation`` "camera": each normal is turned toward the camera that saw its point
+    (``viewpoints_world`` (N, 3)), which is the outward side of any visible surface, concave ones
+    included: the inside of a handle or a mug's inner wall; points seen edge-on (|cos| under
+    ``grazing_cosine``) fall back to the centroid. "centroid" (the published rule): away from the
+    cloud centroid, which is outward only where the surface faces away from the centroid.
+    """
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_world))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius_m, max_nn=max_neighbours))
     normals = np.asarray(cloud.normals)
-    outward = points_world - points_world.mean(axis=0)
+    away_from_centroid = points_world - points_world.mean(axis=0)
+    outward = away_from_centroid
+    if orientation == "camera":
+        toward_camera = viewpoints_world - points_world
+        toward_camera /= np.linalg.norm(toward_camera, axis=1, keepdims=True)
+        # On the silhouette the camera sees the surface edge-on and cannot tell its sides apart.
+        edge_on = np.abs(np.einsum("ij,ij->i", normals, toward_camera)) < grazing_cosine
+        outward = np.where(edge_on[:, None], away_from_centroid, toward_camera)
     flip = np.einsum("ij,ij->i", normals, outward) < 0.0
     normals[flip] *= -1.0
     return normals
@@ -148,7 +169,11 @@ def capture(scene: Scene, config: Config) -> PerceivedCloud:
             f"object '{scene.target_spec.id}': {points_world.shape[0]} points after {voxel} m voxels "
             f"(need {config.perception.min_points}; target pixels per view {pixels_per_view.tolist()})",
         )
-    normals_world = outward_normals(points_world, config.perception.normal_radius_m, config.perception.normal_max_neighbours)
+    viewpoints = np.stack([camera.camera_to_world[:3, 3] for camera in cameras])[view_index]
+    normals_world = outward_normals(
+        points_world, config.perception.normal_radius_m, config.perception.normal_max_neighbours,
+        config.perception.normal_orientation, viewpoints, config.perception.normal_grazing_cosine,
+    )
 
     non_obstacles = {scene.target_id, scene.table_id, scene.robot_id, BACKGROUND}
     obstacle_masks = ~np.isin(body_ids, list(non_obstacles))

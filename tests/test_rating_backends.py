@@ -311,3 +311,71 @@ def test_the_oracle_rates_the_mug_handle_zone_good_and_is_labelled_an_upper_boun
     assert rating.level("middle") == "acceptable" and rating.max_tilt_deg == 15.0
     assert oracle.rate("005_tomato_soup_can", "can", "t2", np.zeros((4, 4, 3), np.uint8), {}, zones).is_neutral
     assert "UPPER BOUND" in rater_note([{"rating": rating.provenance_dict()}])
+
+
+# --- what the model sees: the zones drawn on the crop (set-of-mark prompting), and kept beside the cache.
+
+def marked_scene():
+    from test_zone_marks import synthetic_cloud
+
+    from sagp_batched.zones import decompose
+
+    cloud = synthetic_cloud()
+    return cloud, decompose(cloud.points_world)
+
+
+def sent_image_and_prompt(request) -> tuple[np.ndarray, str]:
+    content = request["body"]["messages"][0]["content"]
+    image_url = content[0]["image_url"]["url"]
+    return np.asarray(Image.open(io.BytesIO(base64.b64decode(image_url.split(",", 1)[1])))), content[1]["text"]
+
+
+def test_the_endpoint_is_shown_the_marked_crop_and_told_to_use_the_marks(endpoint, tmp_path):
+    from sagp_batched.rating import PROMPT_VERSION
+    from sagp_batched.zone_marks import draw_zone_marks, rating_image
+
+    cloud, zones = marked_scene()
+    endpoint.script = [("answer", json.dumps(GOOD_ANSWER)), ("answer", json.dumps(GOOD_ANSWER))]
+    marked = openai_rater(endpoint, tmp_path)
+    assert marked.prompt_version == f"{PROMPT_VERSION}-marks"
+    rating = marked.rate("025_mug", "mug", "t2", rating_image(cloud, zones, RatingConfig()), zones.describe())
+    assert rating.provenance.outcome == "ok" and rating.provenance.prompt_version == f"{PROMPT_VERSION}-marks"
+    sent, prompt = sent_image_and_prompt(endpoint.requests[0])
+    assert np.array_equal(sent, draw_zone_marks(cloud, zones, RatingConfig()).image)
+    assert sent.shape != cloud.crop_rgb.shape
+    assert "coloured dots" in prompt and "labelled with its zone name" in prompt and "protrusion_1" in prompt
+
+    plain = openai_rater(endpoint, tmp_path, zone_marks=False)
+    assert plain.prompt_version == PROMPT_VERSION
+    plain.rate("025_mug", "mug", "t2", rating_image(cloud, zones, RatingConfig(zone_marks=False)), zones.describe())
+    sent, prompt = sent_image_and_prompt(endpoint.requests[1])
+    assert np.array_equal(sent, cloud.crop_rgb) and "coloured dots" not in prompt
+
+
+def test_the_local_vlm_rates_a_marked_crop_end_to_end(tiny_qwen2_vl, tmp_path):
+    from sagp_batched.rating import PROMPT_VERSION
+    from sagp_batched.zone_marks import rating_image
+
+    cloud, zones = marked_scene()
+    config = RatingConfig(backend="transformers", model=str(tiny_qwen2_vl), max_new_tokens=16, cache_dir=str(tmp_path))
+    assert config.zone_marks, "marks are on by default"
+    image = rating_image(cloud, zones, config)
+    assert image.shape[0] >= config.vd_image_min_side_px
+    rating = get_rater(config).rate("025_mug", "mug", "t2", image, zones.describe())
+    assert rating.provenance.backend == "transformers" and rating.provenance.prompt_version == f"{PROMPT_VERSION}-marks"
+    assert rating.raw_text and rating.provenance.latency_s > 0.0
+
+
+def test_the_image_a_rating_was_given_is_saved_beside_its_cache_entry(tmp_path):
+    from sagp_batched.zone_marks import draw_zone_marks
+
+    cloud, zones = marked_scene()
+    shown = draw_zone_marks(cloud, zones, RatingConfig()).image
+    rater = CachedRater(PriorRater(), tmp_path)
+    rater.rate("025_mug", "mug", "t2", shown, zones.describe())
+    entry = rater._path("025_mug", "t2")
+    assert entry.is_file() and entry.with_suffix(".png").is_file()
+    assert np.array_equal(np.asarray(Image.open(entry.with_suffix(".png"))), shown)
+    rater.rate("999_teapot", "teapot", "t1", shown, zones.describe())  # neutral: neither stored nor pictured
+    assert not rater._path("999_teapot", "t1").with_suffix(".png").exists()
+    assert sorted(p.suffix for p in tmp_path.iterdir()) == [".json", ".png"], "no temporary file is left behind"

@@ -130,3 +130,24 @@ def test_too_few_points_and_hidden_object_raise_perception_failure(scene, builti
     with pytest.raises(PerceptionFailure) as hidden:
         capture(scene, config)
     assert hidden.value.reason == "not_visible"
+
+
+def test_normals_of_a_concave_surface_face_the_camera_that_saw_it():
+    """The inner wall of a cup, each part seen over the rim by a camera above the opposite side: its
+    outward side faces the cavity and the camera; the published rule (away from the centroid)
+    turns those normals into the wall."""
+    from sagp_batched.perception import outward_normals
+
+    angle = np.linspace(0.0, 2.0 * np.pi, 180, endpoint=False)
+    height = np.linspace(0.0, 0.08, 27)
+    ring = np.stack([0.04 * np.cos(angle), 0.04 * np.sin(angle)], axis=1)
+    inner_wall = np.concatenate([np.c_[ring, np.full(len(ring), z)] for z in height])
+    outer_wall = inner_wall * [1.2, 1.2, 1.0]
+    points = np.concatenate([inner_wall, outer_wall])
+    over_the_rim = np.c_[-inner_wall[:, :2] / 0.04 * 0.3, np.full(len(inner_wall), 0.3)]
+    seen_from = np.concatenate([over_the_rim, outer_wall * [3.0, 3.0, 1.0]])
+    normals = outward_normals(points, 0.01, 30, "camera", seen_from, 0.1)
+    inward = -inner_wall * [1.0, 1.0, 0.0] / 0.04
+    assert (np.einsum("ij,ij->i", normals[: len(inner_wall)], inward) > 0.9).mean() > 0.95
+    published = outward_normals(points, 0.01, 30, "centroid")
+    assert (np.einsum("ij,ij->i", published[: len(inner_wall)], inward) < 0.0).mean() > 0.95

@@ -11,6 +11,11 @@ from .types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, TASKS, RatingErr
 PROMPT_VERSION = "sagp-zones-v2"
 
 
+def prompt_version(marked: bool) -> str:
+    """The cache-key version of the prompt ``build_zone_prompt(..., marked=marked)`` writes."""
+    return f"{PROMPT_VERSION}-marks" if marked else PROMPT_VERSION
+
+
 def task_description(task: str) -> str:
     if task not in TASKS:
         raise RatingError(f"unknown task '{task}' (known: {', '.join(TASKS)})")
@@ -25,8 +30,11 @@ def checked_image(image: np.ndarray, name: str = "crop_rgb") -> np.ndarray:
     return array
 
 
-def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[str, str]) -> str:
-    """The text sent beside the object crop: task, zones with their geometry, and the JSON to answer."""
+def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[str, str], *, marked: bool = False) -> str:
+    """The text sent beside the object crop: task, zones with their geometry, and the JSON to answer.
+
+    ``marked``: the image carries the zones (``zone_marks.draw_zone_marks``), so the text points the
+    model at the labelled dots; its version is then ``prompt_version(True)``."""
     unknown = [z for z in zone_descriptions if not is_zone_name(z)]
     if unknown:
         raise RatingError(f"zone descriptions name unknown zones {unknown} (known: {', '.join(ZONE_NAMES)}, {PROTRUSION}_<n>)")
@@ -40,7 +48,13 @@ def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[st
         "The object is divided into coarse zones (vertical thirds of its height, the halves on each side, "
         "and parts that stick out):\n"
         f"{zone_lines}\n"
-        f"Rate every zone for grasping in this task as one of {', '.join(RATING_LEVELS)}. "
+        + (
+            "The vertical thirds and the parts that stick out are drawn on the image as coloured dots, each "
+            "labelled with its zone name in a box (the side halves are not drawn); use those marks to tell "
+            "which part of the object each zone is.\n"
+            if marked else ""
+        )
+        + f"Rate every zone for grasping in this task as one of {', '.join(RATING_LEVELS)}. "
         "Answer with one JSON object and nothing else:\n"
         '{"ratings": {"<zone>": "<level>", ...}, "preferred": ["<zone>", ...], "avoid": ["<zone>", ...], '
         f'"approach": "<one of {"|".join(a for a in APPROACH_NAMES if a != "vector")}>", '

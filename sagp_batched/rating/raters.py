@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
 from ..config import RatingConfig
 from .parse import parse_zone_rating
-from .prompt import PROMPT_VERSION, build_zone_prompt, checked_image, task_description
+from .prompt import build_zone_prompt, checked_image, prompt_version, task_description
 from .types import RatingError, RatingProvenance, VLMRequestError, ZoneRating, neutral_rating
 from .vlm import VLMClient, get_vlm_client
 
@@ -53,15 +54,18 @@ class VLMRater(Rater):
     """Asks a vision-language model with the structured zone prompt and validates its answer.
 
     The client is built on the first question, so a run whose ratings are all cached never loads
-    a model.
+    a model. ``zone_marks``: the images it is given carry the zones (``zone_marks.draw_zone_marks``),
+    so the prompt points at them and is versioned apart from the plain-crop prompt.
     """
 
-    prompt_version = PROMPT_VERSION
-
-    def __init__(self, backend: str, model: str, upright_max_tilt_deg: float, connect: Callable[[], VLMClient]):
+    def __init__(
+        self, backend: str, model: str, upright_max_tilt_deg: float, connect: Callable[[], VLMClient], zone_marks: bool = False
+    ):
         self.backend = backend
         self.model = model
         self.upright_max_tilt_deg = upright_max_tilt_deg
+        self.zone_marks = zone_marks
+        self.prompt_version = prompt_version(zone_marks)
         self._connect = connect
         self._client: VLMClient | None = None
 
@@ -72,7 +76,7 @@ class VLMRater(Rater):
         return self._client
 
     def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions, zone_points_object=None):
-        prompt = build_zone_prompt(object_name, task, zone_descriptions)
+        prompt = build_zone_prompt(object_name, task, zone_descriptions, marked=self.zone_marks)
         image = checked_image(crop_rgb)
         client = self.client
         start = time.perf_counter()
@@ -136,7 +140,9 @@ class CachedRater(Rater):
 
     Files are written atomically (temporary file + rename) and carry a SHA-256 of their rating; an
     entry that fails to parse, to match its hash or to validate is logged and asked again. Neutral
-    ratings are not stored: they record a failure to rate, which the next run should retry.
+    ratings are not stored: they record a failure to rate, which the next run should retry. Beside
+    each entry, with the same stem, lies the image the rater was given (``.png``), so a user can see
+    what the model was shown.
     ``queries`` counts the questions that reached the wrapped rater.
     """
 
@@ -167,20 +173,27 @@ class CachedRater(Rater):
             log.warning("corrupt rating cache entry %s (%s); asking again", path, exc)
             return None
 
-    def _store(self, path: Path, object_id: str, task: str, rating: ZoneRating) -> None:
-        record = rating.to_dict()
-        payload = {"key": {"object_id": object_id, "task": task, "backend": self.backend, "model": self.model,
-                           "prompt_version": self.prompt_version},
-                   "sha256": self._digest(record), "rating": record}
+    def _write_atomically(self, path: Path, write: Callable[[Any], None]) -> None:
+        """``write(binary_handle)`` into a temporary file of ``cache_dir``, then rename it to ``path``."""
         self.cache_dir.mkdir(parents=True, exist_ok=True)
-        descriptor, temporary = tempfile.mkstemp(dir=self.cache_dir, prefix=".tmp-", suffix=".json")
+        descriptor, temporary = tempfile.mkstemp(dir=self.cache_dir, prefix=".tmp-", suffix=path.suffix)
         try:
-            with os.fdopen(descriptor, "w") as handle:
-                json.dump(payload, handle, indent=1)
+            with os.fdopen(descriptor, "wb") as handle:
+                write(handle)
             os.replace(temporary, path)
         except BaseException:
             Path(temporary).unlink(missing_ok=True)
             raise
+
+    def _store(self, path: Path, object_id: str, task: str, rating: ZoneRating, image: np.ndarray) -> None:
+        record = rating.to_dict()
+        payload = {"key": {"object_id": object_id, "task": task, "backend": self.backend, "model": self.model,
+                           "prompt_version": self.prompt_version},
+                   "sha256": self._digest(record), "rating": record}
+        # The image first: an entry on disk always has the picture it was rated from beside it.
+        shown = Image.fromarray(checked_image(image))
+        self._write_atomically(path.with_suffix(".png"), lambda handle: shown.save(handle, format="PNG"))
+        self._write_atomically(path, lambda handle: handle.write(json.dumps(payload, indent=1).encode()))
 
     def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions, zone_points_object=None):
         task_description(task)
@@ -191,7 +204,7 @@ class CachedRater(Rater):
         self.queries += 1
         rating = self.inner.rate(object_id, object_name, task, crop_rgb, zone_descriptions)
         if not rating.is_neutral:
-            self._store(path, object_id, task, rating)
+            self._store(path, object_id, task, rating, crop_rgb)
         return rating
 
 
@@ -257,7 +270,9 @@ def get_rater(config: RatingConfig) -> Rater:
     if config.backend == "prior":
         rater: Rater = PriorRater()
     elif config.backend in ("transformers", "openai"):
-        rater = VLMRater(config.backend, config.model, config.upright_max_tilt_deg, lambda: get_vlm_client(config))
+        rater = VLMRater(
+            config.backend, config.model, config.upright_max_tilt_deg, lambda: get_vlm_client(config), config.zone_marks
+        )
     else:
         raise RatingError(f"unknown rating backend '{config.backend}' (known: prior, transformers, openai, oracle)")
     return CachedRater(rater, config.cache_dir) if config.use_cache else rater
