@@ -3,7 +3,7 @@
 Sign convention. Normals are OUTWARD (pointing away from the object). With the closing axis
 ``a = (p_j - p_i) / |p_j - p_i|`` from contact i to contact j, a well-posed pinch has each
 contact's outward normal pointing away from the other contact: ``n_i ~ -a`` and ``n_j ~ +a``.
-The SPEC's angles angle(n_i, a) and angle(n_j, -a) are therefore measured with the inward normals
+The published angles angle(n_i, a) and angle(n_j, -a) are therefore measured with the inward normals
 ``-n_i`` and ``-n_j``, i.e. the contact cosines are
 
     cos_i = -n_i . a        cos_j = n_j . a

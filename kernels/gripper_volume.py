@@ -7,7 +7,7 @@ z = approach, see ``grasp_frames``) by three axis-aligned boxes:
   fingertip, and |y| from just outside the contact (width/2 + contact_clearance) out to the open
   finger's back face (open_width/2 + finger_thickness). This is the volume each finger sweeps while
   closing from fully open to the contacts, so any point in it is something the finger would hit
-  before touching the grasped surface: the "box swept between the fingers" of the SPEC.
+  before touching the grasped surface: the published method's "box swept between the fingers".
 * the palm: |x| <= palm_width/2, |y| <= palm_span/2, from the finger root back by palm_depth.
 
 Points between the contacts (|y| < width/2) are the part being grasped and are not counted; the

@@ -1,4 +1,4 @@
-"""SAGP fused-score terms over a batch of C grasp candidates (SPEC stage 5).
+"""SAGP fused-score terms over a batch of C grasp candidates (the published method's stage 5).
 
 Zones are indexed 0..Z-1 in the caller's vocabulary. Positions and directions are world frame,
 metres and unit vectors.

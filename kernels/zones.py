@@ -1,4 +1,4 @@
-"""Coarse-zone geometry of object clouds (SPEC stage 3), batched over clouds.
+"""Coarse-zone geometry of object clouds (the published method's stage 3), batched over clouds.
 
 Clouds of different sizes share one padded batch: ``points`` (B, N, 3) with a ``valid`` (B, N) mask;
 padded entries may hold any finite value and never influence a result. Every position is in the
@@ -140,7 +140,7 @@ def far_points(
 
     Args:
         points: (B, N, 3) world frame, metres; valid: (B, N) bool; centroid: (B, 3) world frame.
-        distance_factor: multiple of the median distance beyond which a point is far (SPEC: 1.5).
+        distance_factor: multiple of the median distance beyond which a point is far (published: 1.5).
 
     Returns:
         far: (B, N) bool, valid far points (protrusion candidates, to be clustered).

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from sagp_batched.config import ConfigError, load_config
 from sagp_batched.objects import ObjectSetError, UnknownObjectError, load_object_set
+from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 from sagp_batched.study import run_study
 
@@ -80,6 +81,12 @@ def main(argv: list[str] | None = None) -> int:
         methods.remove("vd")
         not_run["vd"] = reason + " (not run)"
         print(f"note: VLM-Direct {not_run['vd']}", file=sys.stderr)
+
+    try:
+        preflight(config)
+    except PreflightError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
     print(f"objects: {objects.source}", file=sys.stderr)
     labels = {"prior": " (an offline prior table, not a VLM)", "oracle": " (UPPER BOUND: annotated regions and the true object pose, not a model)"}

@@ -1,6 +1,6 @@
 """One configuration type for the whole pipeline, filled from ``profiles/*.toml``.
 
-Every number of the method lives here with the SPEC value as default; a choice the SPEC leaves
+Every number of the method lives here with the published value as default; a choice the method leaves
 open carries a one-line reason. A profile is a TOML file whose tables mirror these dataclasses
 (``[scene]``, ``[camera]``, ``[perception]``, ``[planner]``, ``[weights]``, ``[execution]``,
 ``[zones]``, ``[rating]``, ``[run]``); command-line flags override profile values through ``override``.
@@ -20,7 +20,7 @@ class ConfigError(ValueError):
     """A profile or override names an unknown key or holds a value of the wrong type."""
 
 
-# How planner.pair_sampling draws the SPEC's contact pairs: uniformly, or antipodally guided.
+# How planner.pair_sampling draws the method's contact pairs: uniformly, or antipodally guided.
 PAIR_SAMPLING_MODES = ("uniform", "guided")
 
 
@@ -101,7 +101,7 @@ class PerceptionConfig:
 @dataclass
 class PlannerConfig:
     n_pairs: int = 5000
-    # The SPEC fixes how many pairs, not how they are drawn. "guided" (Dex-Net/GPD antipodal sampling)
+    # The published method fixes how many pairs, not how they are drawn. "guided" (Dex-Net/GPD antipodal sampling)
     # gives ~7x more antipodal pairs (~25x more on a mug handle) and, with the gripper volume screened
     # lazily, keeps plans under 0.25 s on captured clouds; it lifted GO t1 GSR from 87.5 to 90.7 %
     # (the 10 cm coffee can only has usable chord pairs when sampling seeks them). "uniform" is the
@@ -133,7 +133,7 @@ class PlannerConfig:
     # (``sagp_batched.hand``), not on these boxes.
     gripper_open_width_m: float = 0.08
     # Each open finger must clear its contact by this much to descend without brushing the object:
-    # a 7.9 cm pair under an 8 cm jaw passes the SPEC's width filter but hits the fingers in practice.
+    # a 7.9 cm pair under an 8 cm jaw passes the published width filter but hits the fingers in practice.
     jaw_clearance_m: float = 0.005
     finger_width_m: float = 0.021
     # A box needs one thickness: the hull's at mid-length of the 0.046 m that shows below the hand.
@@ -319,14 +319,14 @@ class RatingConfig:
     retry_backoff_s: float = 0.5
     # Cache on by default so a study asks each (object, task) once.
     use_cache: bool = True
-    # SPEC S_task: approach within 30 deg of the prescribed direction.
+    # Published S_task: approach within 30 deg of the prescribed direction.
     approach_tolerance_deg: float = 30.0
-    # "Keep upright" without a number means the SPEC T2 tolerance.
+    # "Keep upright" without a number means the functional task's (t2) 15 deg tolerance.
     upright_max_tilt_deg: float = 15.0
     # Tilt predictor: finger friction holds a CoM up to this far (m) off the grasp axis; beyond it the
     # object swings about the closing axis until its CoM hangs below the axis.
     friction_hold_offset_m: float = 0.02
-    # VLM-Direct: the SPEC's top-20 candidates, drawn on a crop scaled up so 20 numbered markers stay legible.
+    # VLM-Direct: the published top-20 candidates, drawn on a crop scaled up so 20 numbered markers stay legible.
     vd_num_candidates: int = 20
     vd_image_min_side_px: int = 448
     vd_marker_radius_px: int = 9

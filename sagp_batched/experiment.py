@@ -1,7 +1,7 @@
 """One trial of the study: perceive, plan once, rank by each method, execute, record.
 
 A *unit* is one (object, task, trial): the scene, the cloud and the candidate set are shared by
-every method of the unit, so all methods rank the identical candidates (SPEC "Methods compared").
+every method of the unit, so all methods rank the identical candidates, as the published comparison requires.
 Each method's result is one JSON-ready record.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ from .types import GraspCandidates, PerceivedCloud, PerceptionFailure
 
 TASKS = {"t1": "stable pickup", "t2": "functional grasp", "t3": "cluttered grasp"}
 METHODS = ("go", "sagp", "vd")
-# SPEC tasks: t2 keeps the object within 15 deg of its resting orientation, t3 moves no distractor > 5 cm.
+# Published tasks: t2 keeps the object within 15 deg of its resting orientation, t3 moves no distractor > 5 cm.
 ORIENTATION_TOLERANCE_DEG = 15.0
 DISTRACTOR_TOLERANCE_M = 0.05
 
@@ -302,7 +302,7 @@ class TrialRunner:
         record["orientation_kept"] = bool(final.orientation_change_deg <= ORIENTATION_TOLERANCE_DEG)
         displacement = float(final.details.get("distractors_max_displacement_m", 0.0))
         record["distractors_max_displacement_m"] = displacement
-        # PZA uses the SPEC's single zone of the contact midpoint; AC ("outside every avoid zone")
+        # PZA uses the published single zone of the contact midpoint; AC ("outside every avoid zone")
         # uses every zone the midpoint lies in (its third or protrusion, and its sides), as S_avoid does.
         zone_names = decomposition.candidate_zone_names(candidates.position_world[final_index:final_index + 1])[0]
         grasp["zones"] = list(zone_names)

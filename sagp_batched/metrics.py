@@ -1,4 +1,4 @@
-"""Study metrics (SPEC "Protocol and metrics") over trial records, with 95 % Wilson intervals.
+"""Study metrics (the published protocol) over trial records, with 95 % Wilson intervals.
 
 Definitions, per method x task x group:
 - GSR: grasp success rate, the object lifted and held (the T1 criterion) over all trials.

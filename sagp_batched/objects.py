@@ -19,7 +19,7 @@ import pybullet_data
 YCB_DIR_ENV = "SAGP_YCB_DIR"
 DISTRACTOR_CATEGORY = "distractor"
 
-# SPEC "Objects (YCB) and categories": objects with a functional region geometry alone does not reveal.
+# The published study's asymmetric objects: those with a functional region geometry alone does not reveal.
 YCB_ASYMMETRIC_IDS = frozenset(
     {"025_mug", "019_pitcher_base", "035_power_drill", "037_scissors", "051_large_clamp", "011_banana", "040_large_marker"}
 )

@@ -1,7 +1,7 @@
-"""SAGP fused scoring of a candidate batch (SPEC stage 5).
+"""SAGP fused scoring of a candidate batch (the published method's stage 5).
 
 Zone terms use the zones a candidate is rated by (``ZoneDecomposition.candidate_rated_zones``: its
-primary zone, where protrusion wins over the vertical third as the SPEC says, and its two side
+primary zone, where protrusion wins over the vertical third as the published method says, and its two side
 zones): S_afford follows ``zone_affordance``'s danger-dominates rule, S_avoid is 1 when any of those
 zones is avoided. S_task
 needs both the prescribed approach (within ``rating.approach_tolerance_deg``; "any" always holds;

@@ -1,4 +1,4 @@
-"""Coarse zones of the perceived object (SPEC stage 3) and the zone of every grasp candidate.
+"""Coarse zones of the perceived object (the published method's stage 3) and the zone of every grasp candidate.
 
 Every cloud point belongs to exactly three geometric zones: one vertical third (bottom / middle /
 top), one lateral side (left / right) and one depth side (front / back); a point of a protrusion

@@ -7,7 +7,7 @@ from typing import Any
 
 from ..types import general_zone, is_zone_name
 
-# SPEC stage 4: rating levels and their affordance value phi.
+# Published stage 4: rating levels and their affordance value phi.
 PHI: dict[str, float] = {"good": 1.0, "acceptable": 0.5, "bad": -0.5, "dangerous": -1.0}
 RATING_LEVELS: tuple[str, ...] = tuple(PHI)
 # Direction the gripper comes from: "top" (moving down), "side" (any horizontal approach), a named

@@ -47,8 +47,7 @@ class TransformersVLM:
 
         self.model = config.model
         self.max_new_tokens = config.max_new_tokens
-        local = Path(config.model).expanduser()
-        source = str(local) if local.exists() else config.model
+        source = self._source(config.model)
         try:
             self._model = AutoModelForImageTextToText.from_pretrained(source, local_files_only=config.local_files_only)
             self._tokenizer = AutoTokenizer.from_pretrained(source, local_files_only=config.local_files_only)
@@ -61,6 +60,28 @@ class TransformersVLM:
         for attribute in ("image_token_id", "vision_start_token_id", "vision_end_token_id"):
             if getattr(self._model.config, attribute, None) is None:
                 raise RatingError(f"model '{config.model}' is not a Qwen-VL model: its config lacks {attribute}")
+
+    @staticmethod
+    def _source(model: str) -> str:
+        """A local directory when ``model`` names one, else the hub id as given."""
+        local = Path(model).expanduser()
+        return str(local) if local.exists() else model
+
+    @classmethod
+    def check_loadable(cls, config: RatingConfig) -> None:
+        """Raise ``RatingError`` unless the model's config loads; reads no weights (a preflight, seconds)."""
+        from transformers import AutoConfig
+
+        source = cls._source(config.model)
+        # A path that is not there would otherwise be reported as a malformed hub id.
+        if config.model.startswith(("/", ".", "~")) and not Path(source).exists():
+            raise RatingError(f"cannot load VLM '{config.model}': no such directory")
+        try:
+            AutoConfig.from_pretrained(source, local_files_only=config.local_files_only)
+        except (OSError, ValueError) as exc:
+            raise RatingError(
+                f"cannot load VLM '{config.model}' (local_files_only={config.local_files_only}): {exc}"
+            ) from exc
 
     def _token(self, token_id: int) -> str:
         return self._tokenizer.convert_ids_to_tokens(int(token_id))
@@ -98,7 +119,8 @@ class OpenAIVLM:
 
     def __init__(self, config: RatingConfig):
         self.model = config.model
-        self.url = config.endpoint.rstrip("/") + "/chat/completions"
+        self.endpoint = config.endpoint.rstrip("/")
+        self.url = self.endpoint + "/chat/completions"
         self.max_retries = config.max_retries
         self.retry_backoff_s = config.retry_backoff_s
         self.max_new_tokens = config.max_new_tokens
@@ -106,6 +128,20 @@ class OpenAIVLM:
         # Local servers take no key; sending none is what they expect.
         headers = {"Authorization": f"Bearer {key}"} if key else {}
         self._client = httpx.Client(timeout=config.timeout_s, headers=headers)
+
+    def served_models(self) -> list[str]:
+        """The model ids ``GET {endpoint}/models`` lists: one request, no retries; raises ``VLMRequestError``."""
+        url = self.endpoint + "/models"
+        try:
+            response = self._client.get(url)
+        except httpx.HTTPError as exc:
+            raise VLMRequestError(f"{url} did not answer: {type(exc).__name__}: {exc}") from exc
+        if not response.is_success:
+            raise VLMRequestError(f"{url} refused the request: HTTP {response.status_code} {response.text[:200]}")
+        try:
+            return [str(entry["id"]) for entry in response.json()["data"]]
+        except (ValueError, KeyError, TypeError) as exc:
+            raise VLMRequestError(f"{url} answered no model list: {response.text[:200]!r}") from exc
 
     def generate(self, image: np.ndarray, prompt: str) -> str:
         buffer = io.BytesIO()

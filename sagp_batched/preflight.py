@@ -1,0 +1,93 @@
+"""Checks of everything a run names (workers, run directory, model, Ray cluster) before any trial runs.
+
+Each check raises ``PreflightError`` with a one-line message and leaves nothing behind: a study that
+would fail on its first trial, or after an hour of them, fails here in seconds instead.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+from pathlib import Path
+
+from .config import Config, RatingConfig
+from .rating.types import RatingError, VLMRequestError
+from .rating.vlm import OpenAIVLM, TransformersVLM
+
+# A reachable cluster accepts a TCP connection in milliseconds; seconds only make a dead one slow to report.
+RAY_CONNECT_TIMEOUT_S = 3.0
+# Ray addresses that name no host to connect to ("auto" finds a local cluster, "local" starts one).
+RAY_SPECIAL_ADDRESSES = ("auto", "local")
+
+
+class PreflightError(ValueError):
+    """A setting that would make the run fail; the message is one line."""
+
+    def __init__(self, message: str):
+        super().__init__(" ".join(message.split()))
+
+
+def check_workers(workers: int) -> None:
+    if workers < 1:
+        raise PreflightError(f"--workers must be at least 1, got {workers}")
+
+
+def check_out_dir(out: str | Path) -> None:
+    """Create the run directory and write and remove a probe file in it; directories created here are removed again."""
+    out_dir = Path(out).expanduser()
+    created: list[Path] = []  # deepest first, the order to remove them in
+    for directory in (out_dir, *out_dir.parents):
+        if directory.exists():
+            break
+        created.append(directory)
+    probe = out_dir / f".preflight-{os.getpid()}"
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise PreflightError(f"cannot write the run directory {out_dir}: {exc.strerror or exc}") from exc
+    finally:
+        for directory in created:
+            with contextlib.suppress(OSError):
+                directory.rmdir()
+
+
+def check_rater(rating: RatingConfig) -> None:
+    """The model of a model backend can be used: its config loads (transformers) or the endpoint serves it (openai)."""
+    try:
+        if rating.backend == "transformers":
+            TransformersVLM.check_loadable(rating)
+        elif rating.backend == "openai":
+            served = OpenAIVLM(rating).served_models()
+            if rating.model not in served:
+                raise PreflightError(
+                    f"model '{rating.model}' is not served at {rating.endpoint.rstrip('/')}/models "
+                    f"(served: {', '.join(served) or 'none'})"
+                )
+    except (RatingError, VLMRequestError) as exc:
+        raise PreflightError(f"rater '{rating.backend}': {exc}") from exc
+
+
+def check_ray_address(address: str) -> None:
+    """A TCP connection to ``ray://host:port`` (or ``host:port``) opens; Ray itself is not started."""
+    if address in RAY_SPECIAL_ADDRESSES:
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    host = host.strip("[]")  # an IPv6 host is written [::1]:10001
+    if not host or not port.isdigit():
+        raise PreflightError(f"--address {address}: expected ray://host:port or host:port")
+    try:
+        with socket.create_connection((host, int(port)), timeout=RAY_CONNECT_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        raise PreflightError(f"--address {address}: cannot reach the Ray cluster: {exc.strerror or exc}") from exc
+
+
+def preflight(config: Config) -> None:
+    """Every check the resolved ``config`` calls for: only backends the run uses are checked."""
+    check_workers(config.run.workers)
+    check_out_dir(config.run.out)
+    if config.run.backend == "ray" and config.run.ray_address:
+        check_ray_address(config.run.ray_address)
+    check_rater(config.rating)
