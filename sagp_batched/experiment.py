@@ -233,7 +233,7 @@ class TrialRunner:
             executed_by_method[method] = (order, attempts)
             self._fill_outcome(record, ranked, order, attempts, cloud, rating, decomposition, unit)
             if config.run.save_frames:
-                record["frames"] = self._save_frames(attempts[-1], record)
+                record["frames"] = self._save_frames(attempts, record)
             emit(record)
         if config.run.export_grasps:
             from .export import write_acronym
@@ -243,18 +243,23 @@ class TrialRunner:
             write_acronym(grasps_dir / f"{spec.id}_{unit.task}_{unit.trial:04d}.h5", spec, cloud, candidates,
                           scored_by_method, executed_by_method)
 
-    def _save_frames(self, attempt, record: dict[str, Any]) -> dict[str, str]:
-        """PNG images of the executed grasp at contact and after the lift; paths relative to the run."""
+    def _save_frames(self, attempts, record: dict[str, Any]) -> dict[str, str]:
+        """PNG images of every attempt: at contact and after the lift, or at the moment it failed
+        (``failed_<phase>``), since failures are what a user looks at. Keys are the final
+        attempt's moments, and ``attempt<k>_<moment>`` for the earlier attempts; paths are
+        relative to the run."""
         from PIL import Image
 
         out_dir = Path(self.config.run.out).expanduser()
         frames_dir = out_dir / "frames"
         frames_dir.mkdir(parents=True, exist_ok=True)
         saved = {}
-        for moment, image in attempt.details.get("frames", {}).items():
-            path = frames_dir / f"{record['object']}_{record['task']}_{record['method']}_{record['trial']:04d}_{moment}.png"
-            Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path)
-            saved[moment] = str(path.relative_to(out_dir))
+        for number, attempt in enumerate(attempts, start=1):
+            prefix = "" if number == len(attempts) else f"attempt{number}_"
+            for moment, image in attempt.details.get("frames", {}).items():
+                path = frames_dir / f"{record['object']}_{record['task']}_{record['method']}_{record['trial']:04d}_{prefix}{moment}.png"
+                Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path)
+                saved[f"{prefix}{moment}"] = str(path.relative_to(out_dir))
         return saved
 
     def _rank(self, method, candidates: GraspCandidates, cloud, rating, decomposition, spec, unit):

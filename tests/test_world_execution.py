@@ -52,10 +52,13 @@ def test_top_down_grasp_lifts_the_soup_can(can_scene):
 def test_the_same_grasp_5cm_beside_the_can_is_not_lifted(can_scene):
     can_scene.restore_state()
     position, quat = _top_down_on_can(can_scene, offset_world=(0.05, 0.0, 0.0))
-    attempt = execute_grasp(can_scene, Config(), position, quat, 0.068, DOWN)
+    attempt = execute_grasp(can_scene, Config(), position, quat, 0.068, DOWN, record_frames=True)
     assert not attempt.success
     assert attempt.failure_reason == "not_lifted"
     assert attempt.object_height_above_table_m < 0.1
+    # A failed attempt keeps a frame of the moment it failed, named by its phase.
+    failed_at = attempt.details["failed_at"]
+    assert failed_at in ("close", "lift") and attempt.details["frames"][f"failed_{failed_at}"].shape == (480, 640, 3)
 
 
 def test_out_of_reach_grasp_is_unreachable(can_scene):
