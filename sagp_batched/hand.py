@@ -93,10 +93,9 @@ class HandGeometry:
     dop_low: torch.Tensor
     dop_high: torch.Tensor
 
-    @property
-    def all_vertices(self) -> torch.Tensor:
-        """(V, 3) every hull vertex, grasp frame: what the table check tests."""
-        return torch.cat(self.hull_vertices)
+    def vertices(self, links: tuple[str, ...] | None = None) -> torch.Tensor:
+        """(V, 3) the hull vertices of ``links`` (default: every link), grasp frame: what the table check tests."""
+        return torch.cat([hull for name, hull in zip(self.links, self.hull_vertices) if links is None or name in links])
 
     def swept(self, stroke_local: tuple[float, float, float]) -> tuple[torch.Tensor, torch.Tensor]:
         """k-DOP extents (low, high), (S, D), of each hull swept by the straight stroke from its

@@ -247,8 +247,8 @@ def screen_candidates(
     approach = approach_directions(closing_axis, planner.n_approaches, WORLD_DOWN)  # (A, K, 3), prior order
     rotation = grasp_rotations(closing_axis[:, None, :], approach)  # (A, K, 3, 3)
     hand = hand_geometry(planner)
-    fingers = torch.cat([hull for name, hull in zip(hand.links, hand.hull_vertices) if name in FINGER_LINKS])
-    rest = torch.cat([hull for name, hull in zip(hand.links, hand.hull_vertices) if name not in FINGER_LINKS])
+    fingers = hand.vertices(FINGER_LINKS)
+    rest = hand.vertices(tuple(name for name in hand.links if name not in FINGER_LINKS))
     table_z, retreat = config.scene.table_top_z_m, config.execution.pregrasp_offset_m
     through_table = table_penetration(centre, rotation, fingers, retreat, table_z + planner.finger_table_clearance_m) | table_penetration(
         centre, rotation, rest, retreat, table_z + planner.arm_table_clearance_m

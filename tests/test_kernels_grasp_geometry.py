@@ -92,7 +92,7 @@ def test_approaches_are_perpendicular_and_rotations_right_handed():
 
 def test_grasp_through_the_table_is_rejected():
     hand = hand_geometry(PLANNER)
-    hulls = hand.all_vertices
+    hulls = hand.vertices()
     table_z = 0.625
     centre = torch.tensor([[0.5, 0.0, table_z + 0.04]])
     closing = torch.tensor([[0.0, 1.0, 0.0]])
@@ -105,7 +105,7 @@ def test_grasp_through_the_table_is_rejected():
     assert blocked.tolist() == [[False, True, True]]
     higher = table_penetration(centre + torch.tensor([0.0, 0.0, 0.03]), rotation, hulls, 0.10, table_z)
     assert higher.tolist() == [[False, True, False]]
-    without_wrist = torch.cat([hull for name, hull in zip(hand.links, hand.hull_vertices) if name != "panda_link7"])
+    without_wrist = hand.vertices(tuple(name for name in hand.links if name != "panda_link7"))
     assert table_penetration(centre, rotation, without_wrist, 0.10, table_z).tolist() == [[False, True, False]]
     # A side grasp whose closing axis is vertical puts the 20 cm-wide hand through the table.
     vertical = grasp_rotations(torch.tensor([[[0.0, 0.0, 1.0]]]), torch.tensor([[[1.0, 0.0, 0.0]]]))
