@@ -1,20 +1,35 @@
 """Grasp dataset export in the ACRONYM layout (Eppner et al., ICRA 2021).
 
 ACRONYM's HDF5 files are read by grasp-learning code (Contact-GraspNet, GraspGen, the `acronym`
-tools): ``grasps/transforms`` (N, 4, 4) gripper poses in the object's frame and
-``grasps/qualities/flex/object_in_gripper`` (N,) outcomes. We keep that layout, so those loaders
-read our files unchanged, and add SAGP's own fields beside it:
+tools): ``grasps/transforms`` (N, 4, 4) gripper poses in the object's frame,
+``grasps/qualities/flex/object_in_gripper`` (N,) outcomes, and the object as ``object/file`` (a mesh
+path relative to the mesh root the reader is given) times ``object/scale``. We keep that layout, so
+those loaders read our files unchanged, and add SAGP's own fields beside it:
 
-- ``grasps/transforms``: pose of the Franka hand frame (``panda_hand``, as in ACRONYM's Franka
-  gripper) in the object's URDF link frame, metres.
+- ``grasps/transforms``: the grasp in ACRONYM's Franka gripper frame, in the object's URDF link
+  frame, metres: z = approach, x = closing axis (the fingers open along +-x), origin at the gripper
+  base, so both contacts lie between the finger pads at z = 0.105 m and x = -+width/2 (see
+  ``acronym_gripper_transforms_object``).
+- ``grasps/panda_hand_transforms``: the same grasps as poses of PyBullet's ``panda_hand`` frame
+  (fingers close along its y axis), i.e. ``transforms @ Rz(-90 deg)``: what the planner commanded,
+  for replaying in PyBullet. The planner's grasp frame itself (origin at the contact midpoint,
+  y = closing axis, z = approach) is ``panda_hand`` moved 0.105 m along z.
 - ``grasps/qualities/flex/object_in_gripper``: 1 where an executed attempt held the object, else 0.
 - ``grasps/executed/<method>``: -1 not executed by that method, 0 failed, 1 held.
 - ``grasps/qualities/<method>/score`` and ``grasps/qualities/terms/{geom,reach,afford,avoid,task}``.
 - ``grasps/width``, ``grasps/zone`` (names), ``grasps/contacts`` (N, 2, 3) in the object frame.
-- ``object/file``, ``object/scale``, ``object/mass``, ``object/id``; ``gripper/type`` = "panda".
+- ``object/file``: the URDF's visual mesh relative to the objects root (the directory holding
+  ``objects.json``, e.g. ``025_mug/textured.obj``; ``pybullet_data`` for the built-in set; "" for an
+  object without a visual mesh). ``object/scale``: the URDF's mesh scale when uniform (1.0 for every
+  YCB object), else 1.0. ``object/mesh_to_link`` (4, 4): the visual ``<origin>`` times the per-axis
+  mesh scale, which maps mesh vertices into the link frame; loaders that apply only ``object/scale``
+  get the link frame exactly when it is a uniform scale (every YCB object; not pybullet_data's lego,
+  domino or jenga). ``object/urdf`` (relative, same root), ``object/mass``, ``object/id``;
+  ``gripper/type`` = "panda".
 """
 from __future__ import annotations
 
+import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 from typing import Sequence
 
@@ -24,19 +39,75 @@ from scipy.spatial.transform import Rotation
 from .objects import ObjectSpec
 from .types import GraspAttempt, GraspCandidates, PerceivedCloud
 
-# panda_grasptarget sits 0.105 m along the hand's z axis (pybullet_data franka_panda/panda.urdf).
+# panda_grasptarget sits 0.105 m along panda_hand's z axis (pybullet_data franka_panda/panda.urdf):
+# the executed grasp closed its fingers there, so the exported poses put the contacts there too.
 HAND_TO_GRASPTARGET_M = 0.105
 
+# ACRONYM's Franka gripper is the same hand as panda_hand (finger joints 0.0584 m above the base,
+# pads reaching ~0.105 m), but its fingers open along x where panda_hand's close along y. Turning
+# the planner's frame +90 deg about its approach (z) maps its closing axis (y) onto x:
+# columns (x, y, z) = (closing, approach x closing, approach) = (y_p, -x_p, z_p) = R_planner @ Rz(+90).
+# The gripper is symmetric, so the sign only fixes which contact lies at -x (contact 0) and +x.
+ACRONYM_FROM_PLANNER_ROTATION = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
-def grasp_transforms_object(cloud: PerceivedCloud, candidates: GraspCandidates) -> np.ndarray:
-    """(C, 4, 4) hand-frame poses in the object's link frame."""
+
+def acronym_gripper_transforms_object(cloud: PerceivedCloud, candidates: GraspCandidates) -> np.ndarray:
+    """(C, 4, 4) grasp poses in ACRONYM's Franka gripper convention, in the object's link frame.
+
+    Grasp frame of ``candidates``: columns of ``rotation_world`` (C, 3, 3) are (closing x approach,
+    closing axis, approach); origin at the contact midpoint ``position_world`` (C, 3), world, metres.
+    Returned: rotation ``R_planner @ Rz(+90 deg)`` (x = closing axis from contact 0 to contact 1,
+    z = approach) and origin ``midpoint - 0.105 m * approach`` (the gripper base, which is
+    ``panda_hand``'s origin), both expressed in the object frame, so contact k lies at
+    ``(-+width/2, 0, 0.105)`` in the gripper frame.
+    """
     world_from_object = _pose(cloud)
-    rotation = candidates.rotation_world.double().numpy()
-    hand_position = candidates.position_world.double().numpy() - HAND_TO_GRASPTARGET_M * rotation[:, :, 2]
-    world_from_hand = np.tile(np.eye(4), (len(candidates), 1, 1))
-    world_from_hand[:, :3, :3] = rotation
-    world_from_hand[:, :3, 3] = hand_position
-    return np.linalg.inv(world_from_object)[None] @ world_from_hand
+    rotation_planner = candidates.rotation_world.double().numpy()
+    base_position = candidates.position_world.double().numpy() - HAND_TO_GRASPTARGET_M * rotation_planner[:, :, 2]
+    world_from_gripper = np.tile(np.eye(4), (len(candidates), 1, 1))
+    world_from_gripper[:, :3, :3] = rotation_planner @ ACRONYM_FROM_PLANNER_ROTATION
+    world_from_gripper[:, :3, 3] = base_position
+    return np.linalg.inv(world_from_object)[None] @ world_from_gripper
+
+
+def panda_hand_transforms_object(acronym_transforms_object: np.ndarray) -> np.ndarray:
+    """(C, 4, 4) ``panda_hand`` poses in the object frame from (C, 4, 4) ACRONYM gripper poses there.
+
+    Same origin; rotated back -90 deg about the approach so y is the closing axis again.
+    """
+    gripper_from_hand = np.eye(4)
+    gripper_from_hand[:3, :3] = ACRONYM_FROM_PLANNER_ROTATION.T
+    return acronym_transforms_object @ gripper_from_hand
+
+
+def object_mesh_reference(spec: ObjectSpec) -> tuple[str, str, float, np.ndarray]:
+    """(mesh file, URDF file, scale, (4, 4) mesh-to-link) for ACRONYM's ``object`` group.
+
+    The mesh is the URDF's first ``<visual><geometry><mesh filename=...>``; both paths are relative
+    to the objects root (see ``_objects_root``). Mesh file is "" where the visual is a primitive.
+    """
+    urdf_path = Path(spec.urdf_path).resolve()
+    root = _objects_root(urdf_path)
+    mesh_to_link = np.eye(4)
+    mesh_file, scale = "", 1.0
+    for visual in ElementTree.parse(urdf_path).getroot().iter("visual"):
+        mesh = visual.find("geometry/mesh")
+        if mesh is None or not mesh.get("filename"):
+            continue
+        mesh_path = (urdf_path.parent / mesh.get("filename").removeprefix("file://")).resolve()
+        mesh_file = _relative(mesh_path, root)
+        scale_xyz = np.array([float(v) for v in (mesh.get("scale") or "1 1 1").split()])
+        origin = visual.find("origin")
+        if origin is not None:
+            xyz = [float(v) for v in (origin.get("xyz") or "0 0 0").split()]
+            rpy = [float(v) for v in (origin.get("rpy") or "0 0 0").split()]
+            mesh_to_link[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()  # URDF: fixed-axis roll, pitch, yaw
+            mesh_to_link[:3, 3] = xyz
+        mesh_to_link[:3, :3] = mesh_to_link[:3, :3] * scale_xyz[None]
+        if np.allclose(scale_xyz, scale_xyz[0]):
+            scale = float(scale_xyz[0])
+        break
+    return mesh_file, _relative(urdf_path, root), scale, mesh_to_link
 
 
 def write_acronym(
@@ -55,7 +126,8 @@ def write_acronym(
     import h5py
 
     n = len(candidates)
-    transforms = grasp_transforms_object(cloud, candidates)
+    transforms = acronym_gripper_transforms_object(cloud, candidates)
+    mesh_file, urdf_file, mesh_scale, mesh_to_link = object_mesh_reference(spec)
     object_from_world = np.linalg.inv(_pose(cloud))
     contacts = candidates.contacts_world.double().numpy()
     contacts_object = contacts @ object_from_world[:3, :3].T + object_from_world[:3, 3]
@@ -63,6 +135,7 @@ def write_acronym(
     tmp = path.with_suffix(".tmp")
     with h5py.File(tmp, "w") as f:
         f["grasps/transforms"] = transforms
+        f["grasps/panda_hand_transforms"] = panda_hand_transforms_object(transforms)
         f["grasps/width"] = candidates.width_m.numpy()
         f["grasps/contacts"] = contacts_object
         names = np.array([candidates.zone_names[z] if 0 <= z < len(candidates.zone_names) else "" for z in candidates.zone.tolist()], dtype=object)
@@ -83,9 +156,11 @@ def write_acronym(
                 held[ids[index]] |= int(attempt.success)
             f[f"grasps/executed/{method}"] = executed
         f["grasps/qualities/flex/object_in_gripper"] = held
-        f["object/file"] = str(spec.urdf_path)
+        f["object/file"] = mesh_file
+        f["object/scale"] = mesh_scale
+        f["object/mesh_to_link"] = mesh_to_link
+        f["object/urdf"] = urdf_file
         f["object/id"] = spec.id
-        f["object/scale"] = 1.0
         f["object/mass"] = float(spec.mass_kg)
         f["gripper/type"] = "panda"
     tmp.replace(path)
@@ -96,3 +171,19 @@ def _pose(cloud: PerceivedCloud) -> np.ndarray:
     pose[:3, :3] = Rotation.from_quat(cloud.object_quat_xyzw).as_matrix()
     pose[:3, 3] = cloud.object_position_world
     return pose
+
+
+def _objects_root(urdf_path: Path) -> Path:
+    """The directory object paths are written relative to: the nearest one above the URDF holding an
+    ``objects.json`` (a YCB set), else ``pybullet_data`` when the URDF is inside it, else the URDF's own."""
+    for directory in urdf_path.parents:
+        if (directory / "objects.json").is_file():
+            return directory
+    import pybullet_data
+
+    data_dir = Path(pybullet_data.getDataPath()).resolve()
+    return data_dir if urdf_path.is_relative_to(data_dir) else urdf_path.parent
+
+
+def _relative(path: Path, root: Path) -> str:
+    return path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)

@@ -24,6 +24,7 @@ from sagp_batched.rating import (
     VLMRequestError,
     get_rater,
 )
+from sagp_batched.rating.vlm import ModelAnswer
 
 STUDY_OBJECTS = (
     "025_mug", "019_pitcher_base", "005_tomato_soup_can", "035_power_drill", "037_scissors", "051_large_clamp",
@@ -91,9 +92,13 @@ def test_local_vlm_stays_offline_for_an_unknown_model(tmp_path):
 # --- openai: a real HTTP server on 127.0.0.1 that answers from a script.
 
 class ScriptedEndpoint:
+    """``script``: one (kind, value) a request, in order. ``refuses_schema``: a request carrying
+    ``response_format`` is answered HTTP 400 (as by a server without structured output), using no script entry."""
+
     def __init__(self):
         self.script: list[tuple[str, object]] = []
         self.requests: list[dict] = []
+        self.refuses_schema = False
         endpoint = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -103,12 +108,19 @@ class ScriptedEndpoint:
             def do_POST(self):
                 body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
                 endpoint.requests.append({"path": self.path, "body": body, "auth": self.headers.get("Authorization")})
-                kind, value = endpoint.script.pop(0)
+                if endpoint.refuses_schema and "response_format" in body:
+                    kind, value = "bad_request", None
+                else:
+                    kind, value = endpoint.script.pop(0)
                 if kind == "sleep":
                     time.sleep(value)
                     kind, value = "answer", "late"
-                status, text = (500, "overloaded") if kind == "error" else (200, json.dumps(
-                    {"choices": [{"message": {"role": "assistant", "content": value}}]}))
+                if kind == "error":
+                    status, text = 500, "overloaded"
+                elif kind == "bad_request":
+                    status, text = 400, json.dumps({"error": {"message": "Bad Request", "code": 400}})
+                else:
+                    status, text = 200, json.dumps({"choices": [{"message": {"role": "assistant", "content": value}}]})
                 try:
                     self.send_response(status)
                     self.send_header("Content-Type", "application/json")
@@ -155,6 +167,66 @@ def test_endpoint_good_answer_with_image_and_key(endpoint, tmp_path, monkeypatch
     assert np.array_equal(sent, CROP)
     prompt = body["messages"][0]["content"][1]["text"]
     assert "protrusion: 5% of points" in prompt and "functional grasp" in prompt
+
+
+def test_endpoint_is_asked_for_json_matching_the_answer_schema_and_the_rating_says_so(endpoint, tmp_path):
+    from sagp_batched.rating.types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, ZoneRating
+
+    endpoint.script = [("answer", json.dumps(GOOD_ANSWER))]
+    rating = openai_rater(endpoint, tmp_path).rate("025_mug", "mug", "t2", CROP, ZONES)
+    response_format = endpoint.requests[0]["body"]["response_format"]
+    assert response_format["type"] == "json_schema"
+    assert response_format["json_schema"]["name"] == "zone_rating" and response_format["json_schema"]["strict"] is False
+    schema = response_format["json_schema"]["schema"]
+    assert schema["type"] == "object"
+    assert set(schema["required"]) == {"ratings", "preferred", "avoid", "approach", "grasp_style", "max_tilt_deg"}
+    properties = schema["properties"]
+    assert properties["ratings"]["additionalProperties"]["enum"] == list(RATING_LEVELS)
+    assert properties["approach"]["enum"] == [a for a in APPROACH_NAMES if a != "vector"]
+    assert properties["grasp_style"]["enum"] == list(GRASP_STYLES)
+    assert properties["preferred"]["items"] == properties["avoid"]["items"] == {"type": "string"}
+    assert set(properties["max_tilt_deg"]["type"]) == {"number", "null"}
+
+    assert rating.provenance.outcome == "ok" and rating.provenance.output_mode == "json_schema"
+    assert rating.provenance_dict()["output_mode"] == "json_schema", "trial records say how the answer was asked for"
+    assert ZoneRating.from_dict(rating.to_dict()).provenance.output_mode == "json_schema"
+
+
+def test_a_server_without_structured_output_is_asked_plainly_once_and_from_then_on(endpoint, tmp_path):
+    endpoint.refuses_schema = True
+    endpoint.script = [("answer", json.dumps(GOOD_ANSWER)), ("answer", json.dumps(GOOD_ANSWER))]
+    rater = openai_rater(endpoint, tmp_path)
+    rating = rater.rate("025_mug", "mug", "t2", CROP, ZONES)
+    assert rating.provenance.outcome == "ok" and rating.provenance.output_mode == "plain"
+    assert rating.preferred == {"protrusion"}
+    refused, plain = endpoint.requests
+    assert "response_format" in refused["body"] and "response_format" not in plain["body"]
+    assert plain["body"] == {k: v for k, v in refused["body"].items() if k != "response_format"}, "the same request, less the schema"
+
+    second = rater.rate("011_banana", "banana", "t1", CROP, ZONES)
+    assert second.provenance.output_mode == "plain" and len(endpoint.requests) == 3
+    assert "response_format" not in endpoint.requests[2]["body"], "the client remembers the refusal"
+
+
+def test_a_refusal_for_another_reason_still_fails_and_is_not_remembered(endpoint, tmp_path):
+    endpoint.refuses_schema = True
+    endpoint.script = [("bad_request", None)]
+    client = OpenAIVLM(RatingConfig(endpoint=endpoint.url, max_retries=0))
+    with pytest.raises(VLMRequestError, match="HTTP 400"):
+        client.generate_json(CROP, "hello", "zone_rating", {"type": "object"})
+    assert len(endpoint.requests) == 2 and not client.schema_refused
+
+
+def test_ratings_cached_before_the_output_mode_was_recorded_still_load():
+    from sagp_batched.rating.types import ZoneRating
+
+    stored = {**GOOD_ANSWER, "ratings": {"top": "bad"}, "approach_vector_world": None, "issues": [],
+              "provenance": {"backend": "openai", "model": "m", "prompt_version": "v", "latency_s": 1.0, "outcome": "ok"}}
+    assert ZoneRating.from_dict(stored).provenance.output_mode == ""
+    stored["provenance"]["output_mode"] = "grammar"
+    with pytest.raises(RatingError, match="output mode grammar"):
+        ZoneRating.from_dict(stored)
+    assert PriorRater().rate("025_mug", "mug", "t2", CROP, ZONES).provenance_dict()["output_mode"] == ""
 
 
 def test_endpoint_fenced_answer_is_repaired(endpoint, tmp_path):
@@ -273,6 +345,7 @@ def test_vlm_direct_through_the_local_vlm_and_the_endpoint(tiny_qwen2_vl, endpoi
     geometric = torch.sort(batch.s_geom, descending=True, stable=True).indices.tolist()
     assert result.order[:2] == [geometric[1], geometric[6]] and result.n_from_model == 2
     assert "1 to 12" in endpoint.requests[0]["body"]["messages"][0]["content"][1]["text"]
+    assert "response_format" not in endpoint.requests[0]["body"], "VLM-Direct's ranking is free text, not a zone rating"
 
 
 def test_a_fully_cached_rerun_never_loads_the_model(tmp_path):
@@ -281,6 +354,9 @@ def test_a_fully_cached_rerun_never_loads_the_model(tmp_path):
 
         def generate(self, image, prompt):
             return json.dumps(GOOD_ANSWER)
+
+        def generate_json(self, image, prompt, schema_name, schema):
+            return ModelAnswer(self.generate(image, prompt), "plain")
 
     def refuse():
         raise AssertionError("the model was loaded although every answer is cached")

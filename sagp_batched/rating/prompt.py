@@ -1,7 +1,8 @@
-"""The structured zone-rating prompt; its version is part of every cache key."""
+"""The structured zone-rating prompt and the JSON schema of its answer; the prompt's version is part of every cache key."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -9,6 +10,8 @@ from ..types import PROTRUSION, ZONE_NAMES, is_zone_name
 from .types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, TASKS, RatingError
 
 PROMPT_VERSION = "sagp-zones-v2"
+# A model names an approach direction; a world vector ("vector") is not asked of it.
+ANSWER_APPROACHES: tuple[str, ...] = tuple(a for a in APPROACH_NAMES if a != "vector")
 
 
 def prompt_version(marked: bool) -> str:
@@ -28,6 +31,27 @@ def checked_image(image: np.ndarray, name: str = "crop_rgb") -> np.ndarray:
     if array.ndim != 3 or array.shape[2] != 3 or array.shape[0] == 0 or array.shape[1] == 0 or array.dtype != np.uint8:
         raise RatingError(f"{name} must be a non-empty (H, W, 3) uint8 image, got shape {array.shape} dtype {array.dtype}")
     return array
+
+
+ZONE_ANSWER_SCHEMA_NAME = "zone_rating"
+
+
+def zone_answer_schema() -> dict[str, Any]:
+    """The JSON schema of the answer ``build_zone_prompt`` asks for, built from the rating vocabulary.
+
+    Zone names are not enumerated (``protrusion_<n>`` depends on the object); the parser checks them."""
+    return {
+        "type": "object",
+        "properties": {
+            "ratings": {"type": "object", "additionalProperties": {"type": "string", "enum": list(RATING_LEVELS)}},
+            "preferred": {"type": "array", "items": {"type": "string"}},
+            "avoid": {"type": "array", "items": {"type": "string"}},
+            "approach": {"type": "string", "enum": list(ANSWER_APPROACHES)},
+            "grasp_style": {"type": "string", "enum": list(GRASP_STYLES)},
+            "max_tilt_deg": {"type": ["number", "null"]},
+        },
+        "required": ["ratings", "preferred", "avoid", "approach", "grasp_style", "max_tilt_deg"],
+    }
 
 
 def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[str, str], *, marked: bool = False) -> str:
@@ -57,7 +81,7 @@ def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[st
         + f"Rate every zone for grasping in this task as one of {', '.join(RATING_LEVELS)}. "
         "Answer with one JSON object and nothing else:\n"
         '{"ratings": {"<zone>": "<level>", ...}, "preferred": ["<zone>", ...], "avoid": ["<zone>", ...], '
-        f'"approach": "<one of {"|".join(a for a in APPROACH_NAMES if a != "vector")}>", '
+        f'"approach": "<one of {"|".join(ANSWER_APPROACHES)}>", '
         f'"grasp_style": "<one of {"|".join(GRASP_STYLES)}>", '
         '"max_tilt_deg": <largest tilt of the object the task allows, in degrees, or null>}\n'
         f"Zone names must come from: {', '.join(names)}"

@@ -1,6 +1,7 @@
 """Zone raters: one interface, a model-backed rater, the offline prior, and a persistent cache."""
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -18,7 +19,14 @@ from PIL import Image
 
 from ..config import RatingConfig
 from .parse import parse_zone_rating
-from .prompt import build_zone_prompt, checked_image, prompt_version, task_description
+from .prompt import (
+    ZONE_ANSWER_SCHEMA_NAME,
+    build_zone_prompt,
+    checked_image,
+    prompt_version,
+    task_description,
+    zone_answer_schema,
+)
 from .types import RatingError, RatingProvenance, VLMRequestError, ZoneRating, neutral_rating
 from .vlm import VLMClient, get_vlm_client
 
@@ -53,6 +61,9 @@ class Rater(ABC):
 class VLMRater(Rater):
     """Asks a vision-language model with the structured zone prompt and validates its answer.
 
+    The answer is asked to match ``zone_answer_schema()`` where the backend can enforce it; the
+    rating's ``provenance.output_mode`` records whether it did. The parser validates either way.
+
     The client is built on the first question, so a run whose ratings are all cached never loads
     a model. ``zone_marks``: the images it is given carry the zones (``zone_marks.draw_zone_marks``),
     so the prompt points at them and is versioned apart from the plain-crop prompt.
@@ -81,12 +92,13 @@ class VLMRater(Rater):
         client = self.client
         start = time.perf_counter()
         try:
-            text = client.generate(image, prompt)
+            answer = client.generate_json(image, prompt, ZONE_ANSWER_SCHEMA_NAME, zone_answer_schema())
         except VLMRequestError as exc:
             log.warning("no rating for %s/%s from %s: %s", object_id, task, self.model, exc)
             return neutral_rating(self.backend, self.model, self.prompt_version, time.perf_counter() - start, f"no answer: {exc}")
         latency = time.perf_counter() - start
-        return parse_zone_rating(text, self.backend, self.model, self.prompt_version, latency, self.upright_max_tilt_deg)
+        rating = parse_zone_rating(answer.text, self.backend, self.model, self.prompt_version, latency, self.upright_max_tilt_deg)
+        return dataclasses.replace(rating, provenance=dataclasses.replace(rating.provenance, output_mode=answer.output_mode))
 
 
 class PriorRater(Rater):

@@ -22,6 +22,10 @@ TASKS: dict[str, str] = {
 # "ok": the answer validated as given; "repaired": safe repairs were made (listed in ``issues``);
 # "neutral": nothing trustworthy was left, the rating is neutral (SAGP falls back to geometry).
 OUTCOMES: tuple[str, ...] = ("ok", "repaired", "neutral")
+# How a model was asked to answer: "json_schema" (the server constrained the answer to the zone
+# answer's JSON schema), "plain" (the prompt alone asked for JSON); "" when no model answer was read
+# (a prior, the oracle, no answer at all, or a rating cached before the mode was recorded).
+OUTPUT_MODES: tuple[str, ...] = ("json_schema", "plain", "")
 
 
 class RatingError(RuntimeError):
@@ -39,6 +43,7 @@ class RatingProvenance:
     prompt_version: str
     latency_s: float
     outcome: str  # one of OUTCOMES
+    output_mode: str = ""  # one of OUTPUT_MODES
     # Where an answer was read from does not change which answer it is.
     cached: bool = field(default=False, compare=False)
 
@@ -83,7 +88,8 @@ class ZoneRating:
         return zone in self.avoid or (general_zone(zone) in self.avoid and zone not in self.preferred)
 
     def provenance_dict(self) -> dict[str, Any]:
-        """Where the rating came from, for trial records: backend, model, prompt version, latency, outcome, cache, issues."""
+        """Where the rating came from, for trial records: backend, model, prompt version, latency, outcome,
+        output mode, cache, issues."""
         return {**dataclasses.asdict(self.provenance), "issues": list(self.issues)}
 
     def to_dict(self) -> dict[str, Any]:
@@ -102,12 +108,15 @@ class ZoneRating:
                 "prompt_version": self.provenance.prompt_version,
                 "latency_s": self.provenance.latency_s,
                 "outcome": self.provenance.outcome,
+                "output_mode": self.provenance.output_mode,
             },
         }
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], cached: bool = False) -> "ZoneRating":
-        """Strict inverse of ``to_dict``; raises ``RatingError`` on anything out of vocabulary."""
+        """Strict inverse of ``to_dict``; raises ``RatingError`` on anything out of vocabulary.
+
+        A stored rating without ``provenance.output_mode`` (written before it was recorded) reads as ""."""
         try:
             ratings = {str(k): str(v) for k, v in data["ratings"].items()}
             preferred = frozenset(data["preferred"])
@@ -129,6 +138,7 @@ class ZoneRating:
             *([f"approach {rating.approach}"] if rating.approach not in APPROACH_NAMES else []),
             *([f"grasp style {rating.grasp_style}"] if rating.grasp_style not in GRASP_STYLES else []),
             *([f"outcome {provenance.outcome}"] if provenance.outcome not in OUTCOMES else []),
+            *([f"output mode {provenance.output_mode}"] if provenance.output_mode not in OUTPUT_MODES else []),
             *(["vector approach without a vector"] if (rating.approach == "vector") != (rating.approach_vector_world is not None) else []),
         ]
         if bad:

@@ -1,6 +1,9 @@
-"""Vision-language model clients sharing one primitive, ``generate(image, prompt) -> text``.
+"""Vision-language model clients sharing two primitives: ``generate(image, prompt) -> text`` (free
+text, what VLM-Direct asks) and ``generate_json(image, prompt, schema_name, schema) -> ModelAnswer``
+(an answer that should match a JSON schema, what the zone rater asks).
 
-Both the zone rater and VLM-Direct talk to a model only through this primitive.
+A client constrains the answer to the schema where its server offers structured output and says
+in ``ModelAnswer.output_mode`` whether it did ("json_schema") or asked with the prompt alone ("plain").
 """
 from __future__ import annotations
 
@@ -9,8 +12,9 @@ import io
 import logging
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import httpx
 import numpy as np
@@ -24,12 +28,28 @@ from .types import RatingError, VLMRequestError
 log = logging.getLogger(__name__)
 
 
+# Servers name the feature they refuse in different words: vLLM "guided decoding", others the field.
+SCHEMA_REFUSAL_MARKERS: tuple[str, ...] = ("response_format", "json_schema", "guided")
+
+
+@dataclass(frozen=True)
+class ModelAnswer:
+    text: str
+    output_mode: str  # "json_schema" | "plain" (``types.OUTPUT_MODES`` less "")
+
+
 class VLMClient(Protocol):
     backend: str
     model: str
 
     def generate(self, image: np.ndarray, prompt: str) -> str:
         """The model's answer to ``prompt`` about ``image`` ((H, W, 3) uint8); raises ``VLMRequestError``."""
+        ...
+
+    def generate_json(self, image: np.ndarray, prompt: str, schema_name: str, schema: dict[str, Any]) -> ModelAnswer:
+        """The model's answer to ``prompt`` about ``image``, constrained to the JSON ``schema`` (named
+        ``schema_name``, as servers require) where the backend can (``output_mode`` "json_schema"), else
+        asked with the prompt alone ("plain"); raises ``VLMRequestError``."""
         ...
 
 
@@ -111,9 +131,19 @@ class TransformersVLM:
             raise VLMRequestError(f"generation with '{self.model}' failed: {exc}") from exc
         return self._tokenizer.decode(output[0, encoded.input_ids.shape[1]:], skip_special_tokens=True)
 
+    def generate_json(self, image: np.ndarray, prompt: str, schema_name: str, schema: dict[str, Any]) -> ModelAnswer:
+        # Greedy decoding here has no grammar constraint; the prompt alone asks for the JSON.
+        return ModelAnswer(self.generate(image, prompt), "plain")
+
 
 class OpenAIVLM:
-    """Any OpenAI-compatible chat-completions endpoint (vLLM, Ollama, LM Studio, hosted)."""
+    """Any OpenAI-compatible chat-completions endpoint (vLLM, Ollama, LM Studio, hosted).
+
+    ``generate_json`` sends the schema as ``response_format`` (``json_schema``, not strict: the format
+    vLLM, Ollama and OpenAI accept). A server that refuses it (HTTP 400/422, or an error naming the
+    feature) is asked the same request once more without it, and once that plain request is answered
+    this client asks plainly from then on (``schema_refused``).
+    """
 
     backend = "openai"
 
@@ -128,6 +158,7 @@ class OpenAIVLM:
         # Local servers take no key; sending none is what they expect.
         headers = {"Authorization": f"Bearer {key}"} if key else {}
         self._client = httpx.Client(timeout=config.timeout_s, headers=headers)
+        self.schema_refused = False
 
     def served_models(self) -> list[str]:
         """The model ids ``GET {endpoint}/models`` lists: one request, no retries; raises ``VLMRequestError``."""
@@ -143,11 +174,11 @@ class OpenAIVLM:
         except (ValueError, KeyError, TypeError) as exc:
             raise VLMRequestError(f"{url} answered no model list: {response.text[:200]!r}") from exc
 
-    def generate(self, image: np.ndarray, prompt: str) -> str:
+    def _payload(self, image: np.ndarray, prompt: str) -> dict[str, Any]:
         buffer = io.BytesIO()
         Image.fromarray(checked_image(image, "image")).save(buffer, format="PNG")
         data_url = "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
-        payload = {
+        return {
             "model": self.model,
             "temperature": 0.0,
             "max_tokens": self.max_new_tokens,
@@ -156,6 +187,18 @@ class OpenAIVLM:
                 {"type": "text", "text": prompt},
             ]}],
         }
+
+    @staticmethod
+    def _refuses_schema(response: httpx.Response) -> bool:
+        """The server refused a request that carried ``response_format`` because of it (or may have: any 400/422)."""
+        if response.status_code in (400, 422):
+            return True
+        text = response.text.lower()
+        return response.status_code != 200 and any(marker in text for marker in SCHEMA_REFUSAL_MARKERS)
+
+    def _post(self, payload: dict[str, Any]) -> httpx.Response:
+        """The first response that is not a transient failure (transport error, 5xx, 429), retried with
+        backoff; a refusal of ``response_format`` is returned, not retried. Raises ``VLMRequestError``."""
         failures: list[str] = []
         for attempt in range(self.max_retries + 1):
             if attempt:
@@ -166,20 +209,43 @@ class OpenAIVLM:
                 failures.append(f"attempt {attempt + 1}: {type(exc).__name__}")
                 log.warning("%s: %s", self.url, failures[-1])
                 continue
-            if response.status_code >= 500 or response.status_code == 429:
+            transient = response.status_code >= 500 or response.status_code == 429
+            if transient and not ("response_format" in payload and self._refuses_schema(response)):
                 failures.append(f"attempt {attempt + 1}: HTTP {response.status_code}")
                 log.warning("%s: %s", self.url, failures[-1])
                 continue
-            if response.status_code != 200:
-                raise VLMRequestError(f"{self.url} refused the request: HTTP {response.status_code} {response.text[:200]}")
-            try:
-                content = response.json()["choices"][0]["message"]["content"]
-            except (ValueError, KeyError, IndexError, TypeError) as exc:
-                raise VLMRequestError(f"{self.url} answered a malformed completion: {response.text[:200]!r}") from exc
-            if not isinstance(content, str):
-                raise VLMRequestError(f"{self.url} answered non-text content: {content!r:.200}")
-            return content
+            return response
         raise VLMRequestError(f"{self.url} gave no answer after {self.max_retries + 1} attempts ({'; '.join(failures)})")
+
+    def _content(self, response: httpx.Response) -> str:
+        """The completion's text; ``VLMRequestError`` for a refusal or a malformed completion."""
+        if response.status_code != 200:
+            raise VLMRequestError(f"{self.url} refused the request: HTTP {response.status_code} {response.text[:200]}")
+        try:
+            content = response.json()["choices"][0]["message"]["content"]
+        except (ValueError, KeyError, IndexError, TypeError) as exc:
+            raise VLMRequestError(f"{self.url} answered a malformed completion: {response.text[:200]!r}") from exc
+        if not isinstance(content, str):
+            raise VLMRequestError(f"{self.url} answered non-text content: {content!r:.200}")
+        return content
+
+    def generate(self, image: np.ndarray, prompt: str) -> str:
+        return self._content(self._post(self._payload(image, prompt)))
+
+    def generate_json(self, image: np.ndarray, prompt: str, schema_name: str, schema: dict[str, Any]) -> ModelAnswer:
+        payload = self._payload(image, prompt)
+        if self.schema_refused:
+            return ModelAnswer(self._content(self._post(payload)), "plain")
+        response_format = {"type": "json_schema", "json_schema": {"name": schema_name, "schema": schema, "strict": False}}
+        response = self._post({**payload, "response_format": response_format})
+        if not self._refuses_schema(response):
+            return ModelAnswer(self._content(response), "json_schema")
+        log.warning("%s refused structured output (HTTP %d %s); asking with the prompt alone",
+                    self.url, response.status_code, response.text[:200])
+        text = self._content(self._post(payload))
+        # Only a plain request that is answered shows the schema was what the server refused.
+        self.schema_refused = True
+        return ModelAnswer(text, "plain")
 
 
 def get_vlm_client(config: RatingConfig) -> VLMClient:
