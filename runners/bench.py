@@ -1,7 +1,7 @@
 """Benchmark the batched planner against the loop reference on YCB object clouds.
 
     python -m runners.bench --json OUT.json [--objects 025_mug,003_cracker_box] [--pairs 5000,50000,500000]
-        [--repeats 5] [--objects-dir DIR] [--cache-dir DIR] [--threads 1]
+        [--repeats 5] [--ik-targets 2000] [--ik-unreachable 200] [--objects-dir DIR] [--cache-dir DIR] [--threads 1]
 """
 from __future__ import annotations
 
@@ -35,7 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", default="5000,50000,500000", help="comma-separated sampled pair counts")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--reference-max-pairs", type=int, default=50_000, help="largest pair count the loop reference is run at (once)")
-    parser.add_argument("--ik-targets", type=int, default=2000)
+    parser.add_argument("--ik-targets", type=int, default=2000, help="reachable IK targets (FK of random in-limit joints, above the table)")
+    parser.add_argument("--ik-unreachable", type=int, default=200, help="IK targets beyond the arm's reach (false-reachable rate)")
     parser.add_argument("--cloud-points", type=int, default=3000)
     parser.add_argument("--objects-dir", default=None)
     parser.add_argument("--cache-dir", type=Path, default=Path("~/.cache/sagp_batched/clouds").expanduser())
@@ -55,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         cloud_points=args.cloud_points,
         object_xy_m=(0.55, 0.0),
         ik_targets=args.ik_targets,
+        ik_unreachable_targets=args.ik_unreachable,
     )
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in args.objects.split(",")]
     results = []
@@ -68,8 +70,19 @@ def main(argv: list[str] | None = None) -> int:
                 f"({row['candidates_per_s']:.0f} pairs/s) reference={reference} | {stages} | {row['counts_last_repeat']}",
                 flush=True,
             )
-    ik = benchmark_ik(clouds, config, settings)
-    print(f"IK: {ik['targets']} targets, {ik['targets_per_s']:.0f} targets/s, success {ik['success_rate']:.1%}, feasible {ik['feasible_rate']:.1%}")
+    ik = benchmark_ik(config, settings)
+    print(
+        f"IK: {ik['reachable_targets']} reachable targets (FK of random in-limit joints, above the table), "
+        f"{ik['unreachable_targets']} unreachable (>= {ik['unreachable_min_distance_from_shoulder_m']} m from the shoulder); "
+        f"success = FK within {ik['pos_tolerance_m'] * 1e3:.1f} mm / {ik['rot_tolerance_rad']} rad and inside the limits"
+    )
+    for solver in ik["solvers"]:
+        print(
+            f"IK {solver['solver']:>26}: {solver['targets_per_s']:.0f} targets/s, success {solver['success_rate']:.1%} "
+            f"(claimed {solver['claimed_success_rate']:.1%}), inside limits {solver['inside_limits_rate']:.1%}, "
+            f"false reachable {solver['false_reachable_rate']:.1%}",
+            flush=True,
+        )
     print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
     world = None
     if args.world_runs > 0:
