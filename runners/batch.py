@@ -30,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tasks", type=_csv, help="comma list of t1,t2,t3")
     parser.add_argument("--objects", type=_csv, help="comma list of object ids, or 'all'")
     parser.add_argument("--n-trials", type=int, help="trials per (object, task)")
-    parser.add_argument("--objects-dir", help="YCB directory (objects.json + URDFs); default $SAGP_YCB_DIR, else the built-in pybullet_data set")
+    parser.add_argument("--objects-dir", help="YCB directory (objects.json + URDFs), or 'pybullet_data' for the built-in set; default $SAGP_YCB_DIR, else the embedded compact YCB set")
     parser.add_argument("--out", help="run directory (re-running into it resumes)")
     parser.add_argument("--resume", action="store_true", help="finish the run in --out, failing if there is none (a plain re-run into a run directory resumes too)")
     parser.add_argument("--workers", type=int, help="trial processes, each with its own PyBullet client")

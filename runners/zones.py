@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m runners.zones", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--object", required=True, dest="object_id", help="object id, e.g. 025_mug")
-    parser.add_argument("--objects-dir", help="YCB directory (objects.json + URDFs); default $SAGP_YCB_DIR, else the built-in set")
+    parser.add_argument("--objects-dir", help="YCB directory (objects.json + URDFs), or 'pybullet_data' for the built-in set; default $SAGP_YCB_DIR, else the embedded compact YCB set")
     parser.add_argument("--out", help="PNG path (default: <object>_zones.png)")
     parser.add_argument("--trial", type=int, default=0, help="trial whose random placement to use (default 0)")
     parser.add_argument("--profile", default="paper", help="profile name in profiles/ or a TOML path (default: paper)")

@@ -1,12 +1,17 @@
 """The object registry: which objects exist, where their URDFs are, and what the study knows of them.
 
-Two sources: a YCB directory laid out like the project's ``shared/ycb`` (``objects.json`` + ``<id>/model.urdf``),
-chosen by argument or the ``SAGP_YCB_DIR`` environment variable, or, without either, a built-in set
-made of objects that ship inside ``pybullet_data`` so the pipeline runs on a fresh machine.
+Three sources:
+- a YCB directory laid out like the project's ``shared/ycb`` (``objects.json`` + ``<id>/model.urdf``), chosen by
+  argument or the ``SAGP_YCB_DIR`` environment variable;
+- without either, the embedded compact YCB set: the published study's 14 objects and 7 distractors, shipped inside
+  the package (``sagp_batched/data/ycb``: decimated visual meshes and smaller textures, the same URDFs, collision
+  decompositions and link frames as ``shared/ycb``; made by ``runners/compact_objects.py``);
+- by the name ``pybullet_data`` (``PYBULLET_DATA_SET``), a set of objects that ship inside ``pybullet_data``.
 """
 from __future__ import annotations
 
 import hashlib
+import importlib.resources
 import json
 import os
 import xml.etree.ElementTree as ElementTree
@@ -18,6 +23,11 @@ import pybullet_data
 
 YCB_DIR_ENV = "SAGP_YCB_DIR"
 DISTRACTOR_CATEGORY = "distractor"
+# The ``objects_dir`` value (or ``$SAGP_YCB_DIR``) that selects the built-in pybullet_data set.
+PYBULLET_DATA_SET = "pybullet_data"
+EMBEDDED_YCB_SOURCE = "embedded compact YCB"
+# Top-level keys of ``objects.json`` that describe the directory, not an object (the compact copy's provenance).
+INDEX_METADATA_KEYS = frozenset({"compact"})
 
 # The published study's asymmetric objects: those with a functional region geometry alone does not reveal.
 YCB_ASYMMETRIC_IDS = frozenset(
@@ -116,7 +126,12 @@ def _check_urdf(urdf_path: Path, object_id: str) -> None:
         raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} is not valid XML: {exc}") from exc
 
 
-def _load_ycb_dir(objects_dir: Path) -> ObjectSet:
+def embedded_ycb_dir() -> Path:
+    """The compact YCB set inside the installed package (a plain directory: setuptools installs package data unzipped)."""
+    return Path(str(importlib.resources.files("sagp_batched").joinpath("data", "ycb")))
+
+
+def _load_ycb_dir(objects_dir: Path, source_label: str = "ycb") -> ObjectSet:
     if not objects_dir.is_dir():
         raise ObjectSetError(f"objects directory {objects_dir} does not exist")
     index_path = objects_dir / "objects.json"
@@ -130,6 +145,8 @@ def _load_ycb_dir(objects_dir: Path) -> ObjectSet:
         raise ObjectSetError(f"{index_path} must map object ids to entries")
     specs = []
     for object_id, entry in index.items():
+        if object_id in INDEX_METADATA_KEYS:
+            continue
         try:
             urdf_path = objects_dir / entry["urdf"]
             extents = tuple(float(e) for e in entry["extents_m"])
@@ -148,7 +165,7 @@ def _load_ycb_dir(objects_dir: Path) -> ObjectSet:
             raise ObjectSetError(f"{index_path}: entry '{object_id}' extents_m must hold 3 numbers")
         _check_urdf(urdf_path, object_id)
         specs.append(spec)
-    return ObjectSet(f"ycb:{objects_dir.resolve()}", specs)
+    return ObjectSet(f"{source_label}:{objects_dir.resolve()}", specs)
 
 
 def _measure_builtin(urdf_path: Path) -> tuple[float, tuple[float, float, float]]:
@@ -175,8 +192,15 @@ def _load_builtin() -> ObjectSet:
 
 
 def load_object_set(objects_dir: str | Path | None = None) -> ObjectSet:
-    """The object set from ``objects_dir``, else from env ``SAGP_YCB_DIR``, else the built-in pybullet_data set."""
+    """The object set from ``objects_dir``, else from env ``SAGP_YCB_DIR``, else the embedded compact YCB set.
+
+    ``objects_dir`` (or ``SAGP_YCB_DIR``) equal to ``PYBULLET_DATA_SET`` (``"pybullet_data"``) selects the built-in
+    pybullet_data set. The set's ``source`` says which was used: ``ycb:<dir>``, ``embedded compact YCB:<dir>`` or
+    ``builtin:pybullet_data:<dir>``.
+    """
     chosen = objects_dir if objects_dir is not None else os.environ.get(YCB_DIR_ENV) or None
     if chosen is None:
+        return _load_ycb_dir(embedded_ycb_dir(), EMBEDDED_YCB_SOURCE)
+    if str(chosen) == PYBULLET_DATA_SET:
         return _load_builtin()
     return _load_ycb_dir(Path(chosen).expanduser())

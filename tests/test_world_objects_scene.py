@@ -11,6 +11,7 @@ import pytest
 
 from sagp_batched import Config
 from sagp_batched.objects import (
+    PYBULLET_DATA_SET,
     YCB_DIR_ENV,
     ObjectLoadError,
     ObjectSetError,
@@ -51,9 +52,8 @@ def test_ycb_set_has_the_spec_categories_and_asymmetric_flags(ycb):
     assert len(ycb.checksum()) == 64
 
 
-def test_builtin_set_is_used_without_a_directory_and_settles(monkeypatch, scene):
-    monkeypatch.delenv(YCB_DIR_ENV, raising=False)
-    builtin = load_object_set(None)
+def test_builtin_set_is_selected_by_name_and_settles(scene):
+    builtin = load_object_set(PYBULLET_DATA_SET)
     assert builtin.source.startswith("builtin:")
     assert "mug" in builtin.ids and len(builtin.distractors()) >= 4
     for spec in builtin.targets():
@@ -70,9 +70,8 @@ def test_env_variable_selects_the_directory(monkeypatch, tmp_path):
         load_object_set(None)
 
 
-def test_unknown_object_id_names_it_and_the_known_ids(monkeypatch):
-    monkeypatch.delenv(YCB_DIR_ENV, raising=False)
-    builtin = load_object_set(None)
+def test_unknown_object_id_names_it_and_the_known_ids():
+    builtin = load_object_set(PYBULLET_DATA_SET)
     with pytest.raises(UnknownObjectError, match="999_unicorn.*mug"):
         builtin.get("999_unicorn")
 
@@ -126,9 +125,8 @@ def test_same_trial_gives_the_same_settled_pose_and_trials_differ(scene, ycb):
     assert abs(first[0][2] - config.scene.table_top_z_m) < 0.003  # link frame at the bottom face: resting on the table
 
 
-def test_table_top_is_exactly_at_the_configured_height(scene, monkeypatch):
-    monkeypatch.delenv(YCB_DIR_ENV, raising=False)
-    scene.reset(load_object_set(None).get("cube_small"), trial=0)
+def test_table_top_is_exactly_at_the_configured_height(scene):
+    scene.reset(load_object_set(PYBULLET_DATA_SET).get("cube_small"), trial=0)
     config = Config()
     hit = pybullet.rayTest([0.9, 0.3, 2.0], [0.9, 0.3, 0.0], physicsClientId=scene.client)[0]
     assert hit[0] == scene.table_id

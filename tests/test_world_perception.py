@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config, PerceptionFailure
-from sagp_batched.objects import YCB_DIR_ENV, load_object_set
+from sagp_batched.objects import PYBULLET_DATA_SET, load_object_set
 from sagp_batched.perception import backproject_views, camera_rig, capture, render
 from sagp_batched.scene import Scene
 from sagp_batched_kernels.camera import backproject_to_world, linearize_depth
@@ -26,9 +26,7 @@ def scene():
 
 @pytest.fixture(scope="module")
 def builtin():
-    with pytest.MonkeyPatch.context() as patch:
-        patch.delenv(YCB_DIR_ENV, raising=False)
-        return load_object_set(None)
+    return load_object_set(PYBULLET_DATA_SET)
 
 
 def _raw_target_points(scene: Scene, config: Config) -> list[np.ndarray]:
