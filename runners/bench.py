@@ -16,16 +16,17 @@ import torch
 
 from sagp_batched.benchmark import BenchmarkSettings, benchmark_ik, benchmark_object, benchmark_world, mesh_cloud
 from sagp_batched.config import load_config
-from sagp_batched.objects import load_object_set
+from sagp_batched.objects import embedded_ycb_dir, load_object_set
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
 from sagp_batched.runtime import DEFAULT_TORCH_THREADS, configure_torch
 
 
 def _ycb_dir(argument: str | None) -> Path:
+    """The YCB set to benchmark: --objects-dir, $SAGP_YCB_DIR, shared/ycb beside the repository, else the embedded copy."""
     for candidate in (argument, os.environ.get("SAGP_YCB_DIR"), str(REPO_ROOT.parent / "shared" / "ycb")):
         if candidate and (Path(candidate).expanduser() / "objects.json").is_file():
             return Path(candidate).expanduser()
-    raise SystemExit("no YCB directory with objects.json: pass --objects-dir, set SAGP_YCB_DIR, or place shared/ycb beside the repository")
+    return embedded_ycb_dir()
 
 
 def main(argv: list[str] | None = None) -> int:
