@@ -30,7 +30,9 @@ def _mug_parts(ycb_dir):
 
 def test_the_mug_handle_lies_in_its_functional_region_and_not_its_avoid_region(ycb_dir):
     handle, _ = _mug_parts(ycb_dir)
-    assert len(handle) > 200, "the mesh should show a handle outside the body"
+    # A fraction, not a count: the embedded compact meshes hold a fifth of the full ones' vertices.
+    n_vertices = len(mesh_vertices(ycb_dir / "025_mug" / "textured.obj"))
+    assert len(handle) > 0.02 * n_vertices, "the mesh should show a handle outside the body"
     membership = region_membership("025_mug", handle)
     assert membership["in_functional_region"].mean() >= 0.9
     assert membership["in_avoid_region"].mean() <= 0.05
@@ -61,7 +63,7 @@ def test_every_box_is_ordered_on_the_object_and_the_two_regions_do_not_overlap(y
     for box in regions.functional + regions.avoid:
         assert np.all(np.less(box.min, box.max)), box
         assert np.all(np.asarray(box.min) >= low) and np.all(np.asarray(box.max) <= high), box
-        assert box.contains(vertices).sum() >= 20, f"{box} covers almost none of the mesh"
+        assert box.contains(vertices).sum() >= max(3, 0.0025 * len(vertices)), f"{box} covers almost none of the mesh"
     for functional in regions.functional:
         for avoid in regions.avoid:
             overlap = np.minimum(functional.max, avoid.max) - np.maximum(functional.min, avoid.min)
