@@ -77,7 +77,7 @@ class PandaIK:
             pos_tolerance=config.ik_pos_tolerance_m,
             rot_tolerance=config.ik_rot_tolerance_rad,
             # Stop a target as soon as one retry converges: most planner targets converge in a
-            # few iterations from a good seed, and ~3x faster overall (MACHINE-NOTES).
+            # few iterations from a good seed, and measured ~3x faster overall on 2 cores.
             early_stopping_any_converged=True,
             num_limit_refinement_iterations=config.ik_limit_refinement_iterations,
         )

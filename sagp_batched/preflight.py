@@ -17,7 +17,7 @@ from .rating.vlm import OpenAIVLM, TransformersVLM
 # A reachable cluster accepts a TCP connection in milliseconds; seconds only make a dead one slow to report.
 RAY_CONNECT_TIMEOUT_S = 3.0
 # Ray addresses that name no host to connect to ("auto" finds a local cluster, "local" starts one).
-RAY_SPECIAL_ADDRESSES = ("auto", "local")
+RAY_ADDRESS_KEYWORDS = ("auto", "local")
 
 
 class PreflightError(ValueError):
@@ -71,7 +71,7 @@ def check_rater(rating: RatingConfig) -> None:
 
 def check_ray_address(address: str) -> None:
     """A TCP connection to ``ray://host:port`` (or ``host:port``) opens; Ray itself is not started."""
-    if address in RAY_SPECIAL_ADDRESSES:
+    if address in RAY_ADDRESS_KEYWORDS:
         return
     host, _, port = address.removeprefix("ray://").rpartition(":")
     host = host.strip("[]")  # an IPv6 host is written [::1]:10001

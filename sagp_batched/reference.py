@@ -50,8 +50,8 @@ class PyBulletPandaIK:
         self.movable = [j[0] for j in joints if j[2] != pybullet.JOINT_FIXED]
         self.lower = np.array([joints[j][8] for j in self.movable])
         self.upper = np.array([joints[j][9] for j in self.movable])
-        # Rest pose mid-limits: PyBullet's null-space IK keeps solutions near it (MACHINE-NOTES:
-        # 63 % inside limits from mid-limit joints versus 13 % from zero).
+        # Rest pose mid-limits: PyBullet's null-space IK keeps solutions near it (measured on
+        # 200 random targets: 63 % inside limits from mid-limit joints versus 13 % from zero).
         self.rest = list((self.lower + self.upper) / 2)
 
     def close(self) -> None:
