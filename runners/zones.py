@@ -10,8 +10,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from scipy.spatial.transform import Rotation
-
 from sagp_batched.config import ConfigError, load_config
 from sagp_batched.functional_regions import region_membership
 from sagp_batched.objects import ObjectSetError, UnknownObjectError, load_object_set
@@ -48,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {spec.id} trial {args.trial}: {failure}", file=sys.stderr)
             return 1
     zones = decompose(cloud.points_world, config.zones)
-    points_object = Rotation.from_quat(cloud.object_quat_xyzw).inv().apply(cloud.points_world.numpy() - cloud.object_position_world)
+    points_object = cloud.in_object_frame(cloud.points_world.numpy())
     membership = region_membership(spec.id, points_object)
     regions = None if membership["in_functional_region"] is None else {
         "functional": membership["in_functional_region"], "avoid": membership["in_avoid_region"]}

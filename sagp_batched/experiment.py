@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .config import GEOMETRY_ONLY_WEIGHTS, Config
 from .functional_regions import region_membership
@@ -73,14 +72,9 @@ def _raise_timeout(signum: int, frame: Any) -> None:
     raise TrialTimeout("trial exceeded its time limit")
 
 
-def _in_object_frame(cloud: PerceivedCloud, points_world: np.ndarray) -> np.ndarray:
-    """(..., 3) world points in the object's own (URDF link) frame, from the ground-truth pose."""
-    return Rotation.from_quat(cloud.object_quat_xyzw).inv().apply(points_world - cloud.object_position_world)
-
-
 def _zone_points_object(cloud: PerceivedCloud, decomposition) -> dict[str, np.ndarray]:
     """Each zone's cloud points in the object frame: what a ground-truth (oracle) rater rates."""
-    points_object = _in_object_frame(cloud, decomposition.points_world.numpy())
+    points_object = cloud.in_object_frame(decomposition.points_world.numpy())
     return {name: points_object[decomposition.memberships[:, index].numpy()] for index, name in enumerate(decomposition.zone_names)}
 
 
@@ -299,7 +293,7 @@ class TrialRunner:
         final_index = int(order[len(attempts) - 1])
         final = attempts[-1]
         grasp = candidates.record(final_index)
-        grasp["midpoint_object"] = _in_object_frame(cloud, np.asarray(grasp["position"])).tolist()
+        grasp["midpoint_object"] = cloud.in_object_frame(np.asarray(grasp["position"])).tolist()
         record["grasp"] = grasp
         record["success"] = bool(final.success)
         record["failure_reason"] = final.failure_reason

@@ -273,8 +273,14 @@ def screen_candidates(
     )
 
 
+@functools.lru_cache(maxsize=4)
+def _arm_hulls_of(links: tuple[str, ...]) -> dict[str, torch.Tensor]:
+    return {name: torch.tensor(vertices, dtype=torch.float32) for name, vertices in link_hulls(PANDA_URDF, links).items()}
+
+
 def _arm_hulls(planner: PlannerConfig) -> dict[str, torch.Tensor]:
-    return {name: torch.tensor(vertices, dtype=torch.float32) for name, vertices in link_hulls(PANDA_URDF, planner.arm_table_links).items()}
+    """Hull vertices of the links checked against the table, in their link frames (built once per link set)."""
+    return _arm_hulls_of(tuple(planner.arm_table_links))
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:

@@ -88,6 +88,13 @@ class PerceivedCloud:
     def n_points(self) -> int:
         return int(self.points_world.shape[0])
 
+    def in_object_frame(self, points_world: np.ndarray) -> np.ndarray:
+        """(..., 3) world points in the object's own (URDF link) frame, from the ground-truth pose
+        (``object_position_world``, ``object_quat_xyzw``): for expressing results, never for planning."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_quat(self.object_quat_xyzw).inv().apply(np.asarray(points_world) - self.object_position_world)
+
 
 @dataclass
 class GraspCandidates:

@@ -79,15 +79,21 @@ def project_to_crop(points_world: torch.Tensor, cloud: PerceivedCloud) -> np.nda
     return np.stack([u - u0, v - v0], axis=1)
 
 
+def scaled_crop(crop_rgb: np.ndarray, config: RatingConfig) -> tuple[Image.Image, float]:
+    """The crop scaled up to ``vd_image_min_side_px`` on its short side (never down), and the scale
+    (image pixels per crop pixel), so marks drawn on it stay legible to a model."""
+    image = Image.fromarray(checked_image(crop_rgb))
+    scale = max(1.0, config.vd_image_min_side_px / min(image.size))
+    return image.resize((round(image.width * scale), round(image.height * scale)), Image.Resampling.LANCZOS), scale
+
+
 def draw_candidate_markers(crop_rgb: np.ndarray, pixels: np.ndarray, config: RatingConfig) -> np.ndarray:
     """The crop, scaled up to ``vd_image_min_side_px`` on its short side, with markers 1..K at ``pixels`` (K, 2).
 
     Markers that fall outside the crop (points seen only by the other cameras) are clamped to its border
     so the model is shown every id it may answer.
     """
-    image = Image.fromarray(checked_image(crop_rgb))
-    scale = max(1.0, config.vd_image_min_side_px / min(image.size))
-    image = image.resize((round(image.width * scale), round(image.height * scale)), Image.Resampling.LANCZOS)
+    image, scale = scaled_crop(crop_rgb, config)
     draw = ImageDraw.Draw(image)
     radius = config.vd_marker_radius_px
     font = ImageFont.load_default(size=int(radius * 1.4))

@@ -10,12 +10,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFont
+from PIL import ImageDraw, ImageFont
 
 from .config import RatingConfig
-from .rating.prompt import checked_image
 from .types import PerceivedCloud
-from .vlm_direct import project_to_crop
+from .vlm_direct import project_to_crop, scaled_crop
 from .zones import GEOMETRIC_ZONES, ZoneDecomposition
 
 # The colours of ``zones.plot_zones`` (matplotlib's tab palette), so the 3-D plot and the image agree.
@@ -73,9 +72,7 @@ def draw_zone_marks(cloud: PerceivedCloud, zones: ZoneDecomposition, config: Rat
     """
     if zones.n_points != cloud.n_points:
         raise ValueError(f"zones hold {zones.n_points} points but the cloud {cloud.n_points}: not its decomposition")
-    crop = Image.fromarray(checked_image(cloud.crop_rgb))
-    scale = max(1.0, config.vd_image_min_side_px / min(crop.size))
-    image = crop.resize((round(crop.width * scale), round(crop.height * scale)), Image.Resampling.LANCZOS)
+    image, scale = scaled_crop(cloud.crop_rgb, config)
     if zones.n_points == 0:
         return ZoneMarks(np.array(image), scale, {})
     pixels = project_to_crop(zones.points_world, cloud) * scale  # (N, 2) u, v in ``image``
