@@ -133,6 +133,67 @@ def zone_coordinates(
     return third, lateral_positive, depth_positive
 
 
+def length_split(
+    points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, up: torch.Tensor, min_split_extent_m: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Thirds of each cloud along its length: the principal direction of its spread in the
+    horizontal plane (normal to ``up``), for objects lying on the table.
+
+    Args:
+        points: (B, N, 3) world frame, metres; valid: (B, N) bool; centroid: (B, 3) world frame.
+        up: (3,) unit world up.
+        min_split_extent_m: a cloud shorter than this along its length is not split: all MIDDLE.
+
+    Returns:
+        third: (B, N) int64 in {0, 1, 2}: equal thirds of the valid points' extent along
+            ``length_axis``, 0 at its negative end; padded entries hold 1.
+        length_axis: (B, 3) unit horizontal direction of the longest spread, world frame, signed so
+            that its positive end (third 2) is at least as wide as its negative end (third 0).
+        elongation: (B,) sqrt of the ratio of the larger to the smaller horizontal principal variance
+            (1 for a round or square footprint, ~6 for a marker).
+        end_width_m: (B, 2) extent across the length (horizontal) of the points of third 0 and third 2.
+    """
+    up = up.to(points.dtype)
+    seed = torch.tensor([1.0, 0.0, 0.0], dtype=points.dtype) if float(up[0].abs()) < 0.9 else torch.tensor([0.0, 1.0, 0.0], dtype=points.dtype)
+    plane_u = _unit(seed - (seed @ up) * up)
+    plane_v = torch.linalg.cross(up, plane_u)
+    basis = torch.stack((plane_u, plane_v), dim=1)  # (3, 2)
+    weight = valid.to(points.dtype).unsqueeze(-1)
+    planar = ((points - centroid.unsqueeze(1)) @ basis) * weight  # (B, N, 2)
+    count = valid.sum(dim=1).clamp_min(1).to(points.dtype)
+    # float64 for the same reason as in principal_frame: a thin footprint's small axis.
+    covariance = (planar.transpose(1, 2) @ planar / count.view(-1, 1, 1)).double()
+    variances, directions = torch.linalg.eigh(covariance)  # ascending
+    elongation = torch.sqrt(variances[:, 1] / variances[:, 0].clamp_min(1e-18)).to(points.dtype)
+    along_in_plane = directions[:, :, 1].to(points.dtype)  # (B, 2)
+    across_in_plane = torch.stack((-along_in_plane[:, 1], along_in_plane[:, 0]), dim=1)
+    along = (planar * along_in_plane.unsqueeze(1)).sum(dim=-1)
+    across = (planar * across_in_plane.unsqueeze(1)).sum(dim=-1)
+
+    inf = torch.tensor(float("inf"), dtype=points.dtype)
+    lowest = torch.where(valid, along, inf).amin(dim=1, keepdim=True)
+    highest = torch.where(valid, along, -inf).amax(dim=1, keepdim=True)
+    extent = highest - lowest
+    splittable = extent >= min_split_extent_m
+    fraction = (along - lowest) / torch.where(splittable, extent, torch.ones_like(extent))
+    third = torch.floor(fraction * 3).clamp(0, 2).long()
+    third = torch.where(splittable & valid, third, torch.ones_like(third))
+
+    def width(end: int) -> torch.Tensor:
+        member = valid & (third == end)
+        widest = torch.where(member, across, -inf).amax(dim=1)
+        narrowest = torch.where(member, across, inf).amin(dim=1)
+        return torch.where(member.any(dim=1), widest - narrowest, torch.zeros_like(widest))
+
+    end_width = torch.stack((width(0), width(2)), dim=1)
+    flip = end_width[:, 0] > end_width[:, 1]
+    third = torch.where(flip.unsqueeze(1) & (third != 1), 2 - third, third)
+    end_width = torch.where(flip.unsqueeze(1), end_width.flip(1), end_width)
+    length_axis = along_in_plane @ basis.T
+    length_axis = torch.where(flip.unsqueeze(1), -length_axis, length_axis)
+    return third, length_axis, elongation, end_width
+
+
 def far_points(
     points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, distance_factor: float
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -15,11 +15,15 @@ import numpy as np
 import torch
 
 
-# The coarse-zone vocabulary. Each protrusion cluster of a cloud is a zone of its own,
-# ``protrusion_1``, ``protrusion_2``, ... (largest first); the general name ``protrusion`` is what
-# a rating uses to speak of all of them at once.
+# The coarse-zone vocabulary. A standing object is split into vertical thirds (top, middle,
+# bottom); an elongated object lying on the table into thirds along its length (wide_end, middle,
+# narrow_end), since its vertical thirds would be layers of its thickness. Each protrusion cluster
+# of a cloud is a zone of its own, ``protrusion_1``, ``protrusion_2``, ... (largest first); the
+# general name ``protrusion`` is what a rating uses to speak of all of them at once.
 PROTRUSION = "protrusion"
-ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "left", "right", "front", "back", PROTRUSION)
+VERTICAL_ZONES: tuple[str, ...] = ("top", "middle", "bottom")
+LENGTH_ZONES: tuple[str, ...] = ("wide_end", "middle", "narrow_end")
+ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "wide_end", "narrow_end", "left", "right", "front", "back", PROTRUSION)
 _NUMBERED_PROTRUSION = re.compile(r"protrusion_[1-9][0-9]*")
 
 

@@ -2,7 +2,7 @@
 
 A description such as "protrusion_2: a part that sticks out on the left" does not tell a model which
 pixels it means; drawing every zone's points as coloured dots with the zone's name beside them does.
-The primary zones are drawn (vertical thirds, protrusions: what ``ZoneDecomposition.point_zone``
+The primary zones are drawn (thirds, protrusions: what ``ZoneDecomposition.point_zone``
 holds); the side halves overlap them and are left to the text.
 """
 from __future__ import annotations
@@ -18,7 +18,8 @@ from .vlm_direct import project_to_crop, scaled_crop
 from .zones import GEOMETRIC_ZONES, ZoneDecomposition
 
 # The colours of ``zones.plot_zones`` (matplotlib's tab palette), so the 3-D plot and the image agree.
-VERTICAL_ZONE_RGB = {"top": (31, 119, 180), "middle": (44, 160, 44), "bottom": (255, 127, 14)}
+PRIMARY_ZONE_RGB = {"top": (31, 119, 180), "middle": (44, 160, 44), "bottom": (255, 127, 14),
+                    "wide_end": (31, 119, 180), "narrow_end": (255, 127, 14)}
 PROTRUSION_RGB = ((214, 39, 40), (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34))
 LABEL_PADDING_PX = 2
 
@@ -32,10 +33,10 @@ class ZoneMarks:
 
 
 def zone_rgb(zone_names: tuple[str, ...], index: int) -> tuple[int, int, int]:
-    """The colour of zone ``zone_names[index]``: its vertical third's, or its protrusion's in turn."""
+    """The colour of zone ``zone_names[index]``: its third's, or its protrusion's in turn."""
     name = zone_names[index]
-    if name in VERTICAL_ZONE_RGB:
-        return VERTICAL_ZONE_RGB[name]
+    if name in PRIMARY_ZONE_RGB:
+        return PRIMARY_ZONE_RGB[name]
     return PROTRUSION_RGB[(index - len(GEOMETRIC_ZONES)) % len(PROTRUSION_RGB)]
 
 

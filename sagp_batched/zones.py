@@ -1,21 +1,28 @@
 """Coarse zones of the perceived object (the published method's stage 3) and the zone of every grasp candidate.
 
-Every cloud point belongs to exactly three geometric zones: one vertical third (bottom / middle /
-top), one lateral side (left / right) and one depth side (front / back); a point of a protrusion
+Every cloud point belongs to exactly three geometric zones: one third of the object (its primary
+split), one lateral side (left / right) and one depth side (front / back); a point of a protrusion
 cluster belongs to that cluster's zone as well, ``protrusion_1``, ``protrusion_2``, ... (largest
 first), so a model can rate a pitcher's handle and its spout apart; a rating of plain
 ``protrusion`` applies to all of them (``ZoneRating.level``). ``memberships`` keeps every zone of
 every point, so a rating of any zone can reach the points it names.
 
+The primary split is into vertical thirds (bottom / middle / top), except for an elongated object
+lying on the table (``zones.length_split``): its vertical thirds would be layers of its
+thickness, each holding handle and working end alike, so it is split into thirds along its length
+instead, named by their width (``wide_end`` / ``middle`` / ``narrow_end``): scissors' loops and
+blades, a clamp's handles and jaws, a banana's middle and ends become zones of their own.
+
 Protrusions are found by ``zones.protrusion_rule``: "body" (default) takes points farther than
 ``body_radius_factor`` x the body's radius from the vertical principal axis, for upright clouds
-(lying clouds keep the centroid rule, see ``ZonesConfig``); "centroid" is the published rule,
+(other clouds keep the centroid rule, see ``ZonesConfig``); "centroid" is the published rule,
 points farther than ``protrusion_distance_factor`` x the median centroid distance. Either way the
 candidates are clustered with DBSCAN and clusters of ``min_protrusion_points`` are protrusions.
+Clouds split along their length have none: what sticks out of them is their ends.
 
 One zone per candidate (``GraspCandidates.zone``, used for reporting, preferred-zone and avoid-zone
 metrics) is the *primary* zone of its contact midpoint's nearest cloud point: its protrusion if the
-point is in one, else its vertical third (protrusion wins over the vertical thirds).
+point is in one, else its third (protrusion wins over the thirds).
 Side zones never become primary because they split the same points a second and third time.
 A candidate is *rated* by its primary zone and its two side zones (``candidate_rated_zones``): a
 handle point in the top third is the handle, so a dangerous rim must not reach it, while a rating of
@@ -40,14 +47,17 @@ from sagp_batched_kernels import zones as zone_kernels
 
 from ._open3d import o3d
 from .config import ZonesConfig
-from .types import PROTRUSION, ZONE_NAMES, GraspCandidates, PerceivedCloud, protrusion_zone
+from .types import LENGTH_ZONES, PROTRUSION, VERTICAL_ZONES, ZONE_NAMES, GraspCandidates, PerceivedCloud, protrusion_zone
 
 # Zones every cloud has, in this order; its numbered protrusion zones follow them.
 GEOMETRIC_ZONES: tuple[str, ...] = tuple(name for name in ZONE_NAMES if name != PROTRUSION)
 ZONE_INDEX: dict[str, int] = {name: i for i, name in enumerate(GEOMETRIC_ZONES)}
-VERTICAL_ZONES: tuple[str, ...] = ("top", "middle", "bottom")
+# The thirds a point can be in: a protrusion takes its points over from them.
+PRIMARY_SPLIT_ZONES: tuple[str, ...] = tuple(dict.fromkeys(VERTICAL_ZONES + LENGTH_ZONES))
 # Kernel codes BOTTOM, MIDDLE, TOP -> zone indices.
 _VERTICAL_ZONE = torch.tensor([ZONE_INDEX["bottom"], ZONE_INDEX["middle"], ZONE_INDEX["top"]])
+# Thirds along the length, narrow end (0) to wide end (2) -> zone indices.
+_LENGTH_ZONE = torch.tensor([ZONE_INDEX["narrow_end"], ZONE_INDEX["middle"], ZONE_INDEX["wide_end"]])
 UNZONED = -1
 DEGENERATE_OUTCOMES = ("empty", "too_few_points", "collinear", "flat")
 
@@ -68,7 +78,11 @@ class ZoneDecomposition:
     centroid_world: torch.Tensor  # (3,) metres; the predicted centre of mass
     axes_world: torch.Tensor  # (3, 3) columns (vertical, lateral, depth), unit
     median_centroid_distance_m: float
-    protrusion_rule: str = "centroid"  # the rule that found the protrusions ("body" or "centroid")
+    protrusion_rule: str = "centroid"  # the rule that found the protrusions ("body", "centroid", or "none")
+    # How the cloud's points were split in thirds: "vertical" (top / middle / bottom) or "length"
+    # (wide_end / middle / narrow_end along ``length_axis_world``, from the narrow to the wide end).
+    split: str = "vertical"
+    length_axis_world: torch.Tensor | None = None
     # Each point's distance by that rule (from the vertical axis or the centroid), metres, and the
     # body's reference distance it is compared with (radius or median centroid distance).
     protrusion_distance_m: torch.Tensor | None = None
@@ -111,7 +125,7 @@ class ZoneDecomposition:
             return memberships
         in_protrusion = memberships[:, len(GEOMETRIC_ZONES):].any(dim=1, keepdim=True)
         overridden = torch.zeros(len(self.zone_names), dtype=torch.bool)
-        overridden[[ZONE_INDEX[name] for name in VERTICAL_ZONES]] = True
+        overridden[[ZONE_INDEX[name] for name in PRIMARY_SPLIT_ZONES]] = True
         return memberships & ~(in_protrusion & overridden)
 
     def candidate_zone_names(self, positions_world: torch.Tensor) -> list[tuple[str, ...]]:
@@ -162,24 +176,28 @@ def _cluster_protrusions(points: np.ndarray, config: ZonesConfig) -> np.ndarray:
     return np.asarray(labels, dtype=np.int64)
 
 
+def _stands_upright(points: torch.Tensor, config: ZonesConfig) -> bool:
+    """Whether the cloud ``points`` (N, 3) is at least ``body_min_height_ratio`` as tall as its widest horizontal extent."""
+    offsets = points @ _world_reference_axes(config)
+    extent = offsets.amax(dim=0) - offsets.amin(dim=0)
+    return float(extent[0]) >= config.body_min_height_ratio * float(extent[1:].max())
+
+
 def _far_points(
-    batch_points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, config: ZonesConfig
+    batch_points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, upright: bool, config: ZonesConfig
 ) -> tuple[str, torch.Tensor, torch.Tensor, float, float]:
     """(rule applied, far (N,), distance (N,) by that rule, the body's reference distance, median
     centroid distance) of one cloud; the body rule applies to upright clouds with a round wall."""
     far, distance, median_distance = zone_kernels.far_points(batch_points, valid, centroid, config.protrusion_distance_factor)
     median_centroid = float(median_distance[0])
-    if config.protrusion_rule == "body":
+    if config.protrusion_rule == "body" and upright:
         # A body standing on the table has its axis along world up; the principal axes tilt
         # toward a handle or spout, which is what the rule must not absorb.
-        upright = _world_reference_axes(config).unsqueeze(0)
-        offsets = (batch_points[0] - centroid[0]) @ upright[0]
-        extent = offsets.amax(dim=0) - offsets.amin(dim=0)
-        if float(extent[0]) >= config.body_min_height_ratio * float(extent[1:].max()):
-            axis_point, roundness_error = zone_kernels.fit_body_axis(batch_points, valid, centroid, upright, config.body_radius_factor)
-            if float(roundness_error[0]) <= config.body_max_roundness_error:
-                far_body, radial, radius = zone_kernels.far_from_axis(batch_points, valid, axis_point, upright[:, :, 0], config.body_radius_factor)
-                return "body", far_body[0], radial[0], float(radius[0]), median_centroid
+        reference_axes = _world_reference_axes(config).unsqueeze(0)
+        axis_point, roundness_error = zone_kernels.fit_body_axis(batch_points, valid, centroid, reference_axes, config.body_radius_factor)
+        if float(roundness_error[0]) <= config.body_max_roundness_error:
+            far_body, radial, radius = zone_kernels.far_from_axis(batch_points, valid, axis_point, reference_axes[:, :, 0], config.body_radius_factor)
+            return "body", far_body[0], radial[0], float(radius[0]), median_centroid
     return "centroid", far[0], distance[0], median_centroid, median_centroid
 
 
@@ -219,9 +237,18 @@ def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> 
     third, lateral_positive, depth_positive = zone_kernels.zone_coordinates(
         batch_points, valid, centroid, axes, config.min_split_extent_m
     )
-    rule, far, protrusion_distance, reference, median_centroid = _far_points(batch_points, valid, centroid, config)
+    primary_zone = _VERTICAL_ZONE[third[0]]
+    split, length_axis = "vertical", None
+    upright = _stands_upright(points, config)
+    if config.length_split and not frame_fallback and not upright:
+        length_third, axis, elongation, _ = zone_kernels.length_split(batch_points, valid, centroid, up, config.min_split_extent_m)
+        if float(elongation[0]) >= config.length_split_min_elongation:
+            split, length_axis, primary_zone = "length", axis[0], _LENGTH_ZONE[length_third[0]]
+    rule, far, protrusion_distance, reference, median_centroid = _far_points(batch_points, valid, centroid, upright, config)
     protrusion_label = torch.full((n,), -1, dtype=torch.int64)
-    if not frame_fallback:
+    if split == "length":
+        rule = "none"
+    elif not frame_fallback:
         far_index = far.nonzero().squeeze(1)
         labels = torch.from_numpy(_cluster_protrusions(points[far_index].numpy(), config))
         cluster_ids, sizes = torch.unique(labels[labels >= 0], return_counts=True)
@@ -233,20 +260,20 @@ def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> 
 
     n_protrusions = int(protrusion_label.max()) + 1
     zone_names = GEOMETRIC_ZONES + tuple(protrusion_zone(k + 1) for k in range(n_protrusions))
-    vertical_zone = _VERTICAL_ZONE[third[0]]
     memberships = torch.zeros(n, len(zone_names), dtype=torch.bool)
     rows = torch.arange(n)
-    memberships[rows, vertical_zone] = True
+    memberships[rows, primary_zone] = True
     memberships[rows, torch.where(lateral_positive[0], ZONE_INDEX["left"], ZONE_INDEX["right"])] = True
     memberships[rows, torch.where(depth_positive[0], ZONE_INDEX["front"], ZONE_INDEX["back"])] = True
     in_protrusion = protrusion_label >= 0
     memberships[rows[in_protrusion], len(GEOMETRIC_ZONES) + protrusion_label[in_protrusion]] = True
-    point_zone = torch.where(in_protrusion, len(GEOMETRIC_ZONES) + protrusion_label, vertical_zone)
+    point_zone = torch.where(in_protrusion, len(GEOMETRIC_ZONES) + protrusion_label, primary_zone)
     return ZoneDecomposition(
         zone_names=zone_names, points_world=points, point_zone=point_zone, memberships=memberships,
         protrusion_label=protrusion_label, centroid_world=centroid[0], axes_world=axes[0],
         median_centroid_distance_m=median_centroid, degenerate=degenerate, degenerate_reason=reason,
         protrusion_rule=rule, protrusion_distance_m=protrusion_distance, protrusion_reference_m=reference,
+        split=split, length_axis_world=length_axis,
     )
 
 
@@ -288,6 +315,9 @@ def describe_zones(decomposition: ZoneDecomposition) -> dict[str, str]:
             continue
         member = decomposition.memberships[:, index]
         zone_heights = offsets[member, 0]
+        if decomposition.split == "length" and name in LENGTH_ZONES:
+            descriptions[name] = f"{share}, {_length_zone_words(decomposition, member, name)}"
+            continue
         if name in VERTICAL_ZONES:
             height_cm = 100.0 * (zone_heights.amax() - zone_heights.amin())
             descriptions[name] = f"{share}, {name} {height_cm:.1f} cm of the object's {extents_cm[0]:.1f} cm height"
@@ -307,7 +337,21 @@ def describe_zones(decomposition: ZoneDecomposition) -> dict[str, str]:
     return descriptions
 
 
-_PRIMARY_COLOURS = {"top": "tab:blue", "middle": "tab:green", "bottom": "tab:orange"}
+def _length_zone_words(decomposition: ZoneDecomposition, member: torch.Tensor, name: str) -> str:
+    """Where a third along a lying object's length is, and how wide it is across."""
+    along_axis = decomposition.length_axis_world
+    across_axis = torch.linalg.cross(decomposition.axes_world[:, 0], along_axis)
+    relative = decomposition.points_world - decomposition.centroid_world
+    along, across = relative @ along_axis, relative @ across_axis
+    length_cm = 100.0 * float(along.amax() - along.amin())
+    width_cm = 100.0 * float(across[member].amax() - across[member].amin())
+    if name == "middle":
+        return f"the middle third of the object's {length_cm:.1f} cm length (it lies on the table), {width_cm:.1f} cm across"
+    wider = "wider" if name == "wide_end" else "narrower"
+    return f"the {wider} end, one third of the object's {length_cm:.1f} cm length (it lies on the table), {width_cm:.1f} cm across"
+
+
+_PRIMARY_COLOURS = {"top": "tab:blue", "middle": "tab:green", "bottom": "tab:orange", "wide_end": "tab:blue", "narrow_end": "tab:orange"}
 _PROTRUSION_COLOURS = ("tab:red", "tab:brown", "tab:pink", "tab:gray", "tab:olive")
 _SIDE_COLOURS = {("left", "front"): "tab:purple", ("left", "back"): "tab:pink", ("right", "front"): "tab:cyan", ("right", "back"): "tab:olive"}
 
@@ -348,7 +392,8 @@ def plot_zones(
         if member.any():
             right_axes.scatter(*points[member].T, s=2, c=colour, label=f"{label} ({int(member.sum())})")
     subtitle = f" [degenerate: {decomposition.degenerate}]" if decomposition.degenerate else ""
-    for axes, heading in ((primary_axes, f"primary zones, {decomposition.protrusion_rule} rule"), (right_axes, right_heading)):
+    primary_heading = f"primary zones, {decomposition.split} thirds, {decomposition.protrusion_rule} protrusion rule"
+    for axes, heading in ((primary_axes, primary_heading), (right_axes, right_heading)):
         axes.set_title(f"{title} {heading}{subtitle}".strip())
         axes.set_xlabel("x (m)")
         axes.set_ylabel("y (m)")

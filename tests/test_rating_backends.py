@@ -285,8 +285,8 @@ def test_prior_covers_the_study_and_names_itself_a_prior():
     mug = rater.rate("025_mug", "mug", "t2", CROP, ZONES)
     assert mug.provenance.backend == "prior" and mug.provenance.outcome == "ok"
     assert mug.ratings["protrusion"] == "good" and "top" in mug.avoid and mug.max_tilt_deg == 15.0
-    drill = rater.rate("035_power_drill", "power drill", "t2", CROP, ZONES)
-    assert "protrusion" in drill.avoid
+    scissors = rater.rate("037_scissors", "scissors", "t2", CROP, ZONES)
+    assert scissors.prefers("wide_end") and scissors.level("narrow_end") == "dangerous"
     for object_id in STUDY_OBJECTS:
         for task in TASKS:
             assert not rater.rate(object_id, object_id, task, CROP, ZONES).is_neutral

@@ -11,7 +11,7 @@ from PIL import Image
 from sagp_batched.config import RatingConfig, ZonesConfig
 from sagp_batched.types import CameraData, PerceivedCloud
 from sagp_batched.vlm_direct import VLMDirectUnavailable, project_to_crop
-from sagp_batched.zone_marks import VERTICAL_ZONE_RGB, draw_zone_marks
+from sagp_batched.zone_marks import PRIMARY_ZONE_RGB, draw_zone_marks
 from sagp_batched.zones import decompose
 
 FOCAL_PX = 240.0 / math.tan(math.radians(30.0))
@@ -88,7 +88,7 @@ def test_a_side_view_shows_the_thirds_top_to_bottom_and_the_handle_on_its_side()
     # The dot of the lowest point lies where the camera projects it, in the bottom third's colour.
     lowest = int(torch.argmin(cloud.points_world[:, 2]))
     u, v = np.round(project_to_crop(cloud.points_world[lowest : lowest + 1], cloud)[0] * marks.scale).astype(int)
-    assert tuple(marks.image[v, u]) == VERTICAL_ZONE_RGB["bottom"]
+    assert tuple(marks.image[v, u]) == PRIMARY_ZONE_RGB["bottom"]
 
 
 def test_a_cloud_without_its_crop_box_cannot_be_marked():

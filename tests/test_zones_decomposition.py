@@ -192,7 +192,8 @@ def test_describe_zones_says_how_far_the_handle_sticks_out():
     points, _ = mug_cloud()
     zones = decompose(points)
     text = describe_zones(zones)
-    assert set(text) == set(zones.zone_names)
+    assert set(text) == {name for name, count in zones.zone_point_counts().items() if count}
+    assert "wide_end" not in text and zones.split == "vertical"
     assert "sticks out" in text["protrusion_1"] and "% of points" in text["top"]
     # The handle reaches 8.8 cm from the axis of a 4 cm body: 4.8 cm beyond its side.
     beyond_cm = float(text["protrusion_1"].split("reaching ")[1].split(" cm")[0])
@@ -238,7 +239,39 @@ def test_a_pitcher_handle_and_its_spout_are_zones_of_their_own():
     assert zones.zone_names[int(spout_zone)].startswith("protrusion_") and spout_zone != handle_zone
 
 
-def test_a_cloud_lying_flat_keeps_the_centroid_rule():
-    points = box_cloud(np.array([0.2, 0.05, 0.03])) + [0.5, 0.0, TABLE_Z + 0.015]
+def test_a_cloud_lying_flat_with_a_square_footprint_keeps_vertical_thirds_and_the_centroid_rule():
+    points = box_cloud(np.array([0.1, 0.09, 0.03])) + [0.5, 0.0, TABLE_Z + 0.015]
     zones = decompose(torch.tensor(points, dtype=torch.float32))
-    assert zones.protrusion_rule == "centroid"
+    assert zones.protrusion_rule == "centroid" and zones.split == "vertical"
+
+
+def scissors_cloud():
+    """Flat scissors-like object lying on the table along a diagonal: a 9 x 8 cm loop end and
+    a 10 x 1.5 cm blade, 1.5 cm thick. Returns world points and the loop-end mask."""
+    loops = box_cloud(np.array([0.09, 0.08, 0.015]), 3000) + [0.045, 0.0, 0.0]
+    blade = box_cloud(np.array([0.10, 0.015, 0.015]), 3000) + [-0.05, 0.0, 0.0]
+    local = np.concatenate([loops, blade])
+    yaw = Rotation.from_euler("z", 35, degrees=True)
+    return yaw.apply(local) + [0.5, 0.05, TABLE_Z + 0.0075], np.arange(len(local)) < len(loops)
+
+
+def test_an_elongated_object_lying_flat_is_split_along_its_length_and_its_ends_named_by_width():
+    points, loop_end = scissors_cloud()
+    zones = decompose(torch.tensor(points, dtype=torch.float32))
+    assert zones.split == "length" and zones.protrusion_rule == "none" and (zones.protrusion_label < 0).all()
+    names = np.array(zones.zone_names)[zones.point_zone.numpy()]
+    far_loops = loop_end & (Rotation.from_euler("z", -35, degrees=True).apply(points - [0.5, 0.05, 0])[:, 0] > 0.04)
+    assert (names[far_loops] == "wide_end").all()
+    assert (names[~loop_end] != "wide_end").all() and (names == "narrow_end").sum() > 1000
+    assert {"top", "bottom"}.isdisjoint(set(names))
+    text = describe_zones(zones)
+    assert "wider end" in text["wide_end"] and "narrower end" in text["narrow_end"] and "lies on the table" in text["middle"]
+    # The length axis runs along the object's 35 degree diagonal, toward the wide end.
+    assert float(zones.length_axis_world @ torch.tensor([math.cos(math.radians(35)), math.sin(math.radians(35)), 0.0])) > 0.99
+
+
+def test_the_published_vertical_thirds_stay_selectable_for_lying_objects():
+    points, _ = scissors_cloud()
+    zones = decompose(torch.tensor(points, dtype=torch.float32), ZonesConfig(length_split=False))
+    assert zones.split == "vertical" and zones.protrusion_rule == "centroid"
+    assert "wide_end" not in np.array(zones.zone_names)[zones.point_zone.numpy()]

@@ -54,3 +54,15 @@ def test_the_pitcher_handle_is_a_protrusion_zone_apart_from_any_other(pitcher):
         best = int(np.argmax([(labels[handle] == k).sum() for k in range(labels.max() + 1)]))
         assert shares[best] >= 0.8
         assert all(share < 0.5 for k, share in enumerate(shares) if k != best)
+
+
+@pytest.mark.parametrize("object_id", ["037_scissors", "051_large_clamp"])
+def test_lying_scissors_and_clamp_are_split_along_their_length_with_the_handles_at_the_wide_end(ycb_dir, object_id):
+    for zones, points_object in _captured(ycb_dir, object_id):
+        regions = region_membership(object_id, points_object)
+        handles, working_end = np.asarray(regions["in_functional_region"]), np.asarray(regions["in_avoid_region"])
+        names = np.array(zones.zone_names)[zones.point_zone.numpy()]
+        assert zones.split == "length"
+        # Loops and handle bars are the wide end, blades and jaws the narrow end, in every pose.
+        assert handles[names == "wide_end"].mean() >= 0.9 and (names[handles] == "wide_end").mean() >= 0.6
+        assert working_end[names == "narrow_end"].mean() >= 0.9 and not (names[working_end] == "wide_end").any()
