@@ -23,7 +23,9 @@ import torch
 PROTRUSION = "protrusion"
 VERTICAL_ZONES: tuple[str, ...] = ("top", "middle", "bottom")
 LENGTH_ZONES: tuple[str, ...] = ("wide_end", "middle", "narrow_end")
-ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "wide_end", "narrow_end", "left", "right", "front", "back", PROTRUSION)
+# Halves of the object seen from the robot: each crosses every third.
+SIDE_ZONES: tuple[str, ...] = ("left", "right", "front", "back")
+ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "wide_end", "narrow_end", *SIDE_ZONES, PROTRUSION)
 _NUMBERED_PROTRUSION = re.compile(r"protrusion_[1-9][0-9]*")
 
 

@@ -380,11 +380,19 @@ def test_the_oracle_rates_the_mug_handle_zone_good_and_is_labelled_an_upper_boun
     rng = np.random.default_rng(0)
     handle_points = rng.uniform(handle_box.min, handle_box.max, (50, 3))
     rim_points = rng.uniform(rim_box.min, rim_box.max, (50, 3))
-    zones = {"protrusion_1": handle_points, "top": np.concatenate([rim_points, handle_points[:10]]), "middle": np.zeros((30, 3))}
+    zones = {
+        "protrusion_1": handle_points, "top": np.concatenate([rim_points, handle_points[:10]]), "middle": np.zeros((30, 3)),
+        # Some rim, the rest elsewhere: bad. Rim and handle in equal shares: says nothing either way.
+        "bottom": np.concatenate([rim_points[:15], np.zeros((35, 3))]), "narrow_end": np.concatenate([rim_points[:20], handle_points[:15], np.zeros((15, 3))]),
+        # A side half crosses every third: not rated by its content.
+        "left": handle_points,
+    }
     rating = oracle.rate("025_mug", "mug", "t2", np.zeros((4, 4, 3), np.uint8), {}, zones)
     assert rating.level("protrusion_1") == "good" and rating.prefers("protrusion_1")
     assert rating.level("top") == "dangerous" and rating.avoids("top")
     assert rating.level("middle") == "acceptable" and rating.max_tilt_deg == 15.0
+    assert rating.level("bottom") == "bad" and rating.level("narrow_end") == "acceptable"
+    assert rating.level("left") == "acceptable" and not rating.prefers("left")
     assert oracle.rate("005_tomato_soup_can", "can", "t2", np.zeros((4, 4, 3), np.uint8), {}, zones).is_neutral
     assert "UPPER BOUND" in rater_note([{"rating": rating.provenance_dict()}])
 

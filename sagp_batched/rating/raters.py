@@ -18,6 +18,7 @@ import numpy as np
 from PIL import Image
 
 from ..config import RatingConfig
+from ..types import SIDE_ZONES
 from .parse import parse_zone_rating
 from .prompt import (
     ZONE_ANSWER_SCHEMA_NAME,
@@ -226,7 +227,12 @@ class OracleRater(Rater):
 
     It answers how far the zone layer can carry a perfect rater. A zone mostly (>= half its points)
     in the functional region is good and preferred, mostly in the avoid region dangerous and
-    avoided, partly (>= ``partial_share``) in the avoid region bad, else acceptable. An object
+    avoided, partly (>= ``partial_share``) in the avoid region and not as much in the functional
+    region bad, else acceptable. A zone holding a share of both says nothing about either; calling
+    it bad would, under the danger-dominates scoring, mark the good part it holds down with the
+    bad one. Side halves (left, right, front, back) are acceptable: each crosses every third, so a
+    half rated by its content would lend that rating to every third it crosses (the half of a
+    lying clamp that holds its handles would make its middle as good as its handle end). An object
     without annotations gets the neutral rating. Its ratings depend on the trial's zones, so they
     are never cached.
     """
@@ -256,6 +262,9 @@ class OracleRater(Rater):
         for zone, points in zone_points_object.items():
             if len(points) == 0:
                 continue
+            if zone in SIDE_ZONES:
+                ratings[zone] = "acceptable"
+                continue
             functional = float(annotation.contains("functional", points).mean())
             avoided = float(annotation.contains("avoid", points).mean())
             if functional >= self.majority_share:
@@ -265,7 +274,7 @@ class OracleRater(Rater):
                 ratings[zone] = "dangerous"
                 avoid.add(zone)
             else:
-                ratings[zone] = "bad" if avoided >= self.partial_share else "acceptable"
+                ratings[zone] = "bad" if avoided >= self.partial_share and functional < self.partial_share else "acceptable"
         return ZoneRating(
             ratings=ratings, preferred=frozenset(preferred), avoid=frozenset(avoid), approach="any", grasp_style="any",
             # The functional task's own tolerance (keep the object upright), not privileged knowledge.
