@@ -201,13 +201,17 @@ def test_describe_zones_says_how_far_the_handle_sticks_out():
     assert "robot's" not in text["protrusion_1"] and "above the object's lowest point" in text["protrusion_1"]
 
 
-def test_zone_picture_is_written(tmp_path):
+def test_zone_picture_draws_every_primary_zone_in_its_colour(tmp_path):
+    from picture_checks import TAB_RGB, pixels_of_colour
+
     points, _ = mug_cloud()
     path = plot_zones(decompose(points), tmp_path / "mug_zones.png", "mug")
-    from PIL import Image
-
-    with Image.open(path) as image:
-        assert image.size[0] > 500 and image.size[1] > 300
+    # top, middle, bottom and the handle (protrusion_1) each cover a visible patch of the picture.
+    for colour in ("blue", "green", "orange", "red"):
+        assert pixels_of_colour(path, TAB_RGB[colour]) > 500, colour
+    # A cloud without a protrusion draws no protrusion colour.
+    plain = plot_zones(decompose(torch.tensor(cylinder(0.04, 0.08, 3000, base=(0.5, 0.0, TABLE_Z)), dtype=torch.float32)), tmp_path / "can.png")
+    assert pixels_of_colour(plain, TAB_RGB["red"]) < 50
 
 
 def test_the_published_centroid_rule_stays_selectable_and_misses_most_of_a_handle():

@@ -1,7 +1,7 @@
 """``python -m runners.zones``: a YCB object placed, seen by the three cameras, and drawn by zone."""
 from __future__ import annotations
 
-from PIL import Image
+from picture_checks import TAB_RGB, pixels_of_colour
 
 from sagp_batched_runners.zones import main
 
@@ -9,8 +9,11 @@ from sagp_batched_runners.zones import main
 def test_zone_picture_of_a_placed_mug(ycb_dir, tmp_path, capsys):
     out = tmp_path / "mug_zones.png"
     assert main(["--object", "025_mug", "--objects-dir", str(ycb_dir), "--out", str(out), "--trial", "1"]) == 0
-    with Image.open(out) as image:
-        assert image.size[0] > 500
+    # The handle is drawn as protrusion_1 (red) among the zones on the left panel, and as the
+    # functional region (green) beside the rim's avoid region (red) on the right.
+    left, right = (0.0, 0.5), (0.5, 1.0)
+    assert pixels_of_colour(out, TAB_RGB["red"], columns=left) > 200
+    assert pixels_of_colour(out, TAB_RGB["green"], columns=right) > 200 and pixels_of_colour(out, TAB_RGB["red"], columns=right) > 200
     printed = capsys.readouterr().out
     assert "top:" in printed and "bottom:" in printed
 
