@@ -118,10 +118,10 @@ class PlannerConfig:
     occupancy_max_fraction: float = 0.12
     max_candidates: int = 200
     min_reach: float = 0.5
-    # 20 iterations x 2 seeds: 4,700 grasp targets/s at 81 % success on YCB grasp poses versus
-    # 1,300/s at 85 % for 60 x 4 (runners.bench, 1 thread); missed targets fall back to the next approach.
-    ik_max_iterations: int = 20
-    ik_num_retries: int = 2
+    # Grasp IK solves the Panda's closed form at this many joint-7 values evenly spread over its
+    # range, and at the finer count for targets that none of them reaches (a narrow joint-7 window).
+    ik_q7_samples: int = 16
+    ik_q7_fine_samples: int = 128
     ik_pos_tolerance_m: float = 0.005
     ik_rot_tolerance_rad: float = 0.05
     seed: int = 0
@@ -151,22 +151,20 @@ class PlannerConfig:
     # (candidate, approach, point) triples the occupancy check holds at once: chunks of ~3 MB of
     # float32 coordinates stay in cache and measured 2x faster than 4M-element chunks.
     occupancy_chunk_elements: int = 262_144
-    # IK retries start from these Panda arm configurations (radians), joint 1 turned toward each
-    # target: two top-down "ready" wrists 90 deg apart, and two lower forward reaches for side grasps.
-    ik_seed_configurations: tuple[tuple[float, ...], ...] = (
-        (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785),
-        (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, -0.785),
-        (0.0, 0.3, 0.0, -2.2, 0.0, 2.5, 0.785),
-        (0.0, 0.3, 0.0, -2.2, 0.0, 2.5, -0.785),
-    )
-    # Clamped refinement steps pytorch-kinematics runs after solving to pull solutions inside the limits.
-    ik_limit_refinement_iterations: int = 5
+    # Among a grasp's IK solutions the one nearest in joint space to this posture (Franka's "ready"
+    # pose, hand down over the table), joint 1 turned toward the target, is kept: the branch a local
+    # solver started from it would reach, so motions continue from a familiar arm posture.
+    ik_reference_joints: tuple[float, ...] = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
+    # Damped-least-squares steps for the rare closed-form answer that float32 forward kinematics
+    # puts outside the tolerance (rounding next to a singularity).
+    ik_polish_iterations: int = 3
     # The whole executed motion (pre-grasp, descent, lift) is solved from the grasp solution by
     # damped least squares: waypoints lie at most 20 cm from the grasp; on captured YCB grasps 4
     # steps bring every waypoint within 0.01 mm (3 steps: 0.5 mm, 2 steps miss 15 %).
     path_ik_iterations: int = 5
-    # Damping of those steps (rad-scale): keeps steps bounded near singular wrist poses.
-    path_ik_damping: float = 0.01
+    # Damping of the damped-least-squares steps of path IK and grasp polish (rad-scale): keeps
+    # steps bounded near singular wrist poses.
+    ik_damping: float = 0.01
     # The hand's collision hulls (derived from the robot URDF) swept along the descent must keep
     # this far from every object and obstacle point: the cloud's 3 mm voxels put the true surface
     # up to ~2 mm from its points.

@@ -17,7 +17,7 @@ def ik():
 def _reachable_targets(ik, n, seed):
     """Poses the arm provably reaches: forward kinematics of joints inside the limits, near the table."""
     generator = torch.Generator().manual_seed(seed)
-    ready = torch.tensor(ik.config.ik_seed_configurations[0])
+    ready = torch.tensor(ik.config.ik_reference_joints)
     joints = (ready + 0.4 * torch.randn(n, 7, generator=generator)).clamp(ik.lower, ik.upper)
     return ik.forward(joints)
 
