@@ -36,6 +36,10 @@ from typing import NamedTuple
 import torch
 
 N_BRANCHES = 8  # 2 elbow (q4) x 2 forearm (q5) x 2 shoulder (q2) branches per q7
+# A cosine or sine this far beyond +-1 still counts as a real solution at the extreme (straight elbow,
+# q5 = +-pi/2): float32 rounding of a pose FK produced there overshoots by ~1e-7, and the clamped
+# answer misses the pose by under 2 um.
+ROUNDING_SLACK = 1e-5
 
 
 class PandaArmGeometry(NamedTuple):
@@ -117,7 +121,7 @@ def panda_ik_closed_form(
     elbow_ratio = (shoulder_to_wrist.square().sum(dim=-1) - length_sq) / (2.0 * amplitude)  # (N, K)
     elbow_spread = torch.acos(elbow_ratio.clamp(-1.0, 1.0))
     q4, q4_inside = _into_limits(_wrap(phase + torch.stack((-elbow_spread, elbow_spread), dim=-1)), lower[3], upper[3])
-    elbow_ok = q4_inside & (elbow_ratio.abs() <= 1.0)[..., None]  # (N, K, 2)
+    elbow_ok = q4_inside & (elbow_ratio.abs() <= 1.0 + ROUNDING_SLACK)[..., None]  # (N, K, 2)
     cos4, sin4 = torch.cos(q4), torch.sin(q4)
     u_x = -a3 * cos4 - d3 * sin4 - a4  # O2 - O5 in frame 4, (N, K, 2)
     u_y = a3 * sin4 - d3 * cos4 - d5
@@ -125,7 +129,7 @@ def panda_ik_closed_form(
     # Forearm: s = R6^T (O2 - O6).
     s_x, s_y, s_z = (-(shoulder_to_wrist * axis).sum(dim=-1) for axis in (x6, y6, z6))  # (N, K)
     sin5 = s_z[..., None] / u_x  # (N, K, 2)
-    elbow_ok = elbow_ok & (sin5.abs() <= 1.0)  # both forearm branches are real or neither
+    elbow_ok = elbow_ok & (sin5.abs() <= 1.0 + ROUNDING_SLACK)  # both forearm branches are real or neither
     asin5 = torch.asin(sin5.clamp(-1.0, 1.0))
     q5, q5_inside = _into_limits(_wrap(torch.stack((asin5, math.pi - asin5), dim=-1)), lower[4], upper[4])  # (N, K, 2, 2)
     cos5, sin5 = torch.cos(q5), torch.sin(q5)
