@@ -15,8 +15,9 @@ Solution, for a target pose (R7, O7) of frame 7 and a chosen q7:
 * Wrist: frame 6 follows from frame 7 and q7 alone (x6 = cos q7 x7 - sin q7 y7, y6 = -z7), and
   O6 = O7 - a6 x6. Frames 5 and 6 share their origin.
 * Elbow: the shoulder O2 = (0, 0, d1) is fixed, and |O6 - O2| depends on q4 alone (upper arm (a3, 0, d3)
-  in frame 3, forearm (a4, d5, 0) in frame 4), so the law of cosines gives q4 = phi +- acos(...):
-  two elbow branches, both inside the limits for a nearly straight elbow.
+  in frame 3, forearm (a4, d5, 0) in frame 4), so the law of cosines gives q4 = phi +- acos(...)
+  with phi = -0.47 rad on the Panda: two elbow branches, both inside q4's limits [-3.07, -0.07]
+  (-pi..0 in pybullet_data's URDF) when the elbow is within 0.47 rad of straight.
 * Forearm: u = O2 - O5 in frame 4 is known once q4 is (its z component is 0), and
   s = R6^T (O2 - O6) = Rz(-q6) Rx(-pi/2) Rz(-q5) Rx(pi/2) u = (c6 c5 ux + s6 uy, -s6 c5 ux + c6 uy, s5 ux),
   so sin q5 = s_z / ux (two branches) and q6 = atan2(uy, c5 ux) - atan2(s_y, s_x).
@@ -73,7 +74,9 @@ def _into_limits(angle: torch.Tensor, lower: float, upper: float) -> tuple[torch
     return shifted, (shifted >= lower) & (shifted <= upper)
 
 
-def _rotate_z(cos: torch.Tensor, sin: torch.Tensor, x, y, z):
+def _rotate_z(
+    cos: torch.Tensor, sin: torch.Tensor, x: torch.Tensor, y: torch.Tensor, z: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Components of Rz(angle) (x, y, z), given cos and sin of the angle (broadcasting tensors)."""
     return cos * x - sin * y, sin * x + cos * y, z
 
@@ -97,11 +100,10 @@ def panda_ik_closed_form(
 
     Returns:
         ``PandaIKSolutions`` with (N, K, 8, 7) joints and an (N, K, 8) validity mask, in the
-        inputs' dtype (float64 keeps the solutions within ~1e-9 rad of exact even next to the
+        inputs' dtype (float64 keeps the solutions within ~1e-7 rad of exact even next to the
         singularities, where float32 input rounding alone moves them by ~1e-3 rad).
         Branch b uses elbow branch b // 4, forearm branch (b // 2) % 2 and shoulder branch b % 2.
     """
-    g = geometry
     n_targets, n_q7 = q7.shape
     lower, upper = lower.tolist(), upper.tolist()
     q7 = q7.to(rotation_link7.dtype)
@@ -110,11 +112,11 @@ def panda_ik_closed_form(
     x6 = cos7 * x7 - sin7 * y7  # (N, K, 3)
     y6 = (-z7).expand_as(x6)
     z6 = torch.linalg.cross(x6, y6)
-    shoulder = position_link7.new_tensor([0.0, 0.0, g.shoulder_height_m])
-    shoulder_to_wrist = position_link7[:, None, :] - g.wrist_offset_m * x6 - shoulder  # O6 - O2, (N, K, 3)
+    shoulder = position_link7.new_tensor([0.0, 0.0, geometry.shoulder_height_m])
+    shoulder_to_wrist = position_link7[:, None, :] - geometry.wrist_offset_m * x6 - shoulder  # O6 - O2, (N, K, 3)
 
     # Elbow: |O6 - O2|^2 = L + 2 (A cos q4 + B sin q4) with the constants below.
-    a3, d3, a4, d5 = g.elbow_offset_m, g.upper_arm_m, g.elbow_return_m, g.forearm_m
+    a3, d3, a4, d5 = geometry.elbow_offset_m, geometry.upper_arm_m, geometry.elbow_return_m, geometry.forearm_m
     length_sq = a3**2 + d3**2 + a4**2 + d5**2
     coeff_cos, coeff_sin = a3 * a4 + d3 * d5, d3 * a4 - a3 * d5
     amplitude, phase = math.hypot(coeff_cos, coeff_sin), math.atan2(coeff_sin, coeff_cos)
@@ -128,9 +130,9 @@ def panda_ik_closed_form(
 
     # Forearm: s = R6^T (O2 - O6).
     s_x, s_y, s_z = (-(shoulder_to_wrist * axis).sum(dim=-1) for axis in (x6, y6, z6))  # (N, K)
-    sin5 = s_z[..., None] / u_x  # (N, K, 2)
-    elbow_ok = elbow_ok & (sin5.abs() <= 1.0 + ROUNDING_SLACK)  # both forearm branches are real or neither
-    asin5 = torch.asin(sin5.clamp(-1.0, 1.0))
+    sin5_needed = s_z[..., None] / u_x  # (N, K, 2)
+    elbow_ok = elbow_ok & (sin5_needed.abs() <= 1.0 + ROUNDING_SLACK)  # both forearm branches are real or neither
+    asin5 = torch.asin(sin5_needed.clamp(-1.0, 1.0))
     q5, q5_inside = _into_limits(_wrap(torch.stack((asin5, math.pi - asin5), dim=-1)), lower[4], upper[4])  # (N, K, 2, 2)
     cos5, sin5 = torch.cos(q5), torch.sin(q5)
     q6 = _wrap(torch.atan2(u_y[..., None], cos5 * u_x[..., None]) - torch.atan2(s_y, s_x)[..., None, None])
@@ -141,8 +143,8 @@ def panda_ik_closed_form(
 
     # Shoulder: R03 = R6 R36^T, R36 = Rx(pi/2) Rz(q4) Rx(-pi/2) Rz(q5) Rx(pi/2) Rz(q6) = Ry(-q4) Rz(q5) Rx(pi/2) Rz(q6).
     # Row 2 of R03 is R36 applied to the base z axis in frame 6; column 2 is R6 R36^T e_z.
-    g_x, g_y, g_z = (axis[..., 2, None, None] for axis in (x6, y6, z6))
-    x, y, z = _rotate_z(cos6, sin6, g_x, g_y, g_z)
+    up_x, up_y, up_z = (axis[..., 2, None, None] for axis in (x6, y6, z6))  # base z axis in frame 6
+    x, y, z = _rotate_z(cos6, sin6, up_x, up_y, up_z)
     x, y, z = _rotate_z(cos5, sin5, x, -z, y)  # Rx(pi/2) first
     r20, r21, r22 = cos4 * x - sin4 * z, y, sin4 * x + cos4 * z  # Ry(-q4)
     x, y, z = cos5 * sin4, -sin5 * sin4, cos4  # Rz(-q5) Ry(q4) e_z
@@ -160,14 +162,14 @@ def panda_ik_closed_form(
         r10 = x * x6[..., 1, None, None] + y * y6[..., 1, None, None] + z * z6[..., 1, None, None]
         half_sum = 0.5 * torch.atan2(r10, r00)
         q1_up, q3_up = torch.where(aligned, half_sum, q1_up), torch.where(aligned, half_sum, q3_up)
-    shoulder_down = aligned[..., None] & torch.tensor([False, True])  # the "down" branch repeats the aligned solution
+    shoulder_down = aligned[..., None] & torch.tensor([False, True], device=aligned.device)  # the "down" branch repeats the aligned solution
     q1 = torch.where(shoulder_down, q1_up[..., None], _wrap(torch.stack((q1_up, q1_up + math.pi), dim=-1)))
     q3 = torch.where(shoulder_down, q3_up[..., None], _wrap(torch.stack((q3_up, q3_up + math.pi), dim=-1)))
     q2 = torch.stack((q2_magnitude, -q2_magnitude), dim=-1)  # (N, K, 2, 2, 2)
     (q1, q1_inside), (q2, q2_inside), (q3, q3_inside) = (
         _into_limits(angle, lower[joint], upper[joint]) for joint, angle in enumerate((q1, q2, q3))
     )
-    _, q7_inside = _into_limits(q7, lower[6], upper[6])
+    q7_inside = (q7 >= lower[6]) & (q7 <= upper[6])
     valid = q1_inside & q2_inside & q3_inside & arm_ok[..., None] & q7_inside[..., None, None, None]
 
     shape = q1.shape

@@ -27,8 +27,11 @@ PANDA_URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
 END_LINK = "panda_grasptarget"
 LAST_ARM_LINK = "panda_link7"
 N_ARM_JOINTS = 7
-# The closed form holds for joint frames of this shape (modified Denavit-Hartenberg twist angles).
+# The closed form holds for joint frames of this shape: modified Denavit-Hartenberg twist angles,
+# and the a and d entries it models (all others zero).
 _PANDA_TWIST_RAD = (0.0, -math.pi / 2, math.pi / 2, math.pi / 2, -math.pi / 2, math.pi / 2, math.pi / 2)
+_MODELLED_A = (False, False, False, True, True, False, True)
+_MODELLED_D = (True, False, True, False, True, False, False)
 
 
 @dataclass
@@ -60,7 +63,7 @@ def panda_arm_geometry(chain: pk.SerialChain) -> PandaArmGeometry:
     """The link offsets of ``chain``'s seven arm joints, checked against the frame layout the closed form assumes.
 
     Each joint frame's offset from its parent must be Rx(alpha) Tx(a) Tz(d) with the Panda's twist
-    angles alpha and the a, d entries the closed form uses (all others zero).
+    angles alpha, and a and d zero wherever the closed form does not model them.
     """
     joint_names = chain.get_joint_parameter_names()
     if len(joint_names) != N_ARM_JOINTS:
@@ -69,19 +72,17 @@ def panda_arm_geometry(chain: pk.SerialChain) -> PandaArmGeometry:
     a, d = [], []
     for offset, twist in zip(offsets, _PANDA_TWIST_RAD):
         cos, sin = math.cos(twist), math.sin(twist)
-        expected_rotation = torch.tensor([[1.0, 0.0, 0.0], [0.0, cos, -sin], [0.0, sin, cos]], dtype=torch.float64)
-        link_in_parent = expected_rotation.T @ offset[:3, 3]  # (a, 0, d) for a modified DH frame
-        if not torch.allclose(offset[:3, :3], expected_rotation, atol=1e-6) or abs(float(link_in_parent[1])) > 1e-6:
-            raise ValueError(f"joint frames of {PANDA_URDF.name} do not match the Panda layout the closed-form IK assumes")
-        a.append(float(link_in_parent[0]))
-        d.append(float(link_in_parent[2]))
-    geometry = PandaArmGeometry(
+        twist_rotation = torch.tensor([[1.0, 0.0, 0.0], [0.0, cos, -sin], [0.0, sin, cos]], dtype=torch.float64)
+        a_0_d = twist_rotation.T @ offset[:3, 3]
+        if not torch.allclose(offset[:3, :3], twist_rotation, atol=1e-6) or abs(float(a_0_d[1])) > 1e-6:
+            raise ValueError("the chain's joint frames do not match the Panda layout the closed-form IK assumes")
+        a.append(float(a_0_d[0]))
+        d.append(float(a_0_d[2]))
+    if any(abs(value) > 1e-6 for value, modelled in zip(a + d, _MODELLED_A + _MODELLED_D) if not modelled):
+        raise ValueError("the chain's joint frames carry offsets the closed-form IK does not model")
+    return PandaArmGeometry(
         shoulder_height_m=d[0], upper_arm_m=d[2], elbow_offset_m=a[3], elbow_return_m=a[4], forearm_m=d[4], wrist_offset_m=a[6]
     )
-    used = {(0, "d"), (2, "d"), (3, "a"), (4, "a"), (4, "d"), (6, "a")}
-    if any(abs(value) > 1e-6 for i in range(N_ARM_JOINTS) for key, value in (("a", a[i]), ("d", d[i])) if (i, key) not in used):
-        raise ValueError(f"joint frames of {PANDA_URDF.name} carry offsets the closed-form IK does not model")
-    return geometry
 
 
 class PandaIK:

@@ -1,5 +1,6 @@
 """The closed-form Panda IK reproduces pytorch-kinematics' kinematics of the pybullet_data Panda."""
 import pytest
+import pytorch_kinematics as pk
 import torch
 
 from sagp_batched.ik import LAST_ARM_LINK, N_ARM_JOINTS, _panda_chain, panda_arm_geometry
@@ -74,3 +75,12 @@ def test_a_pose_beyond_reach_has_no_valid_solution(chain64, limits):
     q7 = torch.linspace(float(limits[0][6]), float(limits[1][6]), 64, dtype=torch.float64).expand(50, 64)
     solutions = panda_ik_closed_form(pose[:, :3, :3], far, q7, geometry, *limits)
     assert not solutions.valid.any()
+
+
+def test_a_chain_with_a_different_joint_layout_is_refused():
+    chain = _panda_chain()
+    frame = chain.find_frame("panda_link3")
+    # A 5 cm offset between joints 2 and 3 along x (a2), which the Panda lacks.
+    frame.joint.offset = frame.joint.offset.compose(pk.Transform3d(pos=torch.tensor([0.05, 0.0, 0.0])))
+    with pytest.raises(ValueError, match="does not model"):
+        panda_arm_geometry(chain)
