@@ -161,6 +161,13 @@ class PlannerConfig:
     # Damped-least-squares steps for closed-form answers that float32 forward kinematics puts
     # outside the tolerance: none at 5 mm, ~1 % at a 1 um tolerance, which 3 steps bring inside.
     ik_polish_iterations: int = 3
+    # Grasp solutions at least this far from every joint limit (or as far as the preferred posture
+    # is) are chosen before nearer ones: the motion check's path IK clamps at the limits. Summed
+    # over 3 seeds of the cracker box, soup can and mug at 5,000 pairs, motion-check rejections
+    # were 460 without a margin and 273 at 0.4 rad (0.2: 358, 0.3: 323, 0.6: 392, measured before
+    # the 0.01 rad rounding allowance); the iterative solver this replaced had 234 motion and
+    # 1,182 grasp-IK rejections, against 473 grasp-IK rejections now.
+    ik_limit_margin_rad: float = 0.4
     # The whole executed motion (pre-grasp, descent, lift) is solved from the grasp solution by
     # damped least squares: waypoints lie at most 20 cm from the grasp; on captured YCB grasps 4
     # steps bring every waypoint within 0.01 mm (3 steps: 0.5 mm, 2 steps miss 15 %).

@@ -142,19 +142,30 @@ class PandaIK:
     def _closed_form_nearest(
         self, rotation_link7: torch.Tensor, position_link7: torch.Tensor, q7_grid: torch.Tensor, preferred: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(M, 7) float64 closed-form solution nearest to ``preferred`` (M, 7) per target, and (M,) bool: one exists.
+        """(M, 7) float64 closed-form solution per target, and (M,) bool: one exists.
 
-        Joint 7 takes the (K,) ``q7_grid`` values and the preferred posture's own, which the
-        nearest solution most often has.
+        The solution nearest in joint space to ``preferred`` (M, 7) among those keeping
+        ``ik_limit_margin_rad`` from every joint limit (or as far as ``preferred`` itself keeps, if
+        less), else among all. Joint 7 takes the (K,) ``q7_grid`` values and the preferred
+        posture's own, which the nearest solution most often has.
         """
         preferred = preferred.double()
         q7 = torch.cat((preferred[:, 6:], q7_grid.expand(len(preferred), -1)), dim=1)
         solutions = panda_ik_closed_form(rotation_link7, position_link7, q7, self.arm_geometry, self.lower, self.upper)
         candidates = solutions.joints.flatten(1, 2)  # (M, (K + 1) * 8, 7)
-        distance = (candidates - preferred[:, None]).square().sum(dim=-1)
         valid = solutions.valid.flatten(1)
-        nearest = distance.masked_fill(~valid, float("inf")).argmin(dim=1)
+        # Less 0.01 rad, so that float32 rounding of a target does not rule out the preferred posture itself.
+        required_margin = self._limit_margin(preferred).clamp_max(self.config.ik_limit_margin_rad) - 0.01
+        near_limit = self._limit_margin(candidates) < required_margin[:, None]
+        # Squared joint distances stay under 7 (2 pi)^2 < 300: the offset ranks every solution
+        # clear of the limits before any near them.
+        rank_key = (candidates - preferred[:, None]).square().sum(dim=-1) + 300.0 * near_limit
+        nearest = rank_key.masked_fill(~valid, float("inf")).argmin(dim=1)
         return candidates[torch.arange(len(candidates)), nearest], valid.any(dim=1)
+
+    def _limit_margin(self, joints: torch.Tensor) -> torch.Tensor:
+        """(...) smallest distance (rad) of any joint of (..., 7) ``joints`` from its limits."""
+        return torch.minimum(joints - self.lower.to(joints.dtype), self.upper.to(joints.dtype) - joints).amin(dim=-1)
 
     def solve(
         self,
@@ -172,9 +183,10 @@ class PandaIK:
 
         Returns:
             ``IKResult``; per target the closed-form solution inside the limits nearest in joint
-            space to the preferred posture (``preferred_joints``), over ``ik_q7_samples`` values of
-            joint 7 (``ik_q7_fine_samples`` for targets with none), judged by pk's forward
-            kinematics. A target without any solution keeps the preferred posture and its errors.
+            space to the preferred posture (``preferred_joints``), preferring those clear of the
+            limits by ``ik_limit_margin_rad``, over ``ik_q7_samples`` values of joint 7
+            (``ik_q7_fine_samples`` for targets with none), judged by pk's forward kinematics. A
+            target without any solution keeps the preferred posture and its errors.
         """
         n_targets = positions_world.shape[0]
         if positions_world.shape != (n_targets, 3) or rotations_world.shape != (n_targets, 3, 3):
