@@ -120,9 +120,10 @@ class PlannerConfig:
     min_reach: float = 0.5
     # Grasp IK solves the Panda's closed form at this many joint-7 values evenly spread over its
     # range (plus the reference posture's), and at the finer count for targets that none of them
-    # reaches (a narrow joint-7 window). On FK of 2,000 random in-limit configurations (1 thread,
-    # 2 shared cores) 8-16 samples all solve 99.95 % at ~40,000 targets/s, 24 drop to ~30,000/s;
-    # a 256 fine grid found the one target 128 misses (a 0.012 rad window between two joint limits).
+    # reaches (a narrow joint-7 window). On FK of 2,000 random in-limit configurations (1 thread)
+    # 8 to 24 samples all solve 99.95 %; 16 run ~28,000 targets/s and 12 ~35,000/s, but with 12 the
+    # motion check rejects 308 grasps instead of 273 (the sum under ik_limit_margin_rad). A 256
+    # fine grid found the one target 128 misses (a 0.012 rad window between two joint limits).
     ik_q7_samples: int = 16
     ik_q7_fine_samples: int = 128
     ik_pos_tolerance_m: float = 0.005
