@@ -26,7 +26,7 @@ def _link7_pose(chain64, joints):
     return chain64.forward_kinematics(joints, end_only=False)[LAST_ARM_LINK].get_matrix()
 
 
-def test_arm_geometry_is_read_from_the_urdf_chain(chain64):
+def test_arm_geometry_is_read_from_the_urdf_chain():
     geometry = panda_arm_geometry(_panda_chain())
     expected = (0.333, 0.316, 0.0825, -0.0825, 0.384, 0.088)  # Franka's published Denavit-Hartenberg a and d
     assert geometry == pytest.approx(expected, abs=1e-6)
