@@ -1,9 +1,11 @@
-"""Batched Panda inverse kinematics with pytorch-kinematics, for reachability scoring.
+"""Batched Panda inverse kinematics for reachability scoring: closed form, checked by pytorch-kinematics.
 
-All targets of a planning call are solved in one batched damped-least-squares run
-(``pytorch_kinematics.PseudoInverseIK``). Retry seeds are deterministic: the configured Panda
-configurations with joint 1 turned toward each target, so the same targets always give the same
-solutions.
+Grasp poses are solved by the Panda's closed form (``sagp_batched_kernels.panda_ik``) over a grid
+of joint-7 values, for all targets of a planning call at once; per target the solution nearest to a
+deterministic reference posture is kept, so the same targets always give the same joints. Every
+answer is then judged by pytorch-kinematics' forward kinematics, and the rare one that misses the
+tolerance (float32 rounding next to a singularity) is polished by damped-least-squares steps on
+pytorch-kinematics' Jacobian. The arm's link offsets are read from the same chain.
 """
 from __future__ import annotations
 
@@ -16,12 +18,20 @@ import pybullet_data
 import pytorch_kinematics as pk
 import torch
 
+from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form
+
 from .config import PlannerConfig, SceneConfig
 from .hand import quiet_urdf
 
 PANDA_URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
 END_LINK = "panda_grasptarget"
+LAST_ARM_LINK = "panda_link7"
 N_ARM_JOINTS = 7
+# The closed form holds for joint frames of this shape: modified Denavit-Hartenberg twist angles,
+# and the a and d entries it models (all others zero).
+_PANDA_TWIST_RAD = (0.0, -math.pi / 2, math.pi / 2, math.pi / 2, -math.pi / 2, math.pi / 2, math.pi / 2)
+_MODELLED_A = (False, False, False, True, True, False, True)
+_MODELLED_D = (True, False, True, False, True, False, False)
 
 
 @dataclass
@@ -49,6 +59,32 @@ def _panda_chain() -> pk.SerialChain:
     return quiet_urdf(lambda text: pk.build_serial_chain_from_urdf(text, END_LINK), PANDA_URDF)
 
 
+def panda_arm_geometry(chain: pk.SerialChain) -> PandaArmGeometry:
+    """The link offsets of ``chain``'s seven arm joints, checked against the frame layout the closed form assumes.
+
+    Each joint frame's offset from its parent must be Rx(alpha) Tx(a) Tz(d) with the Panda's twist
+    angles alpha, and a and d zero wherever the closed form does not model them.
+    """
+    joint_names = chain.get_joint_parameter_names()
+    if len(joint_names) != N_ARM_JOINTS:
+        raise ValueError(f"expected {N_ARM_JOINTS} arm joints, got {joint_names}")
+    offsets = [chain.find_frame(name).joint.offset.get_matrix()[0].double() for name in chain.get_frame_names()]
+    a, d = [], []
+    for offset, twist in zip(offsets, _PANDA_TWIST_RAD):
+        cos, sin = math.cos(twist), math.sin(twist)
+        twist_rotation = torch.tensor([[1.0, 0.0, 0.0], [0.0, cos, -sin], [0.0, sin, cos]], dtype=torch.float64)
+        a_0_d = twist_rotation.T @ offset[:3, 3]
+        if not torch.allclose(offset[:3, :3], twist_rotation, atol=1e-6) or abs(float(a_0_d[1])) > 1e-6:
+            raise ValueError("the chain's joint frames do not match the Panda layout the closed-form IK assumes")
+        a.append(float(a_0_d[0]))
+        d.append(float(a_0_d[2]))
+    if any(abs(value) > 1e-6 for value, modelled in zip(a + d, _MODELLED_A + _MODELLED_D) if not modelled):
+        raise ValueError("the chain's joint frames carry offsets the closed-form IK does not model")
+    return PandaArmGeometry(
+        shoulder_height_m=d[0], upper_arm_m=d[2], elbow_offset_m=a[3], elbow_return_m=a[4], forearm_m=d[4], wrist_offset_m=a[6]
+    )
+
+
 class PandaIK:
     """Inverse kinematics of the Panda arm to ``panda_grasptarget``, batched over targets.
 
@@ -56,31 +92,23 @@ class PandaIK:
     """
 
     def __init__(self, config: PlannerConfig, robot_base_xyz_m: Sequence[float] = SceneConfig.robot_base_xyz_m):
-        if not 1 <= config.ik_num_retries <= len(config.ik_seed_configurations):
-            raise ValueError(
-                f"planner.ik_num_retries={config.ik_num_retries} must be between 1 and the number of "
-                f"planner.ik_seed_configurations ({len(config.ik_seed_configurations)})"
-            )
-        seeds = torch.tensor(config.ik_seed_configurations[: config.ik_num_retries], dtype=torch.float32)
-        if seeds.shape[1] != N_ARM_JOINTS:
-            raise ValueError(f"planner.ik_seed_configurations must hold {N_ARM_JOINTS} joint values each, got {seeds.shape[1]}")
+        reference = torch.tensor(config.ik_reference_joints, dtype=torch.float32)
+        if reference.shape != (N_ARM_JOINTS,):
+            raise ValueError(f"planner.ik_reference_joints must hold {N_ARM_JOINTS} joint values, got {len(config.ik_reference_joints)}")
         self.config = config
         self.chain = _panda_chain()
         self.lower, self.upper = (torch.tensor(bound, dtype=torch.float32) for bound in self.chain.get_joint_limits())
-        self.seed_configurations = seeds.clamp(self.lower, self.upper)
+        self.reference_joints = reference.clamp(self.lower, self.upper)
         self.base_xyz_world = torch.tensor(robot_base_xyz_m, dtype=torch.float32)
-        self.solver = pk.PseudoInverseIK(
-            self.chain,
-            retry_configs=self.seed_configurations,
-            joint_limits=torch.stack((self.lower, self.upper), dim=1),
-            max_iterations=config.ik_max_iterations,
-            pos_tolerance=config.ik_pos_tolerance_m,
-            rot_tolerance=config.ik_rot_tolerance_rad,
-            # Stop a target as soon as one retry converges: most planner targets converge in a
-            # few iterations from a good seed, and measured ~3x faster overall on 2 cores.
-            early_stopping_any_converged=True,
-            num_limit_refinement_iterations=config.ik_limit_refinement_iterations,
-        )
+        self.arm_geometry = panda_arm_geometry(self.chain)
+        # The closed form runs in float64: near its singularities (elbow straight at its extreme,
+        # sin q5 = +-1) float32 input rounding alone moves the answer by ~1e-3 rad.
+        chain64 = _panda_chain().to(dtype=torch.float64)  # ``to`` converts in place: a chain of its own
+        frames = chain64.forward_kinematics(torch.zeros(1, N_ARM_JOINTS, dtype=torch.float64), end_only=False)
+        link7_in_target = frames[END_LINK].get_matrix()[0].inverse() @ frames[LAST_ARM_LINK].get_matrix()[0]
+        self._link7_in_target = link7_in_target  # (4, 4): fixed flange, hand and grasp-target offsets
+        self._q7_grid = torch.linspace(float(self.lower[6]), float(self.upper[6]), config.ik_q7_samples, dtype=torch.float64)
+        self._q7_fine_grid = torch.linspace(float(self.lower[6]), float(self.upper[6]), config.ik_q7_fine_samples, dtype=torch.float64)
 
     def forward(self, joints: torch.Tensor) -> torch.Tensor:
         """(N, 7) arm joints -> (N, 4, 4) pose of ``panda_grasptarget`` in the world frame."""
@@ -101,14 +129,43 @@ class PandaIK:
             lowest = torch.minimum(lowest, heights.amin(dim=1))
         return lowest + self.base_xyz_world[2]
 
-    def _retry_seeds(self, positions_base: torch.Tensor, seed_joints: torch.Tensor | None) -> torch.Tensor:
-        """(N, R, 7) per-target retry seeds: the configured seeds turned toward the target."""
-        azimuth = torch.atan2(positions_base[:, 1], positions_base[:, 0])
-        seeds = self.seed_configurations.unsqueeze(0).repeat(positions_base.shape[0], 1, 1)
-        seeds[:, :, 0] = (seeds[:, :, 0] + azimuth[:, None]).clamp(self.lower[0], self.upper[0])
+    def preferred_joints(self, positions_base: torch.Tensor, seed_joints: torch.Tensor | None) -> torch.Tensor:
+        """(N, 7) posture each target's solution should stay near: ``seed_joints`` if given, else the
+        reference joints with joint 1 turned toward the target (``positions_base``: (N, 3), base frame)."""
         if seed_joints is not None:
-            seeds[:, 0] = seed_joints.to(torch.float32).clamp(self.lower, self.upper)
-        return seeds
+            return seed_joints.to(torch.float32).clamp(self.lower, self.upper)
+        preferred = self.reference_joints.repeat(positions_base.shape[0], 1)
+        azimuth = torch.atan2(positions_base[:, 1], positions_base[:, 0])
+        preferred[:, 0] = (preferred[:, 0] + azimuth).clamp(self.lower[0], self.upper[0])
+        return preferred
+
+    def _closed_form_nearest(
+        self, rotation_link7: torch.Tensor, position_link7: torch.Tensor, q7_grid: torch.Tensor, preferred: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, 7) float64 closed-form solution per target, and (M,) bool: one exists.
+
+        The solution nearest in joint space to ``preferred`` (M, 7) among those keeping
+        ``ik_limit_margin_rad`` from every joint limit (or as far as ``preferred`` itself keeps, if
+        less), else among all. Joint 7 takes the (K,) ``q7_grid`` values and the preferred
+        posture's own, which the nearest solution most often has.
+        """
+        preferred = preferred.double()
+        q7 = torch.cat((preferred[:, 6:], q7_grid.expand(len(preferred), -1)), dim=1)
+        solutions = panda_ik_closed_form(rotation_link7, position_link7, q7, self.arm_geometry, self.lower, self.upper)
+        candidates = solutions.joints.flatten(1, 2)  # (M, (K + 1) * 8, 7)
+        valid = solutions.valid.flatten(1)
+        # Less 0.01 rad, so that float32 rounding of a target does not rule out the preferred posture itself.
+        required_margin = self._limit_margin(preferred).clamp_max(self.config.ik_limit_margin_rad) - 0.01
+        near_limit = self._limit_margin(candidates) < required_margin[:, None]
+        # Squared joint distances stay under 7 (2 pi)^2 < 300: the offset ranks every solution
+        # clear of the limits before any near them.
+        rank_key = (candidates - preferred[:, None]).square().sum(dim=-1) + 300.0 * near_limit
+        nearest = rank_key.masked_fill(~valid, float("inf")).argmin(dim=1)
+        return candidates[torch.arange(len(candidates)), nearest], valid.any(dim=1)
+
+    def _limit_margin(self, joints: torch.Tensor) -> torch.Tensor:
+        """(...) smallest distance (rad) of any joint of (..., 7) ``joints`` from its limits."""
+        return torch.minimum(joints - self.lower.to(joints.dtype), self.upper.to(joints.dtype) - joints).amin(dim=-1)
 
     def solve(
         self,
@@ -121,11 +178,15 @@ class PandaIK:
         Args:
             positions_world: (N, 3) requested ``panda_grasptarget`` positions, world frame, metres.
             rotations_world: (N, 3, 3) requested orientations (grasp frame -> world).
-            seed_joints: optional (N, 7) joints to try first for each target (replaces the first seed).
+            seed_joints: optional (N, 7) joints the solution of each target should stay near
+                (replaces the reference posture).
 
         Returns:
-            ``IKResult``; per target the retry with the smallest position error among those within
-            the position tolerance (smallest rotation error first), else the smallest position error.
+            ``IKResult``; per target the closed-form solution inside the limits nearest in joint
+            space to the preferred posture (``preferred_joints``), preferring those clear of the
+            limits by ``ik_limit_margin_rad``, over ``ik_q7_samples`` values of joint 7
+            (``ik_q7_fine_samples`` for targets with none), judged by pk's forward kinematics. A
+            target without any solution keeps the preferred posture and its errors.
         """
         n_targets = positions_world.shape[0]
         if positions_world.shape != (n_targets, 3) or rotations_world.shape != (n_targets, 3, 3):
@@ -140,36 +201,63 @@ class PandaIK:
             return IKResult(torch.zeros(0, N_ARM_JOINTS), torch.zeros(0, dtype=torch.bool), empty, empty, empty)
         positions_base = positions_world.to(torch.float32) - self.base_xyz_world
         rotations = rotations_world.to(torch.float32)
-        # Per-target seeds go in through the solver's initial_config, which it accepts with
-        # shape (N, R, 7); the constructor only takes one seed set shared by all targets.
-        self.solver.initial_config = self._retry_seeds(positions_base, seed_joints)
-        target = pk.Transform3d(pos=positions_base, rot=pk.matrix_to_quaternion(rotations))
-        solution = self.solver.solve(target)
-        self.solver.initial_config = self.seed_configurations
+        preferred = self.preferred_joints(positions_base, seed_joints)
 
-        position_error = solution.err_pos
-        rotation_error = solution.err_rot
-        position_ok = position_error < self.config.ik_pos_tolerance_m
-        # Prefer retries that reach the position, then the best orientation among them.
-        rank_key = torch.where(position_ok, rotation_error, math.pi + position_error)
-        best = rank_key.argmin(dim=1)
-        rows = torch.arange(n_targets)
-        joints = solution.solutions[rows, best]
-        best_position_error = position_error[rows, best]
-        best_rotation_error = rotation_error[rows, best].clamp(0.0, math.pi)
+        rotation_link7 = rotations.double() @ self._link7_in_target[:3, :3]
+        position_link7 = positions_base.double() + rotations.double() @ self._link7_in_target[:3, 3]
+        joints, found = self._closed_form_nearest(rotation_link7, position_link7, self._q7_grid, preferred)
+        missing = (~found).nonzero().squeeze(1)
+        if missing.numel():
+            # Some targets admit joint 7 only in a window narrower than the coarse grid's spacing.
+            joints[missing], found[missing] = self._closed_form_nearest(
+                rotation_link7[missing], position_link7[missing], self._q7_fine_grid, preferred[missing]
+            )
+        joints = torch.where(found[:, None], joints.to(torch.float32), preferred)
+        joints = torch.minimum(torch.maximum(joints, self.lower), self.upper)  # float32 rounding at a limit
+
+        position_error, rotation_error = self._pose_errors(joints, positions_base, rotations)
+        missed = found & ~self._within_tolerance(position_error, rotation_error)
+        polish = missed.nonzero().squeeze(1)
+        if polish.numel():
+            joints[polish] = self._damped_least_squares(
+                joints[polish], positions_base[polish], rotations[polish], self.config.ik_polish_iterations
+            )
+            position_error[polish], rotation_error[polish] = self._pose_errors(joints[polish], positions_base[polish], rotations[polish])
         inside_limits = ((joints >= self.lower) & (joints <= self.upper)).all(dim=1)
-        success = (
-            (best_position_error < self.config.ik_pos_tolerance_m)
-            & (best_rotation_error < self.config.ik_rot_tolerance_rad)
-            & inside_limits
-        )
+        success = self._within_tolerance(position_error, rotation_error) & inside_limits
         return IKResult(
             joints=joints,
             success=success,
-            position_error_m=best_position_error,
-            rotation_error_rad=best_rotation_error,
-            s_reach=(1.0 + torch.cos(best_rotation_error)) / 2.0,
+            position_error_m=position_error,
+            rotation_error_rad=rotation_error,
+            s_reach=(1.0 + torch.cos(rotation_error)) / 2.0,
         )
+
+    def _within_tolerance(self, position_error: torch.Tensor, rotation_error: torch.Tensor) -> torch.Tensor:
+        return (position_error < self.config.ik_pos_tolerance_m) & (rotation_error < self.config.ik_rot_tolerance_rad)
+
+    def _pose_errors(
+        self, joints: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M,) position (m) and rotation (rad) error of pk's forward kinematics of (M, 7) ``joints``
+        against (M, 3) base-frame positions and (M, 3, 3) orientations."""
+        pose = self.chain.forward_kinematics(joints).get_matrix()
+        position_error = (positions_base - pose[:, :3, 3]).norm(dim=1)
+        rotation_error = _rotation_error_vector(rotations, pose[:, :3, :3]).norm(dim=1)
+        return position_error, rotation_error
+
+    def _damped_least_squares(
+        self, joints: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor, iterations: int
+    ) -> torch.Tensor:
+        """(M, 7) joints after ``iterations`` damped-least-squares steps from (M, 7) ``joints`` toward
+        (M, 3) base-frame positions and (M, 3, 3) orientations, clamped to the joint limits after every step."""
+        damping = torch.eye(6) * self.config.ik_damping**2
+        for _ in range(iterations):
+            jacobian, pose = self.chain.jacobian(joints, ret_eef_pose=True)
+            error = torch.cat((positions_base - pose[:, :3, 3], _rotation_error_vector(rotations, pose[:, :3, :3])), dim=1)
+            step = jacobian.transpose(1, 2) @ torch.linalg.solve(jacobian @ jacobian.transpose(1, 2) + damping, error.unsqueeze(-1))
+            joints = torch.minimum(torch.maximum(joints + step.squeeze(-1), self.lower), self.upper)
+        return joints
 
     def follow(self, start_joints: torch.Tensor, positions_world: torch.Tensor, rotations_world: torch.Tensor) -> PathResult:
         """Joints reaching W waypoints of each of N motions, continued from ``start_joints``.
@@ -198,15 +286,8 @@ class PandaIK:
         joints = start_joints.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
         target_position = (positions_world.to(torch.float32) - self.base_xyz_world).reshape(-1, 3)
         target_rotation = rotations_world.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
-        damping = torch.eye(6) * self.config.path_ik_damping**2
-        for _ in range(self.config.path_ik_iterations):
-            jacobian, pose = self.chain.jacobian(joints, ret_eef_pose=True)
-            error = torch.cat((target_position - pose[:, :3, 3], _rotation_error_vector(target_rotation, pose[:, :3, :3])), dim=1)
-            step = jacobian.transpose(1, 2) @ torch.linalg.solve(jacobian @ jacobian.transpose(1, 2) + damping, error.unsqueeze(-1))
-            joints = torch.minimum(torch.maximum(joints + step.squeeze(-1), self.lower), self.upper)
-        pose = self.chain.forward_kinematics(joints).get_matrix()
-        position_error = (target_position - pose[:, :3, 3]).norm(dim=1)
-        rotation_error = _rotation_error_vector(target_rotation, pose[:, :3, :3]).norm(dim=1)
+        joints = self._damped_least_squares(joints, target_position, target_rotation, self.config.path_ik_iterations)
+        position_error, rotation_error = self._pose_errors(joints, target_position, target_rotation)
         return PathResult(
             joints=joints.view(n_motions, n_waypoints, N_ARM_JOINTS),
             position_error_m=position_error.view(n_motions, n_waypoints),

@@ -1,0 +1,181 @@
+"""Closed-form inverse kinematics of the Franka Panda arm, batched over targets, sampled q7 values and branches.
+
+Why a closed form: an iterative solver (pytorch-kinematics' ``PseudoInverseIK``) pays Python
+overhead on every iteration and keeps iterating rows that have converged or never will, while the
+Panda's geometry admits a direct solution once the redundant joint 7 is fixed: a few hundred flops per
+(target, q7, branch), all rows in the same handful of tensor operations.
+
+Frames are the URDF joint frames of ``franka_panda/panda.urdf``, which coincide with Craig's modified
+Denavit-Hartenberg frames: frame i = frame i-1 * Rx(alpha_i) * Tx(a_i) * Tz(d_i) * Rz(q_i) with
+alpha = (0, -pi/2, pi/2, pi/2, -pi/2, pi/2, pi/2), a = (0, 0, 0, a3, a4, 0, a6) and
+d = (d1, 0, d3, 0, d5, 0, 0) (``PandaArmGeometry``). Frame 0 is the robot base (``panda_link0``).
+
+Solution, for a target pose (R7, O7) of frame 7 and a chosen q7:
+
+* Wrist: frame 6 follows from frame 7 and q7 alone (x6 = cos q7 x7 - sin q7 y7, y6 = -z7), and
+  O6 = O7 - a6 x6. Frames 5 and 6 share their origin.
+* Elbow: the shoulder O2 = (0, 0, d1) is fixed, and |O6 - O2| depends on q4 alone (upper arm (a3, 0, d3)
+  in frame 3, forearm (a4, d5, 0) in frame 4), so the law of cosines gives q4 = phi +- acos(...)
+  with phi = -0.47 rad on the Panda: two elbow branches, both inside q4's limits [-3.07, -0.07]
+  (-pi..0 in pybullet_data's URDF) when the elbow is within 0.47 rad of straight.
+* Forearm: u = O2 - O5 in frame 4 is known once q4 is (its z component is 0), and
+  s = R6^T (O2 - O6) = Rz(-q6) Rx(-pi/2) Rz(-q5) Rx(pi/2) u = (c6 c5 ux + s6 uy, -s6 c5 ux + c6 uy, s5 ux),
+  so sin q5 = s_z / ux (two branches) and q6 = atan2(uy, c5 ux) - atan2(s_y, s_x).
+* Shoulder: R03 = R6 R36^T = Rz(q1) Ry(q2) Rz(q3) (ZYZ Euler angles, two branches by the sign of q2).
+  When sin q2 vanishes only q1 + q3 is determined; it is split evenly, which keeps both inside
+  their limits.
+
+Every (q7, elbow, forearm, shoulder) combination is returned with a mask of those that are real
+solutions inside the joint limits; angles are shifted by 2 pi where that brings them inside the
+limits (joint 6's range crosses pi).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+
+N_BRANCHES = 8  # 2 elbow (q4) x 2 forearm (q5) x 2 shoulder (q2) branches per q7
+# A cosine or sine this far beyond +-1 still counts as a real solution at the extreme (straight elbow,
+# q5 = +-pi/2): float32 rounding of a pose FK produced there overshoots by ~1e-7, and the clamped
+# answer misses the pose by a few micrometres, which the caller's forward-kinematics check sees.
+ROUNDING_SLACK = 1e-5
+
+
+class PandaArmGeometry(NamedTuple):
+    """Link offsets of the Panda arm (modified Denavit-Hartenberg a and d), metres."""
+
+    shoulder_height_m: float  # d1: base origin to joint 2 along z0
+    upper_arm_m: float  # d3: joint 2 to joint 3 along z3
+    elbow_offset_m: float  # a3: joint 3 to joint 4 along x3
+    elbow_return_m: float  # a4: joint 4 to joint 5 along x4 (negative on the Panda)
+    forearm_m: float  # d5: joint 4 to joint 5 along z5
+    wrist_offset_m: float  # a6: joint 6 to joint 7 along x6
+
+
+class PandaIKSolutions(NamedTuple):
+    """All closed-form solutions for N targets, K q7 samples and ``N_BRANCHES`` branches."""
+
+    joints: torch.Tensor  # (N, K, 8, 7) arm joints, radians (meaningless where not valid)
+    valid: torch.Tensor  # (N, K, 8) bool: a real solution with every joint inside the limits
+
+
+def _wrap(angle: torch.Tensor) -> torch.Tensor:
+    """Angles (radians, any shape) wrapped to [-pi, pi)."""
+    return torch.remainder(angle + math.pi, 2.0 * math.pi) - math.pi
+
+
+def _into_limits(angle: torch.Tensor, lower: float, upper: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``angle`` (radians in [-pi, pi), any shape) shifted by 2 pi where that brings it inside
+    [lower, upper], and a same-shape bool mask of angles inside the limits."""
+    two_pi = 2.0 * math.pi
+    shifted = torch.where(angle < lower, angle + two_pi, torch.where(angle > upper, angle - two_pi, angle))
+    return shifted, (shifted >= lower) & (shifted <= upper)
+
+
+def _rotate_z(
+    cos: torch.Tensor, sin: torch.Tensor, x: torch.Tensor, y: torch.Tensor, z: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Components of Rz(angle) (x, y, z), given cos and sin of the angle (broadcasting tensors)."""
+    return cos * x - sin * y, sin * x + cos * y, z
+
+
+def panda_ik_closed_form(
+    rotation_link7: torch.Tensor,
+    position_link7: torch.Tensor,
+    q7: torch.Tensor,
+    geometry: PandaArmGeometry,
+    lower: torch.Tensor,
+    upper: torch.Tensor,
+) -> PandaIKSolutions:
+    """Every arm configuration that puts frame 7 at the given poses, for each sampled q7.
+
+    Args:
+        rotation_link7: (N, 3, 3) orientation of frame 7 (``panda_link7``) in the base frame.
+        position_link7: (N, 3) origin of frame 7 in the base frame, metres.
+        q7: (N, K) values of joint 7 to solve for per target, radians.
+        geometry: the arm's link offsets.
+        lower, upper: (7,) joint limits, radians.
+
+    Returns:
+        ``PandaIKSolutions`` with (N, K, 8, 7) joints and an (N, K, 8) validity mask, in the
+        inputs' dtype (float64 keeps the solutions within ~1e-7 rad of exact even next to the
+        singularities, where float32 input rounding alone moves them by ~1e-3 rad).
+        Branch b uses elbow branch b // 4, forearm branch (b // 2) % 2 and shoulder branch b % 2.
+    """
+    n_targets, n_q7 = q7.shape
+    lower, upper = lower.tolist(), upper.tolist()
+    q7 = q7.to(rotation_link7.dtype)
+    cos7, sin7 = torch.cos(q7)[..., None], torch.sin(q7)[..., None]
+    x7, y7, z7 = (rotation_link7[:, None, :, axis] for axis in range(3))  # (N, 1, 3) each
+    x6 = cos7 * x7 - sin7 * y7  # (N, K, 3)
+    y6 = (-z7).expand_as(x6)
+    z6 = torch.linalg.cross(x6, y6)
+    shoulder = position_link7.new_tensor([0.0, 0.0, geometry.shoulder_height_m])
+    shoulder_to_wrist = position_link7[:, None, :] - geometry.wrist_offset_m * x6 - shoulder  # O6 - O2, (N, K, 3)
+
+    # Elbow: |O6 - O2|^2 = L + 2 (A cos q4 + B sin q4) with the constants below.
+    a3, d3, a4, d5 = geometry.elbow_offset_m, geometry.upper_arm_m, geometry.elbow_return_m, geometry.forearm_m
+    length_sq = a3**2 + d3**2 + a4**2 + d5**2
+    coeff_cos, coeff_sin = a3 * a4 + d3 * d5, d3 * a4 - a3 * d5
+    amplitude, phase = math.hypot(coeff_cos, coeff_sin), math.atan2(coeff_sin, coeff_cos)
+    elbow_ratio = (shoulder_to_wrist.square().sum(dim=-1) - length_sq) / (2.0 * amplitude)  # (N, K)
+    elbow_spread = torch.acos(elbow_ratio.clamp(-1.0, 1.0))
+    q4, q4_inside = _into_limits(_wrap(phase + torch.stack((-elbow_spread, elbow_spread), dim=-1)), lower[3], upper[3])
+    elbow_ok = q4_inside & (elbow_ratio.abs() <= 1.0 + ROUNDING_SLACK)[..., None]  # (N, K, 2)
+    cos4, sin4 = torch.cos(q4), torch.sin(q4)
+    u_x = -a3 * cos4 - d3 * sin4 - a4  # O2 - O5 in frame 4, (N, K, 2)
+    u_y = a3 * sin4 - d3 * cos4 - d5
+
+    # Forearm: s = R6^T (O2 - O6).
+    s_x, s_y, s_z = (-(shoulder_to_wrist * axis).sum(dim=-1) for axis in (x6, y6, z6))  # (N, K)
+    sin5_needed = s_z[..., None] / u_x  # (N, K, 2)
+    elbow_ok = elbow_ok & (sin5_needed.abs() <= 1.0 + ROUNDING_SLACK)  # both forearm branches are real or neither
+    asin5 = torch.asin(sin5_needed.clamp(-1.0, 1.0))
+    q5, q5_inside = _into_limits(_wrap(torch.stack((asin5, math.pi - asin5), dim=-1)), lower[4], upper[4])  # (N, K, 2, 2)
+    cos5, sin5 = torch.cos(q5), torch.sin(q5)
+    q6 = _wrap(torch.atan2(u_y[..., None], cos5 * u_x[..., None]) - torch.atan2(s_y, s_x)[..., None, None])
+    q6, q6_inside = _into_limits(q6, lower[5], upper[5])
+    cos6, sin6 = torch.cos(q6), torch.sin(q6)
+    cos4, sin4 = cos4[..., None], sin4[..., None]
+    arm_ok = elbow_ok[..., None] & q5_inside & q6_inside  # (N, K, 2, 2)
+
+    # Shoulder: R03 = R6 R36^T, R36 = Rx(pi/2) Rz(q4) Rx(-pi/2) Rz(q5) Rx(pi/2) Rz(q6) = Ry(-q4) Rz(q5) Rx(pi/2) Rz(q6).
+    # Row 2 of R03 is R36 applied to the base z axis in frame 6; column 2 is R6 R36^T e_z.
+    up_x, up_y, up_z = (axis[..., 2, None, None] for axis in (x6, y6, z6))  # base z axis in frame 6
+    x, y, z = _rotate_z(cos6, sin6, up_x, up_y, up_z)
+    x, y, z = _rotate_z(cos5, sin5, x, -z, y)  # Rx(pi/2) first
+    r20, r21, r22 = cos4 * x - sin4 * z, y, sin4 * x + cos4 * z  # Ry(-q4)
+    x, y, z = cos5 * sin4, -sin5 * sin4, cos4  # Rz(-q5) Ry(q4) e_z
+    x, y, z = _rotate_z(cos6, -sin6, x, z, -y)  # Rx(-pi/2) first
+    r02 = x * x6[..., 0, None, None] + y * y6[..., 0, None, None] + z * z6[..., 0, None, None]
+    r12 = x * x6[..., 1, None, None] + y * y6[..., 1, None, None] + z * z6[..., 1, None, None]
+    q2_magnitude = torch.acos(r22.clamp(-1.0, 1.0))
+    q1_up, q3_up = torch.atan2(r12, r02), torch.atan2(r21, -r20)
+    # sin q2 = 0 leaves only q1 + q3 (R03 = Rz(q1 + q3); q2 = pi lies outside the Panda's limits).
+    aligned = torch.sin(q2_magnitude) < 1e-6  # beyond it atan2 of the O(1e-16) entries is noise
+    if aligned.any():
+        x, y, z = cos5 * cos4, -sin5 * cos4, -sin4  # Rz(-q5) Ry(q4) e_x
+        x, y, z = _rotate_z(cos6, -sin6, x, z, -y)
+        r00 = x * x6[..., 0, None, None] + y * y6[..., 0, None, None] + z * z6[..., 0, None, None]
+        r10 = x * x6[..., 1, None, None] + y * y6[..., 1, None, None] + z * z6[..., 1, None, None]
+        half_sum = 0.5 * torch.atan2(r10, r00)
+        q1_up, q3_up = torch.where(aligned, half_sum, q1_up), torch.where(aligned, half_sum, q3_up)
+    shoulder_down = aligned[..., None] & torch.tensor([False, True], device=aligned.device)  # the "down" branch repeats the aligned solution
+    q1 = torch.where(shoulder_down, q1_up[..., None], _wrap(torch.stack((q1_up, q1_up + math.pi), dim=-1)))
+    q3 = torch.where(shoulder_down, q3_up[..., None], _wrap(torch.stack((q3_up, q3_up + math.pi), dim=-1)))
+    q2 = torch.stack((q2_magnitude, -q2_magnitude), dim=-1)  # (N, K, 2, 2, 2)
+    (q1, q1_inside), (q2, q2_inside), (q3, q3_inside) = (
+        _into_limits(angle, lower[joint], upper[joint]) for joint, angle in enumerate((q1, q2, q3))
+    )
+    q7_inside = (q7 >= lower[6]) & (q7 <= upper[6])
+    valid = q1_inside & q2_inside & q3_inside & arm_ok[..., None] & q7_inside[..., None, None, None]
+
+    shape = q1.shape
+    joints = torch.stack(
+        (q1, q2, q3, q4[..., None, None].expand(shape), q5[..., None].expand(shape), q6[..., None].expand(shape),
+         q7[..., None, None, None].expand(shape)),
+        dim=-1,
+    )
+    return PandaIKSolutions(joints=joints.reshape(n_targets, n_q7, N_BRANCHES, 7), valid=valid.reshape(n_targets, n_q7, N_BRANCHES))
