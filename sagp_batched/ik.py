@@ -163,6 +163,13 @@ class PandaIK:
         nearest = rank_key.masked_fill(~valid, float("inf")).argmin(dim=1)
         return candidates[torch.arange(len(candidates)), nearest], valid.any(dim=1)
 
+    def _link7_targets(self, positions_base: torch.Tensor, rotations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, 3, 3) orientation and (M, 3) position of ``panda_link7`` (float64, base frame) that put the
+        grasp target at (M, 3) base-frame ``positions_base`` with (M, 3, 3) ``rotations``."""
+        rotation_link7 = rotations.double() @ self._link7_in_target[:3, :3]
+        position_link7 = positions_base.double() + rotations.double() @ self._link7_in_target[:3, 3]
+        return rotation_link7, position_link7
+
     def _limit_margin(self, joints: torch.Tensor) -> torch.Tensor:
         """(...) smallest distance (rad) of any joint of (..., 7) ``joints`` from its limits."""
         return torch.minimum(joints - self.lower.to(joints.dtype), self.upper.to(joints.dtype) - joints).amin(dim=-1)
@@ -203,8 +210,7 @@ class PandaIK:
         rotations = rotations_world.to(torch.float32)
         preferred = self.preferred_joints(positions_base, seed_joints)
 
-        rotation_link7 = rotations.double() @ self._link7_in_target[:3, :3]
-        position_link7 = positions_base.double() + rotations.double() @ self._link7_in_target[:3, 3]
+        rotation_link7, position_link7 = self._link7_targets(positions_base, rotations)
         joints, found = self._closed_form_nearest(rotation_link7, position_link7, self._q7_grid, preferred)
         missing = (~found).nonzero().squeeze(1)
         if missing.numel():
@@ -259,15 +265,19 @@ class PandaIK:
             joints = torch.minimum(torch.maximum(joints + step.squeeze(-1), self.lower), self.upper)
         return joints
 
-    def follow(self, start_joints: torch.Tensor, positions_world: torch.Tensor, rotations_world: torch.Tensor) -> PathResult:
-        """Joints reaching W waypoints of each of N motions, continued from ``start_joints``.
+    def follow(
+        self, start_joints: torch.Tensor, positions_world: torch.Tensor, rotations_world: torch.Tensor, hold_joint7: bool = True
+    ) -> PathResult:
+        """Joints reaching W waypoints of each of N motions, on the IK branch of ``start_joints``.
 
-        Every waypoint starts from its motion's ``start_joints`` (the grasp solution) and takes
-        ``path_ik_iterations`` damped-least-squares steps on pytorch-kinematics' Jacobian, clamped
-        to the joint limits, all N x W waypoints in one batch. Starting every waypoint from the
-        same solution keeps them on its IK branch; the caller checks that neighbours stay close
-        in joint space. pytorch-kinematics' ``PseudoInverseIK`` would draw its own seeds per retry
-        and pick among branches, which is the opposite of following one branch.
+        With ``hold_joint7`` every waypoint is solved in closed form with joint 7 held at its
+        motion's start value, and of the (up to 8) solutions the one nearest in joint space to
+        ``start_joints`` (the grasp solution) is kept: the same branch. A waypoint with no solution
+        at that joint-7 value (a joint limit in the way), and every waypoint without
+        ``hold_joint7``, takes ``path_ik_iterations`` damped-least-squares steps on
+        pytorch-kinematics' Jacobian from the start joints instead, which move every joint, 7
+        included, the least. The caller checks that neighbouring waypoints stay close in joint
+        space. All N x W waypoints are solved in one batch and judged by pk's forward kinematics.
 
         Args:
             start_joints: (N, 7) joints of each motion's known pose (inside the limits).
@@ -283,10 +293,25 @@ class PandaIK:
                 f"start_joints must be (N, 7) and rotations_world (N, 3, 3) for positions_world (N, W, 3), got "
                 f"{tuple(start_joints.shape)}, {tuple(rotations_world.shape)} and {tuple(positions_world.shape)}"
             )
-        joints = start_joints.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
+        start = start_joints.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
         target_position = (positions_world.to(torch.float32) - self.base_xyz_world).reshape(-1, 3)
         target_rotation = rotations_world.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
-        joints = self._damped_least_squares(joints, target_position, target_rotation, self.config.path_ik_iterations)
+        joints, found = start.clone(), torch.zeros(len(start), dtype=torch.bool)
+        if hold_joint7:
+            rotation_link7, position_link7 = self._link7_targets(target_position, target_rotation)
+            solutions = panda_ik_closed_form(
+                rotation_link7, position_link7, start[:, 6:].double(), self.arm_geometry, self.lower, self.upper
+            )
+            branches, valid = solutions.joints[:, 0], solutions.valid[:, 0]  # (M, 8, 7), (M, 8)
+            distance = (branches - start.double()[:, None]).square().sum(dim=-1).masked_fill(~valid, float("inf"))
+            nearest = branches[torch.arange(len(branches)), distance.argmin(dim=1)].to(torch.float32)
+            found = valid.any(dim=1)
+            joints = torch.where(found[:, None], torch.minimum(torch.maximum(nearest, self.lower), self.upper), start)
+        missing = (~found).nonzero().squeeze(1)
+        if missing.numel():
+            joints[missing] = self._damped_least_squares(
+                start[missing], target_position[missing], target_rotation[missing], self.config.path_ik_iterations
+            )
         position_error, rotation_error = self._pose_errors(joints, target_position, target_rotation)
         return PathResult(
             joints=joints.view(n_motions, n_waypoints, N_ARM_JOINTS),

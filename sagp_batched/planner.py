@@ -351,17 +351,15 @@ def check_motions(
     stage_time["ik"], clock = stage_time["ik"] + now - clock, now
 
     others = torch.arange(waypoints.shape[1]) != grasp_index
-    path = ik.follow(grasp_joints, waypoints[candidates][:, others], rotation[candidates])
-    joints = torch.zeros(candidates.numel(), waypoints.shape[1], 7)
-    joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
-    steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
-    arm_lowest_z = ik.lowest_link_point_z(joints.view(-1, 7), _arm_hulls(planner)).view(joints.shape[:2]).amin(dim=1)
-    motion_ok = (
-        (path.position_error_m < planner.ik_pos_tolerance_m).all(dim=1)
-        & (path.rotation_error_rad < planner.ik_rot_tolerance_rad).all(dim=1)
-        & (steps <= execution.max_waypoint_joint_step_rad)
-        & (arm_lowest_z >= config.scene.table_top_z_m + planner.arm_table_clearance_m)
-    )
+    # Joint 7 held at the grasp's value first (closed form); motions that fail that way, mostly
+    # near the shoulder singularity where holding it swings joints 1 and 3, are followed again
+    # with every joint free to move.
+    joints, motion_ok = _checked_motion(ik, grasp_joints, waypoints[candidates], rotation[candidates], grasp_index, config, hold_joint7=True)
+    retry = (~motion_ok).nonzero().squeeze(1)
+    if retry.numel():
+        joints[retry], motion_ok[retry] = _checked_motion(
+            ik, grasp_joints[retry], waypoints[candidates[retry]], rotation[candidates[retry]], grasp_index, config, hold_joint7=False
+        )
     rejected_by[candidates[~motion_ok], 1] = 1
     joint_path[candidates[motion_ok]] = joints[motion_ok]
     feasible = torch.zeros(n_rows, dtype=torch.bool)
@@ -374,6 +372,35 @@ def check_motions(
         rejected_by=rejected_by,
         ik_targets=n_rows + int(candidates.numel()) * int(others.sum()),
     )
+
+
+def _checked_motion(
+    ik: PandaIK,
+    grasp_joints: torch.Tensor,
+    waypoints: torch.Tensor,
+    rotation: torch.Tensor,
+    grasp_index: int,
+    config: Config,
+    hold_joint7: bool,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(M, W, 7) joints along M motions through (M, W, 3) ``waypoints`` from their grasp solutions
+    (M, 7) at waypoint ``grasp_index``, holding (M, 3, 3) ``rotation``; and (M,) bool whether each
+    motion passes execution's checks: every waypoint within the IK tolerances, no joint moving more
+    than ``max_waypoint_joint_step_rad`` between waypoints, the arm's links clear of the table."""
+    planner = config.planner
+    others = torch.arange(waypoints.shape[1]) != grasp_index
+    path = ik.follow(grasp_joints, waypoints[:, others], rotation, hold_joint7=hold_joint7)
+    joints = torch.zeros(grasp_joints.shape[0], waypoints.shape[1], 7)
+    joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
+    steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
+    arm_lowest_z = ik.lowest_link_point_z(joints.view(-1, 7), _arm_hulls(planner)).view(joints.shape[:2]).amin(dim=1)
+    ok = (
+        (path.position_error_m < planner.ik_pos_tolerance_m).all(dim=1)
+        & (path.rotation_error_rad < planner.ik_rot_tolerance_rad).all(dim=1)
+        & (steps <= config.execution.max_waypoint_joint_step_rad)
+        & (arm_lowest_z >= config.scene.table_top_z_m + planner.arm_table_clearance_m)
+    )
+    return joints, ok
 
 
 def plan_batch(

@@ -105,3 +105,61 @@ def test_answers_keep_clear_of_the_joint_limits_where_another_solution_allows(ik
     # On these uniformly drawn configurations: 51 % of answers near a limit without the margin, 28 % with it.
     assert near_limit_fraction(guarded.joints) < near_limit_fraction(plain.joints)
     assert guarded.success.double().mean() == plain.success.double().mean()
+
+
+def _descent_and_lift(ik, grasp_joints):
+    """Waypoints of execution's motion through the grasp pose of (N, 7) ``grasp_joints``, approaching
+    along the grasp frame's z axis, with the grasp waypoint left out; and the grasp frames."""
+    from sagp_batched.motion import grasp_waypoint_index, motion_waypoints
+
+    pose = ik.forward(grasp_joints)
+    waypoints = motion_waypoints(pose[:, :3, 3], pose[:, :3, 2], Config().execution)
+    others = torch.arange(waypoints.shape[1]) != grasp_waypoint_index(Config().execution)
+    return waypoints[:, others], pose[:, :3, :3]
+
+
+def _largest_step(grasp_joints, path_joints):
+    """Largest joint change between neighbouring waypoints, the grasp's joints among them."""
+    from sagp_batched.motion import grasp_waypoint_index
+
+    index = grasp_waypoint_index(Config().execution)
+    joints = torch.cat((path_joints[:, :index], grasp_joints[:, None], path_joints[:, index:]), dim=1)
+    return (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
+
+
+def _top_down_grasps(count, seed):
+    """Top-down grasp poses at random yaw over the study's object area, 3-10 cm above the table."""
+    generator = torch.Generator().manual_seed(seed)
+    uniform = torch.rand(count, 4, generator=generator)
+    positions = torch.stack((0.45 + 0.2 * uniform[:, 0], -0.2 + 0.4 * uniform[:, 1], Config().scene.table_top_z_m + 0.03 + 0.07 * uniform[:, 2]), 1)
+    yaw = math.pi * (2 * uniform[:, 3] - 1)
+    cos, sin, zero, one = torch.cos(yaw), torch.sin(yaw), torch.zeros(count), torch.ones(count)
+    # Grasp frame z (the approach) points down; x and y turn with the yaw.
+    rotations = torch.stack((torch.stack((cos, sin, zero), 1), torch.stack((sin, -cos, zero), 1), torch.stack((zero, zero, -one), 1)), 2)
+    return positions, rotations
+
+
+def test_a_motion_is_followed_in_closed_form_on_the_grasp_branch_with_joint_7_held(ik):
+    positions, rotations = _top_down_grasps(100, seed=5)
+    grasp = ik.solve(positions, rotations)
+    start = grasp.joints[grasp.success]
+    waypoints, rotations = _descent_and_lift(ik, start)
+    path = ik.follow(start, waypoints, rotations)
+    reached = ik.forward(path.joints.reshape(-1, 7)).reshape(*path.joints.shape[:2], 4, 4)
+    followed = (path.position_error_m < 1e-4).all(dim=1)
+    assert followed.double().mean() > 0.9
+    # pk's forward kinematics of the answer reaches each waypoint, and joint 7 never moves.
+    assert torch.allclose(reached[followed][..., :3, 3], waypoints[followed], atol=1e-4)
+    assert torch.equal(path.joints[followed][..., 6], start[followed][:, None, 6].expand(-1, waypoints.shape[1]))
+    assert (_largest_step(start[followed], path.joints[followed]) < 0.3).double().mean() > 0.9
+
+
+def test_near_the_shoulder_singularity_a_motion_with_every_joint_free_avoids_the_swing_of_holding_joint_7(ik):
+    # Joint 2 near zero aligns joints 1 and 3: holding joint 7 along the lift swings them by half a radian.
+    start = torch.tensor([[0.09, 0.28, -0.1, -2.2, 0.0, 2.48, 0.79]])
+    waypoints, rotations = _descent_and_lift(ik, start)
+    held = ik.follow(start, waypoints, rotations, hold_joint7=True)
+    free = ik.follow(start, waypoints, rotations, hold_joint7=False)
+    assert float(_largest_step(start, held.joints)) > 0.3
+    assert float(_largest_step(start, free.joints)) < 0.1
+    assert float(free.position_error_m.max()) < 1e-4 and float(free.rotation_error_rad.max()) < 1e-3
