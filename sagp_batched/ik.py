@@ -52,6 +52,8 @@ class PathResult:
     joints: torch.Tensor  # (N, W, 7) arm joints, radians, clamped to the joint limits
     position_error_m: torch.Tensor  # (N, W) distance of the reached grasp target from each waypoint
     rotation_error_rad: torch.Tensor  # (N, W) angle between the reached and requested orientation
+    # (N, W) world height (m) of the lowest hull vertex of the links ``follow`` was given, if any
+    lowest_link_z_m: torch.Tensor | None = None
 
 
 def _panda_chain() -> pk.SerialChain:
@@ -121,12 +123,15 @@ class PandaIK:
 
         ``hulls`` maps link names of the chain to (V, 3) hull vertices in that link's frame.
         """
-        poses = self.chain.forward_kinematics(joints.to(torch.float32), end_only=False)
-        lowest = torch.full((joints.shape[0],), float("inf"))
+        return self._lowest_hull_z(self.chain.forward_kinematics(joints.to(torch.float32), end_only=False), hulls)
+
+    def _lowest_hull_z(self, link_poses: dict[str, pk.Transform3d], hulls: dict[str, torch.Tensor]) -> torch.Tensor:
+        """(M,) lowest world height (m) of the ``hulls`` vertices placed by M link poses (pk forward kinematics, base frame)."""
+        lowest = None
         for name, vertices in hulls.items():
-            matrix = poses[name].get_matrix()  # (M, 4, 4), base frame
-            heights = matrix[:, 2, :3] @ vertices.T + matrix[:, 2, 3:]
-            lowest = torch.minimum(lowest, heights.amin(dim=1))
+            matrix = link_poses[name].get_matrix()  # (M, 4, 4), base frame
+            heights = (matrix[:, 2, :3] @ vertices.T + matrix[:, 2, 3:]).amin(dim=1)
+            lowest = heights if lowest is None else torch.minimum(lowest, heights)
         return lowest + self.base_xyz_world[2]
 
     def preferred_joints(self, positions_base: torch.Tensor, seed_joints: torch.Tensor | None) -> torch.Tensor:
@@ -247,10 +252,7 @@ class PandaIK:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(M,) position (m) and rotation (rad) error of pk's forward kinematics of (M, 7) ``joints``
         against (M, 3) base-frame positions and (M, 3, 3) orientations."""
-        pose = self.chain.forward_kinematics(joints).get_matrix()
-        position_error = (positions_base - pose[:, :3, 3]).norm(dim=1)
-        rotation_error = _rotation_error_vector(rotations, pose[:, :3, :3]).norm(dim=1)
-        return position_error, rotation_error
+        return _errors_of_pose(self.chain.forward_kinematics(joints).get_matrix(), positions_base, rotations)
 
     def _damped_least_squares(
         self, joints: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor, iterations: int
@@ -266,7 +268,12 @@ class PandaIK:
         return joints
 
     def follow(
-        self, start_joints: torch.Tensor, positions_world: torch.Tensor, rotations_world: torch.Tensor, hold_joint7: bool = True
+        self,
+        start_joints: torch.Tensor,
+        positions_world: torch.Tensor,
+        rotations_world: torch.Tensor,
+        hold_joint7: bool = True,
+        hulls: dict[str, torch.Tensor] | None = None,
     ) -> PathResult:
         """Joints reaching W waypoints of each of N motions, on the IK branch of ``start_joints``.
 
@@ -277,7 +284,8 @@ class PandaIK:
         ``hold_joint7``, takes ``path_ik_iterations`` damped-least-squares steps on
         pytorch-kinematics' Jacobian from the start joints instead, which move every joint, 7
         included, the least. The caller checks that neighbouring waypoints stay close in joint
-        space. All N x W waypoints are solved in one batch and judged by pk's forward kinematics.
+        space. All N x W waypoints are solved in one batch and judged by pk's forward kinematics,
+        whose link poses also place ``hulls`` (link name -> (V, 3) vertices in its frame) if given.
 
         Args:
             start_joints: (N, 7) joints of each motion's known pose (inside the limits).
@@ -312,12 +320,24 @@ class PandaIK:
             joints[missing] = self._damped_least_squares(
                 start[missing], target_position[missing], target_rotation[missing], self.config.path_ik_iterations
             )
-        position_error, rotation_error = self._pose_errors(joints, target_position, target_rotation)
+        # One forward-kinematics pass judges the answers and places the links.
+        link_poses = self.chain.forward_kinematics(joints, end_only=False)
+        position_error, rotation_error = _errors_of_pose(link_poses[END_LINK].get_matrix(), target_position, target_rotation)
+        lowest = None if hulls is None else self._lowest_hull_z(link_poses, hulls).view(n_motions, n_waypoints)
         return PathResult(
             joints=joints.view(n_motions, n_waypoints, N_ARM_JOINTS),
             position_error_m=position_error.view(n_motions, n_waypoints),
             rotation_error_rad=rotation_error.view(n_motions, n_waypoints),
+            lowest_link_z_m=lowest,
         )
+
+
+def _errors_of_pose(pose: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(M,) position (m) and rotation (rad) error of (M, 4, 4) reached poses against (M, 3) positions
+    and (M, 3, 3) orientations, all in the base frame."""
+    position_error = (positions_base - pose[:, :3, 3]).norm(dim=1)
+    rotation_error = _rotation_error_vector(rotations, pose[:, :3, :3]).norm(dim=1)
+    return position_error, rotation_error
 
 
 def _rotation_error_vector(target: torch.Tensor, current: torch.Tensor) -> torch.Tensor:

@@ -389,11 +389,12 @@ def _checked_motion(
     than ``max_waypoint_joint_step_rad`` between waypoints, the arm's links clear of the table."""
     planner = config.planner
     others = torch.arange(waypoints.shape[1]) != grasp_index
-    path = ik.follow(grasp_joints, waypoints[:, others], rotation, hold_joint7=hold_joint7)
+    hulls = _arm_hulls(planner)
+    path = ik.follow(grasp_joints, waypoints[:, others], rotation, hold_joint7=hold_joint7, hulls=hulls)
     joints = torch.zeros(grasp_joints.shape[0], waypoints.shape[1], 7)
     joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
     steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
-    arm_lowest_z = ik.lowest_link_point_z(joints.view(-1, 7), _arm_hulls(planner)).view(joints.shape[:2]).amin(dim=1)
+    arm_lowest_z = torch.minimum(path.lowest_link_z_m.amin(dim=1), ik.lowest_link_point_z(grasp_joints, hulls))
     ok = (
         (path.position_error_m < planner.ik_pos_tolerance_m).all(dim=1)
         & (path.rotation_error_rad < planner.ik_rot_tolerance_rad).all(dim=1)
