@@ -376,6 +376,45 @@ def check_motions(
     )
 
 
+class _ScreenVerdicts:
+    """Gripper-volume and swept-hand verdicts of candidates, computed ahead of ``plan_batch``'s
+    window and applied (counted, stored) only when the window reaches them."""
+
+    # Verdict blocks cover this many times the candidates the window still needs at the survival
+    # rate seen so far: a little more than the expected need, so one block usually suffices.
+    LOOKAHEAD_MARGIN = 1.25
+
+    def __init__(self, screened: ScreenedCandidates, clear_of_table: torch.Tensor):
+        self.screened = screened
+        n_candidates, n_approaches = clear_of_table.shape
+        self.ready = torch.zeros(n_candidates, dtype=torch.bool)
+        self.usable = clear_of_table.clone()  # (A, K) clear of the table, under the volume limit, hand clear
+        self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
+        self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
+        self.volume_s = self.hand_s = 0.0
+
+    def lookahead(self, n_objects: int, object_index: torch.Tensor) -> torch.Tensor:
+        """(B,) candidates to screen per candidate the window needs: the inverse survival rate so far."""
+        computed = torch.zeros(n_objects).index_add_(0, object_index, self.ready.to(torch.float32))
+        survived = torch.zeros(n_objects).index_add_(0, object_index, (self.ready & self.usable.any(dim=1)).to(torch.float32))
+        return torch.where(computed > 0, computed / survived.clamp_min(1.0), 1.0) * self.LOOKAHEAD_MARGIN
+
+    def compute(self, rows: torch.Tensor) -> None:
+        clock = time.perf_counter()
+        self.usable[rows] &= self.screened.occupancy_ok(rows)
+        hand_clock = time.perf_counter()
+        self.volume_s += hand_clock - clock
+        # The real hand on every approach still usable, so IK rounds only retry for reachability.
+        candidate, slots = self.usable[rows].nonzero(as_tuple=True)
+        swept = self.screened.hand_clearance(rows[candidate], slots)
+        self.clearance_m[rows[candidate], slots] = swept.clearance_m
+        blocked = swept.points_within > 0
+        self.hand_blocked[rows[candidate[blocked]], slots[blocked]] = True
+        self.usable[rows[candidate[blocked]], slots[blocked]] = False
+        self.ready[rows] = True
+        self.hand_s += time.perf_counter() - hand_clock
+
+
 def plan_batch(
     clouds: Sequence[PerceivedCloud],
     config: Config,
@@ -432,28 +471,34 @@ def plan_batch(
     rejected = torch.zeros(n_candidates, 3, dtype=torch.int64)  # per candidate: hand, grasp IK, motion
     ik = panda_ik(config)
     ik_targets = 0
-    volume_s = hand_s = 0.0
+    verdicts = _ScreenVerdicts(screened, usable)
     motion_time = {"ik": 0.0, "motion": 0.0}
     while True:
-        alive = (status != EXHAUSTED).to(torch.int64)
-        in_window = _segment_exclusive_cumsum(alive, candidate_object, n_objects) < planner.max_candidates
-        # Gripper volumes are screened lazily, only for candidates that can still be kept: most
-        # antipodal candidates rank below the first max_candidates feasible ones and never need it.
+        # Screen every candidate the window reaches before the next IK round, in one step: with
+        # verdicts known for the whole window, the window of first max_candidates candidates still
+        # alive after screening is the fixed point that screening round by round (each round
+        # moving the window past the candidates it exhausted) reaches, and it screens the same
+        # candidates. Verdicts are computed ahead, in blocks sized by the survival rate seen so
+        # far, so a mug (1 antipodal candidate in 200 usable) takes a few blocks, not one round
+        # per 200 candidates each recounting every candidate's window.
+        while True:
+            waiting = (status == UNDECIDED) & ~volume_screened
+            unknown = waiting & ~verdicts.ready
+            alive = torch.where(waiting & verdicts.ready, verdicts.usable.any(dim=1), status != EXHAUSTED)
+            in_window = _segment_exclusive_cumsum(alive.to(torch.int64), candidate_object, n_objects) < planner.max_candidates
+            missing = unknown & in_window
+            if not missing.any():
+                break
+            per_object = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
+            block = (per_object.to(torch.float32) * verdicts.lookahead(n_objects, candidate_object)).ceil().to(torch.int64)
+            rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, n_objects)
+            verdicts.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
         to_screen = (in_window & (status == UNDECIDED) & ~volume_screened).nonzero().squeeze(1)
         if to_screen.numel():
-            volume_clock = time.perf_counter()
-            usable[to_screen] &= screened.occupancy_ok(to_screen)
-            hand_clock = time.perf_counter()
-            volume_s += hand_clock - volume_clock
-            # The real hand on every approach still usable, so IK rounds only retry for reachability.
-            rows, slots = usable[to_screen].nonzero(as_tuple=True)
-            swept = screened.hand_clearance(to_screen[rows], slots)
-            clearance[to_screen[rows], slots] = swept.clearance_m
-            hand_blocked = swept.points_within > 0
-            usable[to_screen[rows[hand_blocked]], slots[hand_blocked]] = False
-            rejected[:, 0].index_add_(0, to_screen[rows[hand_blocked]], torch.ones(int(hand_blocked.sum()), dtype=torch.int64))
+            usable[to_screen] = verdicts.usable[to_screen]
+            clearance[to_screen] = verdicts.clearance_m[to_screen]
+            rejected[to_screen, 0] += verdicts.hand_blocked[to_screen].sum(dim=1)
             volume_screened[to_screen] = True
-            hand_s += time.perf_counter() - hand_clock
             first_usable = torch.where(usable[to_screen], approach_slots, n_approaches)
             first_usable = torch.cat((first_usable, torch.full((to_screen.numel(), 1), n_approaches)), dim=1)
             next_usable[to_screen] = first_usable.flip(1).cummin(1).values.flip(1)
@@ -475,8 +520,8 @@ def plan_batch(
         cursor[retry] = next_usable[retry, slot[~motion.feasible] + 1]
         status[retry] = torch.where(cursor[retry] < n_approaches, UNDECIDED, EXHAUSTED)
     collision_free = volume_screened & usable.any(dim=1)
-    stage_time["frames_volume"] += volume_s
-    stage_time["hand_sweep"] = hand_s
+    stage_time["frames_volume"] += verdicts.volume_s
+    stage_time["hand_sweep"] = verdicts.hand_s
     stage_time.update(motion_time)
 
     feasible = status == FEASIBLE
