@@ -92,7 +92,7 @@ class SampledInputs:
     occupancy_points: torch.Tensor  # (M, 3) object points then obstacle points the occupancy check counts
     occupancy_total: int  # object points in ``occupancy_points``: the occupancy fraction's denominator
     hand_check_points: torch.Tensor  # (H, 3) object then obstacle points the swept-hand check tests
-    hand_screen_points: torch.Tensor  # (S, 3) a coarser subset of them, tested first
+    hand_screen_points: torch.Tensor  # (S, 3) a coarser subset of them, probed first
 
 
 def sample_inputs(cloud: PerceivedCloud, planner: PlannerConfig, seed: int) -> SampledInputs:
@@ -181,28 +181,15 @@ class ScreenedCandidates:
         return occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total
 
     def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
-        """Clearance of the real hand (its collision hulls) swept along the descent of candidates
-        ``rows`` with approaches ``slots``, from the scene's object and obstacle points.
-
-        Any tested point within the margin blocks a grasp, so the coarse subset is tested first and
-        only the grasps it leaves clear are tested on every point: the same verdicts, and the
-        subset rejects most blocked grasps (a mug's) at a fraction of the cost. Blocked grasps keep
-        the coarse clearance, an upper bound of the full one.
-        """
+        """Whether the real hand (its collision hulls) swept along the descent of candidates ``rows``
+        with approaches ``slots`` comes within the margin of the scene's object and obstacle points,
+        and its clearance from them (exact where not blocked). The coarse subset is probed first:
+        most blocked grasps (a mug's) strike one of its points."""
         low, high = hand_geometry(self.planner).swept((0.0, 0.0, -self.pregrasp_offset_m))
-
-        def swept(points: torch.Tensor, subset: torch.Tensor) -> HandClearance:
-            return hand_clearance(
-                points, self.object_index[rows[subset]], self.centre_world[rows[subset]], self.rotation_world[rows[subset], slots[subset]],
-                DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
-            )
-
-        coarse = swept(self.hand_screen_points, torch.arange(rows.numel()))
-        undecided = (coarse.points_within == 0).nonzero().squeeze(1)
-        full = swept(self.hand_check_points, undecided)
-        points_within, clearance = coarse.points_within.clone(), coarse.clearance_m.clone()
-        points_within[undecided], clearance[undecided] = full.points_within, full.clearance_m
-        return HandClearance(points_within, clearance)
+        return hand_clearance(
+            self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows, slots],
+            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
+        )
 
     @property
     def usable(self) -> torch.Tensor:
@@ -408,7 +395,7 @@ class _ScreenVerdicts:
         candidate, slots = self.usable[rows].nonzero(as_tuple=True)
         swept = self.screened.hand_clearance(rows[candidate], slots)
         self.clearance_m[rows[candidate], slots] = swept.clearance_m
-        blocked = swept.points_within > 0
+        blocked = swept.blocked
         self.hand_blocked[rows[candidate[blocked]], slots[blocked]] = True
         self.usable[rows[candidate[blocked]], slots[blocked]] = False
         self.ready[rows] = True
