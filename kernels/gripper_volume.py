@@ -63,6 +63,7 @@ def gripper_occupancy(
     width_m: torch.Tensor,
     geometry: GripperGeometry,
     chunk_elements: int,
+    poses: torch.Tensor | None = None,
 ) -> GripperOccupancy:
     """Count the points inside each candidate gripper's swept finger slabs and its palm.
 
@@ -76,6 +77,8 @@ def gripper_occupancy(
         geometry: gripper dimensions.
         chunk_elements: bound on the number of (candidate, approach, point) triples held in
             memory at once; work is split over candidates to respect it.
+        poses: optional (C, K) bool, the (candidate, approach) poses to count (default all);
+            the others are reported as 0.
 
     Returns:
         ``GripperOccupancy`` of (C, K) int64 counts: finger slabs, palm and their ``total``.
@@ -85,6 +88,8 @@ def gripper_occupancy(
     if rotation.ndim != 4 or rotation.shape[-2:] != (3, 3) or rotation.shape[0] != centre.shape[0]:
         raise ValueError(f"rotation must be (C, K, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
     n_candidates, n_approaches = rotation.shape[:2]
+    if poses is None:
+        poses = torch.ones(n_candidates, n_approaches, dtype=torch.bool)
     n_points = points.shape[1]
     finger_z_max = geometry.fingertip_offset_m
     finger_z_min = finger_z_max - geometry.finger_length_m
@@ -92,30 +97,35 @@ def gripper_occupancy(
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
     finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
     palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
-    finger_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
-    palm_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
+    finger_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
+    palm_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
     step = max(1, chunk_elements // max(1, n_approaches * n_points))
     for start in range(0, n_candidates, step):
         stop = min(start + step, n_candidates)
+        chosen = poses[start:stop].reshape(-1).nonzero().squeeze(1)  # flat (candidate, approach) in the chunk
+        if chosen.numel() == 0:
+            continue
         relative = points[object_index[start:stop]] - centre[start:stop, None, :]  # (c, N, 3)
         # Grasp-frame coordinates R^T (p - centre) as one batched GEMM with the points along the
-        # long output dimension: (c, K*3, 3) @ (c, 3, N) -> (c, K, 3, N).
+        # long output dimension: (c, K*3, 3) @ (c, 3, N) -> (c, K, 3, N). Every approach takes
+        # part even where only some are counted: the GEMM's rounding depends on its shape.
         grasp_axes = rotation[start:stop].transpose(-1, -2).reshape(stop - start, n_approaches * 3, 3)
-        local = (grasp_axes @ relative.transpose(1, 2)).view(stop - start, n_approaches, 3, n_points)
-        abs_x = local[:, :, 0].abs()
-        abs_y = local[:, :, 1].abs()
-        z = local[:, :, 2]
+        local = (grasp_axes @ relative.transpose(1, 2)).view(-1, 3, n_points)[chosen]  # (R, 3, N)
+        abs_x = local[:, 0].abs()
+        abs_y = local[:, 1].abs()
+        z = local[:, 2]
         # Each interval test is one |value - middle| <= half-length comparison to halve the passes
-        # over the (c, K, N) coordinates, the planner's most expensive tensors.
-        finger_y_min = (width_m[start:stop] / 2 + geometry.contact_clearance_m)[:, None, None]
+        # over the (R, N) coordinates, the planner's most expensive tensors.
+        finger_y_min = (width_m[start:stop] / 2 + geometry.contact_clearance_m).repeat_interleave(n_approaches)[chosen, None]
         in_finger_y = (abs_y - (finger_y_min + finger_y_max) / 2).abs() <= (finger_y_max - finger_y_min) / 2
         in_finger_xz = (abs_x <= geometry.finger_width_m / 2) & ((z - finger_z_mid).abs() <= finger_z_half)
         in_fingers = in_finger_y & in_finger_xz
         in_palm_xy = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2)
         in_palm = in_palm_xy & ((z - palm_z_mid).abs() <= palm_z_half)
-        finger_counts[start:stop] = in_fingers.sum(dim=-1)
-        palm_counts[start:stop] = in_palm.sum(dim=-1)
-    return GripperOccupancy(finger_counts, palm_counts)
+        finger_counts[start * n_approaches + chosen] = in_fingers.sum(dim=-1)
+        palm_counts[start * n_approaches + chosen] = in_palm.sum(dim=-1)
+    shape = (n_candidates, n_approaches)
+    return GripperOccupancy(finger_counts.view(shape), palm_counts.view(shape))
 
 
 def table_penetration(

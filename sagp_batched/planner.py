@@ -167,18 +167,20 @@ class ScreenedCandidates:
     def centre_world(self) -> torch.Tensor:
         return self.contacts_world.mean(dim=1)
 
-    def occupancy_ok(self, rows: torch.Tensor) -> torch.Tensor:
-        """(R, K) bool: the gripper volumes of candidates ``rows`` are under the published 12 % limit.
+    def table_and_volume_ok(self, rows: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: candidates ``rows`` clear the table and their gripper volumes are under the
+        published 12 % limit. Volumes are counted only for the poses that clear the table.
 
         ``plan_batch`` runs it only on candidates that can still enter the kept set, in S_geom order.
         """
         planner = self.planner
+        clear_of_table = self.clear_of_table[rows]
         occupancy = gripper_occupancy(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows],
-            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements,
+            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements, clear_of_table,
         )
         total = self.occupancy_total[self.object_index[rows], None]
-        return occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total
+        return clear_of_table & (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total)
 
     def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
         """Whether the real hand (its collision hulls) swept along the descent of candidates ``rows``
@@ -195,7 +197,7 @@ class ScreenedCandidates:
     def usable(self) -> torch.Tensor:
         """(A, K) bool: the published screen (table, 12 % volume) on every candidate, eagerly (for
         references and benchmarks); ``plan_batch`` adds the swept hand and the motion."""
-        return self.clear_of_table & self.occupancy_ok(torch.arange(self.width_m.shape[0]))
+        return self.table_and_volume_ok(torch.arange(self.width_m.shape[0]))
 
 
 def screen_candidates(
@@ -388,7 +390,7 @@ class _ScreenVerdicts:
 
     def compute(self, rows: torch.Tensor) -> None:
         clock = time.perf_counter()
-        self.usable[rows] &= self.screened.occupancy_ok(rows)
+        self.usable[rows] = self.screened.table_and_volume_ok(rows)
         hand_clock = time.perf_counter()
         self.volume_s += hand_clock - clock
         # The real hand on every approach still usable, so IK rounds only retry for reachability.
