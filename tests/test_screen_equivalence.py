@@ -1,9 +1,10 @@
 """The planner's culled collision screens decide exactly what evaluating every point decides.
 
 The swept-hand check evaluates the exact k-DOP separation only on the points a cheap bound cannot
-rule out, the table check only on the poses a few hull points cannot decide, and ``plan_batch``
-screens candidates ahead of its window in blocks; each is compared here with the plain
-definition: every point, every pose, one window round at a time.
+rule out, the table check only on the poses a few hull points cannot decide, the gripper volume
+only on poses that clear the table, and ``plan_batch`` screens candidates ahead of its window in
+blocks; each is compared here with the plain definition: every point, every pose, one window
+round at a time.
 """
 from dataclasses import replace
 
@@ -16,7 +17,7 @@ from sagp_batched import load_object_set
 from sagp_batched.benchmark import BenchmarkSettings, mesh_cloud
 from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS, FINGER_LINKS
-from sagp_batched.planner import ScreenedCandidates, _ScreenVerdicts, hand_geometry, plan_batch, screen_candidates
+from sagp_batched.planner import ScreenedCandidates, _ScreenVerdicts, gripper_geometry, hand_geometry, plan_batch, screen_candidates
 from sagp_batched_kernels.gripper_volume import table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance
 
@@ -107,3 +108,35 @@ def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window
         assert torch.equal(got.joint_path, expected.joint_path)
         assert torch.equal(got.hand_clearance_m, expected.hand_clearance_m)
     assert sum(result.counts["rejected_hand"] for result in fast) > 0 and all(len(result) > 0 for result in fast)
+
+
+def dense_gripper_points(screened: ScreenedCandidates, rows: torch.Tensor) -> torch.Tensor:
+    """(R, K) points inside the finger slabs plus points inside the palm, every point and approach."""
+    geometry = gripper_geometry(screened.planner)
+    n_approaches, n_points = screened.rotation_world.shape[1], screened.occupancy_points.shape[1]
+    relative = screened.occupancy_points[screened.object_index[rows]] - screened.centre_world[rows, None, :]
+    axes = screened.rotation_world[rows].transpose(-1, -2).reshape(rows.numel(), n_approaches * 3, 3)
+    x, y, z = (axes @ relative.transpose(1, 2)).view(rows.numel(), n_approaches, 3, n_points).unbind(dim=2)
+    finger_z_max = geometry.fingertip_offset_m
+    finger_z_min = finger_z_max - geometry.finger_length_m
+    palm_z_min = finger_z_min - geometry.palm_depth_m
+    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
+    finger_y_min = (screened.width_m[rows] / 2 + geometry.contact_clearance_m)[:, None, None]
+    # The interval tests in the kernel's |value - middle| <= half-length form, whose rounding
+    # decides points that lie exactly on a face (the grid box's).
+    def within(value, lower, upper):
+        return (value - (lower + upper) / 2).abs() <= (upper - lower) / 2
+    fingers = within(y.abs(), finger_y_min, finger_y_max) & (x.abs() <= geometry.finger_width_m / 2) & within(z, finger_z_min, finger_z_max)
+    palm = (y.abs() <= geometry.palm_span_m / 2) & (x.abs() <= geometry.palm_width_m / 2) & within(z, palm_z_min, finger_z_min)
+    return fingers.sum(dim=-1) + palm.sum(dim=-1)
+
+
+@pytest.mark.parametrize("name", ["025_mug", "box beside the mug", "grid box"])
+def test_volumes_counted_only_where_the_table_is_clear_give_the_verdicts_of_counting_every_pose(ycb_clouds, name):
+    screened = screen_candidates([ycb_clouds[name]], CONFIG, [2])
+    rows = torch.arange(0, screened.width_m.shape[0], 3)
+    counted = torch.cat([dense_gripper_points(screened, part) for part in rows.split(256)])
+    under_limit = counted.to(torch.float32) <= CONFIG.planner.occupancy_max_fraction * screened.occupancy_total[0]
+    expected = screened.clear_of_table[rows] & under_limit
+    assert torch.equal(screened.table_and_volume_ok(rows), expected)
+    assert expected.any() and not expected.all() and (screened.clear_of_table[rows] & ~under_limit).any()
