@@ -382,11 +382,16 @@ class _ScreenVerdicts:
         self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
         self.volume_s = self.hand_s = 0.0
 
-    def lookahead(self, n_objects: int, object_index: torch.Tensor) -> torch.Tensor:
-        """(B,) candidates to screen per candidate the window needs: the inverse survival rate so far."""
-        computed = torch.zeros(n_objects).index_add_(0, object_index, self.ready.to(torch.float32))
-        survived = torch.zeros(n_objects).index_add_(0, object_index, (self.ready & self.usable.any(dim=1)).to(torch.float32))
-        return torch.where(computed > 0, computed / survived.clamp_min(1.0), 1.0) * self.LOOKAHEAD_MARGIN
+    def block_sizes(self, missing: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
+        """(B,) candidates to compute next per object, given (B,) ``missing``: candidates in its
+        window without verdicts. The survival rate seen so far says how many are needed; a block
+        at most doubles what is computed, since survival grows down a mug's ranking (its top pairs
+        lie on the rim and body, where the hand hits) and the early rate would overshoot."""
+        n_objects = missing.shape[0]
+        computed = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, self.ready.to(torch.int64))
+        survived = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, (self.ready & self.usable.any(dim=1)).to(torch.int64))
+        rate_based = (missing * self.LOOKAHEAD_MARGIN * computed.clamp_min(1) / survived.clamp_min(1)).ceil().to(torch.int64)
+        return torch.minimum(rate_based, missing + computed).clamp_min(missing)
 
     def compute(self, rows: torch.Tensor) -> None:
         clock = time.perf_counter()
@@ -468,8 +473,8 @@ def plan_batch(
         # alive after screening is the fixed point that screening round by round (each round
         # moving the window past the candidates it exhausted) reaches, and it screens the same
         # candidates. Verdicts are computed ahead, in blocks sized by the survival rate seen so
-        # far, so a mug (1 antipodal candidate in 200 usable) takes a few blocks, not one round
-        # per 200 candidates each recounting every candidate's window.
+        # far, so a mug (one antipodal candidate in several hundred survives) takes ~10 blocks at
+        # 500,000 pairs, not one round per 200 candidates each recounting every candidate's window.
         while True:
             waiting = (status == UNDECIDED) & ~volume_screened
             unknown = waiting & ~verdicts.ready
@@ -479,7 +484,7 @@ def plan_batch(
             if not missing.any():
                 break
             per_object = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
-            block = (per_object.to(torch.float32) * verdicts.lookahead(n_objects, candidate_object)).ceil().to(torch.int64)
+            block = verdicts.block_sizes(per_object, candidate_object)
             rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, n_objects)
             verdicts.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
         to_screen = (in_window & (status == UNDECIDED) & ~volume_screened).nonzero().squeeze(1)

@@ -97,7 +97,7 @@ def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window
     seeds = [3, 4]
     config = CONFIG.override("planner", n_pairs=2000)
     fast = plan_batch(clouds, config, seeds)
-    monkeypatch.setattr(_ScreenVerdicts, "lookahead", lambda self, n_objects, object_index: torch.ones(n_objects))
+    monkeypatch.setattr(_ScreenVerdicts, "block_sizes", lambda self, missing, object_index: missing)
     monkeypatch.setattr(ScreenedCandidates, "hand_clearance", dense_hand_clearance)
     reference = plan_batch(clouds, config, seeds)
     for got, expected in zip(fast, reference):
