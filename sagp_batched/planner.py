@@ -155,17 +155,33 @@ class ScreenedCandidates:
     s_geom: torch.Tensor  # (A,)
     approach: torch.Tensor  # (A, K, 3)
     rotation_world: torch.Tensor  # (A, K, 3, 3)
-    clear_of_table: torch.Tensor  # (A, K) bool: table-clear at grasp and pre-grasp, and the jaws fit the width
     occupancy_points: torch.Tensor  # (B, M, 3) per-cloud occupancy subsets (object then obstacles), NaN-padded
     occupancy_total: torch.Tensor  # (B,) object points of each subset: the occupancy fractions' denominator
     hand_check_points: torch.Tensor  # (B, H, 3) per-cloud points for the swept-hand check, NaN-padded
     hand_screen_points: torch.Tensor  # (B, S, 3) their coarse subsets, NaN-padded
     planner: PlannerConfig
     pregrasp_offset_m: float
+    table_top_z_m: float
 
     @property
     def centre_world(self) -> torch.Tensor:
         return self.contacts_world.mean(dim=1)
+
+    def clear_of_table(self, rows: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: the hand of candidates ``rows`` stays above the table at the grasp and the
+        pre-grasp (fingers and the rest by their own clearances), and the jaws fit the width.
+
+        Computed on demand: ``plan_batch`` needs it only for the candidates its window reaches.
+        """
+        planner = self.planner
+        hand = hand_geometry(planner)
+        fingers = hand.vertices(FINGER_LINKS)
+        rest = hand.vertices(tuple(name for name in hand.links if name not in FINGER_LINKS))
+        centre, rotation = self.centre_world[rows], self.rotation_world[rows]
+        through_table = table_penetration(
+            centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m
+        ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m)
+        return ~through_table & (self.width_m[rows] <= jaw_width_limit(planner))[:, None]
 
     def table_and_volume_ok(self, rows: torch.Tensor) -> torch.Tensor:
         """(R, K) bool: candidates ``rows`` clear the table and their gripper volumes are under the
@@ -174,7 +190,7 @@ class ScreenedCandidates:
         ``plan_batch`` runs it only on candidates that can still enter the kept set, in S_geom order.
         """
         planner = self.planner
-        clear_of_table = self.clear_of_table[rows]
+        clear_of_table = self.clear_of_table(rows)
         occupancy = gripper_occupancy(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows],
             self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements, clear_of_table,
@@ -235,13 +251,6 @@ def screen_candidates(
 
     approach = approach_directions(closing_axis, planner.n_approaches, WORLD_DOWN)  # (A, K, 3), prior order
     rotation = grasp_rotations(closing_axis[:, None, :], approach)  # (A, K, 3, 3)
-    hand = hand_geometry(planner)
-    fingers = hand.vertices(FINGER_LINKS)
-    rest = hand.vertices(tuple(name for name in hand.links if name not in FINGER_LINKS))
-    table_z, retreat = config.scene.table_top_z_m, config.execution.pregrasp_offset_m
-    through_table = table_penetration(centre, rotation, fingers, retreat, table_z + planner.finger_table_clearance_m) | table_penetration(
-        centre, rotation, rest, retreat, table_z + planner.arm_table_clearance_m
-    )
     stage_time["frames_volume"] = time.perf_counter() - clock
     return ScreenedCandidates(
         object_index=candidate_object,
@@ -252,13 +261,13 @@ def screen_candidates(
         s_geom=pair_eval["s_geom"][antipodal],
         approach=approach,
         rotation_world=rotation,
-        clear_of_table=~through_table & (width <= jaw_width_limit(planner))[:, None],
         occupancy_points=_padded([s.occupancy_points for s in sampled]),
         occupancy_total=torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32),
         hand_check_points=_padded([s.hand_check_points for s in sampled]),
         hand_screen_points=_padded([s.hand_screen_points for s in sampled]),
         planner=planner,
         pregrasp_offset_m=config.execution.pregrasp_offset_m,
+        table_top_z_m=config.scene.table_top_z_m,
     )
 
 
@@ -373,11 +382,11 @@ class _ScreenVerdicts:
     # rate seen so far: a little more than the expected need, so one block usually suffices.
     LOOKAHEAD_MARGIN = 1.25
 
-    def __init__(self, screened: ScreenedCandidates, clear_of_table: torch.Tensor):
+    def __init__(self, screened: ScreenedCandidates):
         self.screened = screened
-        n_candidates, n_approaches = clear_of_table.shape
+        n_candidates, n_approaches = screened.rotation_world.shape[:2]
         self.ready = torch.zeros(n_candidates, dtype=torch.bool)
-        self.usable = clear_of_table.clone()  # (A, K) clear of the table, under the volume limit, hand clear
+        self.usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)  # table, volume and hand clear
         self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
         self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
         self.volume_s = self.hand_s = 0.0
@@ -385,13 +394,13 @@ class _ScreenVerdicts:
     def block_sizes(self, missing: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
         """(B,) candidates to compute next per object, given (B,) ``missing``: candidates in its
         window without verdicts. The survival rate seen so far says how many are needed; a block
-        at most doubles what is computed, since survival grows down a mug's ranking (its top pairs
-        lie on the rim and body, where the hand hits) and the early rate would overshoot."""
+        adds at most half of what is computed, since survival grows down a mug's ranking (its top
+        pairs lie on the rim and body, where the hand hits) and the early rate would overshoot."""
         n_objects = missing.shape[0]
         computed = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, self.ready.to(torch.int64))
         survived = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, (self.ready & self.usable.any(dim=1)).to(torch.int64))
         rate_based = (missing * self.LOOKAHEAD_MARGIN * computed.clamp_min(1) / survived.clamp_min(1)).ceil().to(torch.int64)
-        return torch.minimum(rate_based, missing + computed).clamp_min(missing)
+        return torch.minimum(rate_based, missing + computed // 2).clamp_min(missing)
 
     def compute(self, rows: torch.Tensor) -> None:
         clock = time.perf_counter()
@@ -449,15 +458,16 @@ def plan_batch(
     contacts, closing_axis, width, s_geom = screened.contacts_world, screened.closing_axis, screened.width_m, screened.s_geom
     centre, approach, rotation = screened.centre_world, screened.approach, screened.rotation_world
 
-    usable = screened.clear_of_table.clone()
-    n_candidates, n_approaches = usable.shape
+    n_candidates, n_approaches = rotation.shape[:2]
+    usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     approach_slots = torch.arange(n_approaches)
     # next_usable[c, k]: first usable approach at or after prior position k (K when none left);
-    # filled for a candidate once its gripper volume is screened.
+    # filled for a candidate once it is screened (table, gripper volume, swept hand).
     next_usable = torch.full((n_candidates, n_approaches + 1), n_approaches)
     cursor = torch.full((n_candidates,), n_approaches)
     volume_screened = torch.zeros(n_candidates, dtype=torch.bool)
-    status = torch.where(usable.any(dim=1), UNDECIDED, EXHAUSTED)
+    # Candidates without a table-clear approach are found, and exhausted, when screened.
+    status = torch.full((n_candidates,), UNDECIDED)
     n_waypoints = motion_waypoints(centre[:0], approach[:0, 0], config.execution).shape[1]
     chosen_path = torch.zeros(n_candidates, n_waypoints, 7)
     chosen_reach = torch.zeros(n_candidates)
@@ -465,7 +475,7 @@ def plan_batch(
     rejected = torch.zeros(n_candidates, 3, dtype=torch.int64)  # per candidate: hand, grasp IK, motion
     ik = panda_ik(config)
     ik_targets = 0
-    verdicts = _ScreenVerdicts(screened, usable)
+    verdicts = _ScreenVerdicts(screened)
     motion_time = {"ik": 0.0, "motion": 0.0}
     while True:
         # Screen every candidate the window reaches before the next IK round, in one step: with
