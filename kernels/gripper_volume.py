@@ -100,30 +100,30 @@ def gripper_occupancy(
     finger_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
     palm_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
     step = max(1, chunk_elements // max(1, n_approaches * n_points))
-    for start in range(0, n_candidates, step):
-        stop = min(start + step, n_candidates)
-        chosen = poses[start:stop].reshape(-1).nonzero().squeeze(1)  # flat (candidate, approach) in the chunk
-        if chosen.numel() == 0:
-            continue
-        relative = points[object_index[start:stop]] - centre[start:stop, None, :]  # (c, N, 3)
+    counted = poses.any(dim=1).nonzero().squeeze(1)
+    for start in range(0, counted.numel(), step):
+        rows = counted[start : start + step]
+        chosen = poses[rows].reshape(-1).nonzero().squeeze(1)  # flat (candidate, approach) in the chunk
+        relative = points[object_index[rows]] - centre[rows, None, :]  # (c, N, 3)
         # Grasp-frame coordinates R^T (p - centre) as one batched GEMM with the points along the
         # long output dimension: (c, K*3, 3) @ (c, 3, N) -> (c, K, 3, N). Every approach takes
         # part even where only some are counted: the GEMM's rounding depends on its shape.
-        grasp_axes = rotation[start:stop].transpose(-1, -2).reshape(stop - start, n_approaches * 3, 3)
+        grasp_axes = rotation[rows].transpose(-1, -2).reshape(rows.numel(), n_approaches * 3, 3)
         local = (grasp_axes @ relative.transpose(1, 2)).view(-1, 3, n_points)[chosen]  # (R, 3, N)
         abs_x = local[:, 0].abs()
         abs_y = local[:, 1].abs()
         z = local[:, 2]
         # Each interval test is one |value - middle| <= half-length comparison to halve the passes
         # over the (R, N) coordinates, the planner's most expensive tensors.
-        finger_y_min = (width_m[start:stop] / 2 + geometry.contact_clearance_m).repeat_interleave(n_approaches)[chosen, None]
+        finger_y_min = (width_m[rows] / 2 + geometry.contact_clearance_m).repeat_interleave(n_approaches)[chosen, None]
         in_finger_y = (abs_y - (finger_y_min + finger_y_max) / 2).abs() <= (finger_y_max - finger_y_min) / 2
         in_finger_xz = (abs_x <= geometry.finger_width_m / 2) & ((z - finger_z_mid).abs() <= finger_z_half)
         in_fingers = in_finger_y & in_finger_xz
         in_palm_xy = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2)
         in_palm = in_palm_xy & ((z - palm_z_mid).abs() <= palm_z_half)
-        finger_counts[start * n_approaches + chosen] = in_fingers.sum(dim=-1)
-        palm_counts[start * n_approaches + chosen] = in_palm.sum(dim=-1)
+        pose_index = (rows[:, None] * n_approaches + torch.arange(n_approaches)).view(-1)[chosen]
+        finger_counts[pose_index] = in_fingers.sum(dim=-1)
+        palm_counts[pose_index] = in_palm.sum(dim=-1)
     shape = (n_candidates, n_approaches)
     return GripperOccupancy(finger_counts.view(shape), palm_counts.view(shape))
 

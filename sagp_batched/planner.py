@@ -375,8 +375,8 @@ def check_motions(
 
 
 class _ScreenVerdicts:
-    """Gripper-volume and swept-hand verdicts of candidates, computed ahead of ``plan_batch``'s
-    window and applied (counted, stored) only when the window reaches them."""
+    """Table, gripper-volume and swept-hand verdicts of candidates, computed ahead of
+    ``plan_batch``'s window and applied (counted, stored) only when the window reaches them."""
 
     # Verdict blocks cover this many times the candidates the window still needs at the survival
     # rate seen so far: a little more than the expected need, so one block usually suffices.
@@ -411,9 +411,8 @@ class _ScreenVerdicts:
         candidate, slots = self.usable[rows].nonzero(as_tuple=True)
         swept = self.screened.hand_clearance(rows[candidate], slots)
         self.clearance_m[rows[candidate], slots] = swept.clearance_m
-        blocked = swept.blocked
-        self.hand_blocked[rows[candidate[blocked]], slots[blocked]] = True
-        self.usable[rows[candidate[blocked]], slots[blocked]] = False
+        self.hand_blocked[rows[candidate[swept.blocked]], slots[swept.blocked]] = True
+        self.usable[rows[candidate[swept.blocked]], slots[swept.blocked]] = False
         self.ready[rows] = True
         self.hand_s += time.perf_counter() - hand_clock
 
@@ -483,7 +482,7 @@ def plan_batch(
         # alive after screening is the fixed point that screening round by round (each round
         # moving the window past the candidates it exhausted) reaches, and it screens the same
         # candidates. Verdicts are computed ahead, in blocks sized by the survival rate seen so
-        # far, so a mug (one antipodal candidate in several hundred survives) takes ~10 blocks at
+        # far, so a mug (one antipodal candidate in several hundred survives) takes ~15 blocks at
         # 500,000 pairs, not one round per 200 candidates each recounting every candidate's window.
         while True:
             waiting = (status == UNDECIDED) & ~volume_screened
