@@ -22,6 +22,12 @@ from typing import NamedTuple
 
 import torch
 
+# Float32 rounding of the table check's bounds (a few 1e-8 m at these sizes) is far inside this.
+TABLE_BOUND_SLACK_M = 1e-5
+# Points that bound a pose's lowest hand point for the table check: 32 of the hand's 204 hull
+# vertices cover every vertex within 2.5 cm, leaving ~10 % of a cloud's poses to check on all.
+TABLE_COVER_POINTS = 32
+
 
 class GripperOccupancy(NamedTuple):
     """Points inside each candidate gripper, split by part: (C, K) int64 each."""
@@ -57,6 +63,7 @@ def gripper_occupancy(
     width_m: torch.Tensor,
     geometry: GripperGeometry,
     chunk_elements: int,
+    poses: torch.Tensor | None = None,
 ) -> GripperOccupancy:
     """Count the points inside each candidate gripper's swept finger slabs and its palm.
 
@@ -70,6 +77,8 @@ def gripper_occupancy(
         geometry: gripper dimensions.
         chunk_elements: bound on the number of (candidate, approach, point) triples held in
             memory at once; work is split over candidates to respect it.
+        poses: optional (C, K) bool, the (candidate, approach) poses to count (default all);
+            the others are reported as 0.
 
     Returns:
         ``GripperOccupancy`` of (C, K) int64 counts: finger slabs, palm and their ``total``.
@@ -79,6 +88,8 @@ def gripper_occupancy(
     if rotation.ndim != 4 or rotation.shape[-2:] != (3, 3) or rotation.shape[0] != centre.shape[0]:
         raise ValueError(f"rotation must be (C, K, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
     n_candidates, n_approaches = rotation.shape[:2]
+    if poses is None:
+        poses = torch.ones(n_candidates, n_approaches, dtype=torch.bool)
     n_points = points.shape[1]
     finger_z_max = geometry.fingertip_offset_m
     finger_z_min = finger_z_max - geometry.finger_length_m
@@ -86,30 +97,35 @@ def gripper_occupancy(
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
     finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
     palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
-    finger_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
-    palm_counts = torch.zeros(n_candidates, n_approaches, dtype=torch.int64)
+    finger_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
+    palm_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
     step = max(1, chunk_elements // max(1, n_approaches * n_points))
-    for start in range(0, n_candidates, step):
-        stop = min(start + step, n_candidates)
-        relative = points[object_index[start:stop]] - centre[start:stop, None, :]  # (c, N, 3)
+    counted = poses.any(dim=1).nonzero().squeeze(1)
+    for start in range(0, counted.numel(), step):
+        rows = counted[start : start + step]
+        chosen = poses[rows].reshape(-1).nonzero().squeeze(1)  # flat (candidate, approach) in the chunk
+        relative = points[object_index[rows]] - centre[rows, None, :]  # (c, N, 3)
         # Grasp-frame coordinates R^T (p - centre) as one batched GEMM with the points along the
-        # long output dimension: (c, K*3, 3) @ (c, 3, N) -> (c, K, 3, N).
-        grasp_axes = rotation[start:stop].transpose(-1, -2).reshape(stop - start, n_approaches * 3, 3)
-        local = (grasp_axes @ relative.transpose(1, 2)).view(stop - start, n_approaches, 3, n_points)
-        abs_x = local[:, :, 0].abs()
-        abs_y = local[:, :, 1].abs()
-        z = local[:, :, 2]
+        # long output dimension: (c, K*3, 3) @ (c, 3, N) -> (c, K, 3, N). Every approach takes
+        # part even where only some are counted: the GEMM's rounding depends on its shape.
+        grasp_axes = rotation[rows].transpose(-1, -2).reshape(rows.numel(), n_approaches * 3, 3)
+        local = (grasp_axes @ relative.transpose(1, 2)).view(-1, 3, n_points)[chosen]  # (R, 3, N)
+        abs_x = local[:, 0].abs()
+        abs_y = local[:, 1].abs()
+        z = local[:, 2]
         # Each interval test is one |value - middle| <= half-length comparison to halve the passes
-        # over the (c, K, N) coordinates, the planner's most expensive tensors.
-        finger_y_min = (width_m[start:stop] / 2 + geometry.contact_clearance_m)[:, None, None]
+        # over the (R, N) coordinates, the planner's most expensive tensors.
+        finger_y_min = (width_m[rows] / 2 + geometry.contact_clearance_m).repeat_interleave(n_approaches)[chosen, None]
         in_finger_y = (abs_y - (finger_y_min + finger_y_max) / 2).abs() <= (finger_y_max - finger_y_min) / 2
         in_finger_xz = (abs_x <= geometry.finger_width_m / 2) & ((z - finger_z_mid).abs() <= finger_z_half)
         in_fingers = in_finger_y & in_finger_xz
         in_palm_xy = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2)
         in_palm = in_palm_xy & ((z - palm_z_mid).abs() <= palm_z_half)
-        finger_counts[start:stop] = in_fingers.sum(dim=-1)
-        palm_counts[start:stop] = in_palm.sum(dim=-1)
-    return GripperOccupancy(finger_counts, palm_counts)
+        pose_index = (rows[:, None] * n_approaches + torch.arange(n_approaches)).view(-1)[chosen]
+        finger_counts[pose_index] = in_fingers.sum(dim=-1)
+        palm_counts[pose_index] = in_palm.sum(dim=-1)
+    shape = (n_candidates, n_approaches)
+    return GripperOccupancy(finger_counts.view(shape), palm_counts.view(shape))
 
 
 def table_penetration(
@@ -136,8 +152,38 @@ def table_penetration(
     """
     # Only world z matters: z_world = centre_z + R[2, :] . point.
     row_z = rotation[..., 2, :]  # (C, K, 3)
-    point_z = centre[:, 2, None, None] + row_z @ gripper_points_local.to(rotation).T  # (C, K, M)
-    lowest_grasp = point_z.min(dim=-1).values
+    points = gripper_points_local.to(rotation)
+    drop = retreat_m * rotation[..., 2, 2]  # (C, K) the pre-grasp's lowest point is this much lower
+    # Most poses are decided by a few points: the lowest of a subset that covers every point
+    # within ``reach`` bounds the lowest point from above (it is a real point) and, less
+    # ``reach``, from below (z is 1-Lipschitz in the point, the rows of R being unit). Only poses
+    # whose bounds straddle the table top are evaluated on every point, with the same GEMM as the
+    # exhaustive check, so every verdict is bit-for-bit the exhaustive one; the slack absorbs the
+    # bounds' float32 rounding.
+    subset, reach = _covering_subset(points, TABLE_COVER_POINTS)
+    upper = centre[:, 2, None] + (row_z @ points[subset].T).min(dim=-1).values
+    lower = upper - reach
+    through = (upper < table_top_z_m - TABLE_BOUND_SLACK_M) | (upper - drop < table_top_z_m - TABLE_BOUND_SLACK_M)
+    clear = (lower >= table_top_z_m + TABLE_BOUND_SLACK_M) & (lower - drop >= table_top_z_m + TABLE_BOUND_SLACK_M)
+    poses, slots = (~(through | clear)).nonzero(as_tuple=True)
+    # MKL picks another summation order for GEMMs of fewer than 4 rows; padding the batch to 8
+    # rows keeps the exhaustive check's rounding.
+    padded = torch.cat((poses, poses.new_zeros(max(0, 8 - poses.numel()))))
+    padded_slots = torch.cat((slots, slots.new_zeros(max(0, 8 - slots.numel()))))
+    point_z = centre[padded, 2, None] + row_z[padded, padded_slots] @ points.T  # (R, M)
+    lowest_grasp = point_z.min(dim=-1).values[: poses.numel()]
     # Retreating along -approach changes every point's height by -retreat * approach_z.
-    lowest_pregrasp = lowest_grasp - retreat_m * rotation[..., 2, 2]
-    return (lowest_grasp < table_top_z_m) | (lowest_pregrasp < table_top_z_m)
+    lowest_pregrasp = lowest_grasp - drop[poses, slots]
+    through[poses, slots] = (lowest_grasp < table_top_z_m) | (lowest_pregrasp < table_top_z_m)
+    return through
+
+
+def _covering_subset(points: torch.Tensor, size: int) -> tuple[torch.Tensor, float]:
+    """Farthest-point subset of (M, 3) ``points``: (S,) indices and the largest distance (metres)
+    from any point to its nearest subset point."""
+    chosen = [0]
+    distance = (points - points[0]).norm(dim=1)
+    for _ in range(min(size, points.shape[0]) - 1):
+        chosen.append(int(distance.argmax()))
+        distance = torch.minimum(distance, (points - points[chosen[-1]]).norm(dim=1))
+    return torch.tensor(chosen), float(distance.max()) if points.shape[0] else 0.0

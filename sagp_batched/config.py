@@ -193,8 +193,9 @@ class PlannerConfig:
     arm_table_clearance_m: float = 0.005
     # Links of the arm checked against the table along the motion (links 0-2 stand above the base).
     arm_table_links: tuple[str, ...] = ("panda_link3", "panda_link4", "panda_link5", "panda_link6", "panda_link7", "panda_hand")
-    # Cell of the coarse subset of those points tested first: a 2 cm cell still leaves points on
-    # every part the hand could strike, and most blocked grasps hit one of them.
+    # Cell of the coarse subset of those points probed first (those nearest each swept hand): a
+    # 2 cm cell still leaves points on every part the hand could strike, and most blocked grasps
+    # hit one of them.
     hand_screen_voxel_m: float = 0.02
     # (candidate, hull, direction, point) elements the swept-hand check holds at once.
     hand_check_chunk_elements: int = 4_194_304

@@ -92,7 +92,7 @@ class SampledInputs:
     occupancy_points: torch.Tensor  # (M, 3) object points then obstacle points the occupancy check counts
     occupancy_total: int  # object points in ``occupancy_points``: the occupancy fraction's denominator
     hand_check_points: torch.Tensor  # (H, 3) object then obstacle points the swept-hand check tests
-    hand_screen_points: torch.Tensor  # (S, 3) a coarser subset of them, tested first
+    hand_screen_points: torch.Tensor  # (S, 3) a coarser subset of them, probed first
 
 
 def sample_inputs(cloud: PerceivedCloud, planner: PlannerConfig, seed: int) -> SampledInputs:
@@ -155,60 +155,65 @@ class ScreenedCandidates:
     s_geom: torch.Tensor  # (A,)
     approach: torch.Tensor  # (A, K, 3)
     rotation_world: torch.Tensor  # (A, K, 3, 3)
-    clear_of_table: torch.Tensor  # (A, K) bool: table-clear at grasp and pre-grasp, and the jaws fit the width
     occupancy_points: torch.Tensor  # (B, M, 3) per-cloud occupancy subsets (object then obstacles), NaN-padded
     occupancy_total: torch.Tensor  # (B,) object points of each subset: the occupancy fractions' denominator
     hand_check_points: torch.Tensor  # (B, H, 3) per-cloud points for the swept-hand check, NaN-padded
     hand_screen_points: torch.Tensor  # (B, S, 3) their coarse subsets, NaN-padded
     planner: PlannerConfig
     pregrasp_offset_m: float
+    table_top_z_m: float
 
     @property
     def centre_world(self) -> torch.Tensor:
         return self.contacts_world.mean(dim=1)
 
-    def occupancy_ok(self, rows: torch.Tensor) -> torch.Tensor:
-        """(R, K) bool: the gripper volumes of candidates ``rows`` are under the published 12 % limit.
+    def clear_of_table(self, rows: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: the hand of candidates ``rows`` stays above the table at the grasp and the
+        pre-grasp (fingers and the rest by their own clearances), and the jaws fit the width.
+
+        Computed on demand: ``plan_batch`` needs it only for the candidates its window reaches.
+        """
+        planner = self.planner
+        hand = hand_geometry(planner)
+        fingers = hand.vertices(FINGER_LINKS)
+        rest = hand.vertices(tuple(name for name in hand.links if name not in FINGER_LINKS))
+        centre, rotation = self.centre_world[rows], self.rotation_world[rows]
+        through_table = table_penetration(
+            centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m
+        ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m)
+        return ~through_table & (self.width_m[rows] <= jaw_width_limit(planner))[:, None]
+
+    def table_and_volume_ok(self, rows: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: candidates ``rows`` clear the table and their gripper volumes are under the
+        published 12 % limit. Volumes are counted only for the poses that clear the table.
 
         ``plan_batch`` runs it only on candidates that can still enter the kept set, in S_geom order.
         """
         planner = self.planner
+        clear_of_table = self.clear_of_table(rows)
         occupancy = gripper_occupancy(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows],
-            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements,
+            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements, clear_of_table,
         )
         total = self.occupancy_total[self.object_index[rows], None]
-        return occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total
+        return clear_of_table & (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total)
 
     def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
-        """Clearance of the real hand (its collision hulls) swept along the descent of candidates
-        ``rows`` with approaches ``slots``, from the scene's object and obstacle points.
-
-        Any tested point within the margin blocks a grasp, so the coarse subset is tested first and
-        only the grasps it leaves clear are tested on every point: the same verdicts, and the
-        subset rejects most blocked grasps (a mug's) at a fraction of the cost. Blocked grasps keep
-        the coarse clearance, an upper bound of the full one.
-        """
+        """Whether the real hand (its collision hulls) swept along the descent of candidates ``rows``
+        with approaches ``slots`` comes within the margin of the scene's object and obstacle points,
+        and its clearance from them (exact where not blocked). The coarse subset is probed first:
+        most blocked grasps (a mug's) strike one of its points."""
         low, high = hand_geometry(self.planner).swept((0.0, 0.0, -self.pregrasp_offset_m))
-
-        def swept(points: torch.Tensor, subset: torch.Tensor) -> HandClearance:
-            return hand_clearance(
-                points, self.object_index[rows[subset]], self.centre_world[rows[subset]], self.rotation_world[rows[subset], slots[subset]],
-                DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
-            )
-
-        coarse = swept(self.hand_screen_points, torch.arange(rows.numel()))
-        undecided = (coarse.points_within == 0).nonzero().squeeze(1)
-        full = swept(self.hand_check_points, undecided)
-        points_within, clearance = coarse.points_within.clone(), coarse.clearance_m.clone()
-        points_within[undecided], clearance[undecided] = full.points_within, full.clearance_m
-        return HandClearance(points_within, clearance)
+        return hand_clearance(
+            self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows, slots],
+            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
+        )
 
     @property
     def usable(self) -> torch.Tensor:
         """(A, K) bool: the published screen (table, 12 % volume) on every candidate, eagerly (for
         references and benchmarks); ``plan_batch`` adds the swept hand and the motion."""
-        return self.clear_of_table & self.occupancy_ok(torch.arange(self.width_m.shape[0]))
+        return self.table_and_volume_ok(torch.arange(self.width_m.shape[0]))
 
 
 def screen_candidates(
@@ -246,13 +251,6 @@ def screen_candidates(
 
     approach = approach_directions(closing_axis, planner.n_approaches, WORLD_DOWN)  # (A, K, 3), prior order
     rotation = grasp_rotations(closing_axis[:, None, :], approach)  # (A, K, 3, 3)
-    hand = hand_geometry(planner)
-    fingers = hand.vertices(FINGER_LINKS)
-    rest = hand.vertices(tuple(name for name in hand.links if name not in FINGER_LINKS))
-    table_z, retreat = config.scene.table_top_z_m, config.execution.pregrasp_offset_m
-    through_table = table_penetration(centre, rotation, fingers, retreat, table_z + planner.finger_table_clearance_m) | table_penetration(
-        centre, rotation, rest, retreat, table_z + planner.arm_table_clearance_m
-    )
     stage_time["frames_volume"] = time.perf_counter() - clock
     return ScreenedCandidates(
         object_index=candidate_object,
@@ -263,13 +261,13 @@ def screen_candidates(
         s_geom=pair_eval["s_geom"][antipodal],
         approach=approach,
         rotation_world=rotation,
-        clear_of_table=~through_table & (width <= jaw_width_limit(planner))[:, None],
         occupancy_points=_padded([s.occupancy_points for s in sampled]),
         occupancy_total=torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32),
         hand_check_points=_padded([s.hand_check_points for s in sampled]),
         hand_screen_points=_padded([s.hand_screen_points for s in sampled]),
         planner=planner,
         pregrasp_offset_m=config.execution.pregrasp_offset_m,
+        table_top_z_m=config.scene.table_top_z_m,
     )
 
 
@@ -404,6 +402,49 @@ def _checked_motion(
     return joints, ok
 
 
+class _ScreenVerdicts:
+    """Table, gripper-volume and swept-hand verdicts of candidates, computed ahead of
+    ``plan_batch``'s window and applied (counted, stored) only when the window reaches them."""
+
+    # Verdict blocks cover this many times the candidates the window still needs at the survival
+    # rate seen so far: a little more than the expected need, so one block usually suffices.
+    LOOKAHEAD_MARGIN = 1.25
+
+    def __init__(self, screened: ScreenedCandidates):
+        self.screened = screened
+        n_candidates, n_approaches = screened.rotation_world.shape[:2]
+        self.ready = torch.zeros(n_candidates, dtype=torch.bool)
+        self.usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)  # table, volume and hand clear
+        self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
+        self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
+        self.volume_s = self.hand_s = 0.0
+
+    def block_sizes(self, missing: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
+        """(B,) candidates to compute next per object, given (B,) ``missing``: candidates in its
+        window without verdicts. The survival rate seen so far says how many are needed; a block
+        adds at most half of what is computed, since survival grows down a mug's ranking (its top
+        pairs lie on the rim and body, where the hand hits) and the early rate would overshoot."""
+        n_objects = missing.shape[0]
+        computed = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, self.ready.to(torch.int64))
+        survived = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, (self.ready & self.usable.any(dim=1)).to(torch.int64))
+        rate_based = (missing * self.LOOKAHEAD_MARGIN * computed.clamp_min(1) / survived.clamp_min(1)).ceil().to(torch.int64)
+        return torch.minimum(rate_based, missing + computed // 2).clamp_min(missing)
+
+    def compute(self, rows: torch.Tensor) -> None:
+        clock = time.perf_counter()
+        self.usable[rows] = self.screened.table_and_volume_ok(rows)
+        hand_clock = time.perf_counter()
+        self.volume_s += hand_clock - clock
+        # The real hand on every approach still usable, so IK rounds only retry for reachability.
+        candidate, slots = self.usable[rows].nonzero(as_tuple=True)
+        swept = self.screened.hand_clearance(rows[candidate], slots)
+        self.clearance_m[rows[candidate], slots] = swept.clearance_m
+        self.hand_blocked[rows[candidate[swept.blocked]], slots[swept.blocked]] = True
+        self.usable[rows[candidate[swept.blocked]], slots[swept.blocked]] = False
+        self.ready[rows] = True
+        self.hand_s += time.perf_counter() - hand_clock
+
+
 def plan_batch(
     clouds: Sequence[PerceivedCloud],
     config: Config,
@@ -444,15 +485,16 @@ def plan_batch(
     contacts, closing_axis, width, s_geom = screened.contacts_world, screened.closing_axis, screened.width_m, screened.s_geom
     centre, approach, rotation = screened.centre_world, screened.approach, screened.rotation_world
 
-    usable = screened.clear_of_table.clone()
-    n_candidates, n_approaches = usable.shape
+    n_candidates, n_approaches = rotation.shape[:2]
+    usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     approach_slots = torch.arange(n_approaches)
     # next_usable[c, k]: first usable approach at or after prior position k (K when none left);
-    # filled for a candidate once its gripper volume is screened.
+    # filled for a candidate once it is screened (table, gripper volume, swept hand).
     next_usable = torch.full((n_candidates, n_approaches + 1), n_approaches)
     cursor = torch.full((n_candidates,), n_approaches)
     volume_screened = torch.zeros(n_candidates, dtype=torch.bool)
-    status = torch.where(usable.any(dim=1), UNDECIDED, EXHAUSTED)
+    # Candidates without a table-clear approach are found, and exhausted, when screened.
+    status = torch.full((n_candidates,), UNDECIDED)
     n_waypoints = motion_waypoints(centre[:0], approach[:0, 0], config.execution).shape[1]
     chosen_path = torch.zeros(n_candidates, n_waypoints, 7)
     chosen_reach = torch.zeros(n_candidates)
@@ -460,28 +502,34 @@ def plan_batch(
     rejected = torch.zeros(n_candidates, 3, dtype=torch.int64)  # per candidate: hand, grasp IK, motion
     ik = panda_ik(config)
     ik_targets = 0
-    volume_s = hand_s = 0.0
+    verdicts = _ScreenVerdicts(screened)
     motion_time = {"ik": 0.0, "motion": 0.0}
     while True:
-        alive = (status != EXHAUSTED).to(torch.int64)
-        in_window = _segment_exclusive_cumsum(alive, candidate_object, n_objects) < planner.max_candidates
-        # Gripper volumes are screened lazily, only for candidates that can still be kept: most
-        # antipodal candidates rank below the first max_candidates feasible ones and never need it.
+        # Screen every candidate the window reaches before the next IK round, in one step: with
+        # verdicts known for the whole window, the window of first max_candidates candidates still
+        # alive after screening is the fixed point that screening round by round (each round
+        # moving the window past the candidates it exhausted) reaches, and it screens the same
+        # candidates. Verdicts are computed ahead, in blocks sized by the survival rate seen so
+        # far, so a mug (one antipodal candidate in several hundred survives) takes ~15 blocks at
+        # 500,000 pairs, not one round per 200 candidates each recounting every candidate's window.
+        while True:
+            waiting = (status == UNDECIDED) & ~volume_screened
+            unknown = waiting & ~verdicts.ready
+            alive = torch.where(waiting & verdicts.ready, verdicts.usable.any(dim=1), status != EXHAUSTED)
+            in_window = _segment_exclusive_cumsum(alive.to(torch.int64), candidate_object, n_objects) < planner.max_candidates
+            missing = unknown & in_window
+            if not missing.any():
+                break
+            per_object = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
+            block = verdicts.block_sizes(per_object, candidate_object)
+            rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, n_objects)
+            verdicts.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
         to_screen = (in_window & (status == UNDECIDED) & ~volume_screened).nonzero().squeeze(1)
         if to_screen.numel():
-            volume_clock = time.perf_counter()
-            usable[to_screen] &= screened.occupancy_ok(to_screen)
-            hand_clock = time.perf_counter()
-            volume_s += hand_clock - volume_clock
-            # The real hand on every approach still usable, so IK rounds only retry for reachability.
-            rows, slots = usable[to_screen].nonzero(as_tuple=True)
-            swept = screened.hand_clearance(to_screen[rows], slots)
-            clearance[to_screen[rows], slots] = swept.clearance_m
-            hand_blocked = swept.points_within > 0
-            usable[to_screen[rows[hand_blocked]], slots[hand_blocked]] = False
-            rejected[:, 0].index_add_(0, to_screen[rows[hand_blocked]], torch.ones(int(hand_blocked.sum()), dtype=torch.int64))
+            usable[to_screen] = verdicts.usable[to_screen]
+            clearance[to_screen] = verdicts.clearance_m[to_screen]
+            rejected[to_screen, 0] += verdicts.hand_blocked[to_screen].sum(dim=1)
             volume_screened[to_screen] = True
-            hand_s += time.perf_counter() - hand_clock
             first_usable = torch.where(usable[to_screen], approach_slots, n_approaches)
             first_usable = torch.cat((first_usable, torch.full((to_screen.numel(), 1), n_approaches)), dim=1)
             next_usable[to_screen] = first_usable.flip(1).cummin(1).values.flip(1)
@@ -503,8 +551,8 @@ def plan_batch(
         cursor[retry] = next_usable[retry, slot[~motion.feasible] + 1]
         status[retry] = torch.where(cursor[retry] < n_approaches, UNDECIDED, EXHAUSTED)
     collision_free = volume_screened & usable.any(dim=1)
-    stage_time["frames_volume"] += volume_s
-    stage_time["hand_sweep"] = hand_s
+    stage_time["frames_volume"] += verdicts.volume_s
+    stage_time["hand_sweep"] = verdicts.hand_s
     stage_time.update(motion_time)
 
     feasible = status == FEASIBLE

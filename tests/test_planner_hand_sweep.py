@@ -31,7 +31,7 @@ def _top_down(centre, closing=(0.0, 1.0, 0.0)):
 def _swept_hand(points, centre, rotation, descent_m=DESCENT_M):
     low, high = hand_geometry(PLANNER).swept((0.0, 0.0, -descent_m))
     points = torch.as_tensor(points, dtype=torch.float32)
-    return hand_clearance(points[None], torch.tensor([0]), centre, rotation[:, 0], DOP_DIRECTIONS, low, high,
+    return hand_clearance(points[None], points[None], torch.tensor([0]), centre, rotation[:, 0], DOP_DIRECTIONS, low, high,
                           PLANNER.hand_clearance_margin_m, 10**8)
 
 
@@ -56,7 +56,7 @@ def test_fingers_that_would_strike_the_mug_rim_on_the_way_down_are_caught():
     assert occupancy.total.item() <= PLANNER.occupancy_max_fraction * len(cup)
     # ...the swept hand does not, and its clearance says it goes through the wall.
     swept = _swept_hand(cup, centre, rotation)
-    assert swept.points_within.item() > 10
+    assert swept.blocked.item()
     assert swept.clearance_m.item() < 0.0
 
 
@@ -64,7 +64,7 @@ def test_a_box_grasped_across_has_a_clear_descent():
     box, _ = box_surface((0.05, 0.06, 0.1), (0.0, 0.0, 0.05))
     centre, rotation = _top_down((0.0, 0.0, 0.08), closing=(1.0, 0.0, 0.0))
     swept = _swept_hand(box, centre, rotation)
-    assert swept.points_within.item() == 0
+    assert not swept.blocked.item()
     # The fingers' inner faces are 4 cm from the centre, the box faces 2.5 cm: 1.5 cm of air.
     assert 0.01 < swept.clearance_m.item() < 0.02
 
@@ -76,8 +76,8 @@ def test_an_overhang_on_the_way_down_counts_only_with_the_descent():
     plate, _ = box_surface((0.08, 0.08, 0.004), (0.0, 0.0, 0.20))
     points = np.concatenate((box, plate))
     centre, rotation = _top_down((0.0, 0.0, 0.0), closing=(1.0, 0.0, 0.0))
-    assert _swept_hand(points, centre, rotation, descent_m=0.0).points_within.item() == 0
-    assert _swept_hand(points, centre, rotation).points_within.item() > 0
+    assert _swept_hand(points, centre, rotation, descent_m=0.0).blocked.item() is False
+    assert _swept_hand(points, centre, rotation).blocked.item() is True
 
 
 def test_planner_keeps_no_grasp_whose_descent_hits_an_overhang():
@@ -130,13 +130,13 @@ def test_k_dop_clearance_is_a_lower_bound_of_the_distance_to_each_hull():
     low, high = geometry.swept((0.0, 0.0, 0.0))
     generator = torch.Generator().manual_seed(3)
     points = (torch.rand(4000, 3, generator=generator) - 0.5) * torch.tensor([0.3, 0.4, 0.5])
-    swept = hand_clearance(points.view(4000, 1, 3), torch.arange(4000), torch.zeros(4000, 3), torch.eye(3).expand(4000, 3, 3),
+    swept = hand_clearance(points.view(4000, 1, 3), points.view(4000, 1, 3), torch.arange(4000), torch.zeros(4000, 3), torch.eye(3).expand(4000, 3, 3),
                            DOP_DIRECTIONS, low, high, 0.0, 10**8)
     vertices = torch.cat(geometry.hull_vertices)
     # A hull vertex is inside its own k-DOP, so a point at distance d from it has clearance <= d.
     nearest_vertex = torch.cdist(points, vertices).min(dim=1).values
     assert (swept.clearance_m <= nearest_vertex + 1e-6).all()
-    assert (swept.points_within > 0).sum() > 0
+    assert swept.blocked.sum() > 0
 
 
 def test_a_grasp_whose_pregrasp_is_out_of_reach_is_rejected_though_the_grasp_pose_is_reachable():

@@ -1,0 +1,143 @@
+"""The planner's culled collision screens decide exactly what evaluating every point decides.
+
+The swept-hand check evaluates the exact k-DOP separation only on the points a cheap bound cannot
+rule out, the table check only on the poses a few hull points cannot decide, the gripper volume
+only on poses that clear the table, and ``plan_batch`` screens candidates ahead of its window in
+blocks; each is compared here with the plain definition: every point, every pose, one window
+round at a time.
+"""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from planner_clouds import box_surface, make_cloud
+from sagp_batched import load_object_set
+from sagp_batched.benchmark import BenchmarkSettings, mesh_cloud
+from sagp_batched.config import Config
+from sagp_batched.hand import DOP_DIRECTIONS, FINGER_LINKS
+from sagp_batched.planner import ScreenedCandidates, _ScreenVerdicts, gripper_geometry, hand_geometry, plan_batch, screen_candidates
+from sagp_batched_kernels.gripper_volume import table_penetration
+from sagp_batched_kernels.hand_clearance import HandClearance
+
+CONFIG = Config()
+TABLE_Z = CONFIG.scene.table_top_z_m
+OBJECTS = ("025_mug", "003_cracker_box", "005_tomato_soup_can")
+
+
+@pytest.fixture(scope="module")
+def ycb_clouds(ycb_dir, tmp_path_factory):
+    """Mesh clouds of the mug, box and can standing on the table, alone and beside a distractor
+    (another object's points as obstacles), plus a grid-sampled box whose points sit exactly on
+    the gripper's faces for axis-aligned grasps (ties the float rounding must decide alike)."""
+    settings = BenchmarkSettings(pairs=(CONFIG.planner.n_pairs,), repeats=1, reference_max_pairs=0, cloud_points=3000,
+                                 object_xy_m=(0.55, 0.0), ik_targets=1)
+    objects = load_object_set(ycb_dir)
+    cache = tmp_path_factory.mktemp("clouds")
+    clouds = {name: mesh_cloud(objects.get(name), CONFIG, settings, cache) for name in OBJECTS}
+    beside = torch.tensor([0.0, 0.1, 0.0])
+    clouds["mug beside the can"] = replace(clouds["025_mug"], obstacle_points_world=clouds["005_tomato_soup_can"].points_world + beside)
+    clouds["box beside the mug"] = replace(clouds["003_cracker_box"], obstacle_points_world=clouds["025_mug"].points_world - beside)
+    points, normals = box_surface((0.06, 0.05, 0.15), (0.55, 0.0, TABLE_Z + 0.075))
+    clouds["grid box"] = make_cloud(points, normals, TABLE_Z, "grid box")
+    return clouds
+
+
+def dense_hand_clearance(screened: ScreenedCandidates, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
+    """The swept-hand definition on every point of the scene, one GEMM per candidate batch."""
+    low, high = hand_geometry(screened.planner).swept((0.0, 0.0, -screened.pregrasp_offset_m))
+    relative = screened.hand_check_points[screened.object_index[rows]] - screened.centre_world[rows, None, :]
+    axes = DOP_DIRECTIONS @ screened.rotation_world[rows, slots].transpose(-1, -2)
+    projection = (axes @ relative.transpose(1, 2))[:, None]
+    separation = ((projection - ((low + high) / 2)[None, :, :, None]).abs() - ((high - low) / 2)[None, :, :, None]).amax(dim=2).amin(dim=1)
+    clearance = torch.nan_to_num(separation, nan=float("inf")).amin(dim=1)
+    return HandClearance(clearance < screened.planner.hand_clearance_margin_m, clearance)
+
+
+def dense_table_penetration(centre, rotation, points, retreat_m, table_top_z_m):
+    lowest = (centre[:, 2, None, None] + rotation[..., 2, :] @ points.T).min(dim=-1).values
+    return (lowest < table_top_z_m) | (lowest - retreat_m * rotation[..., 2, 2] < table_top_z_m)
+
+
+@pytest.mark.parametrize("name", [*OBJECTS, "mug beside the can", "box beside the mug", "grid box"])
+def test_the_culled_hand_check_blocks_exactly_the_grasps_every_point_blocks_and_gives_clear_ones_their_exact_clearance(ycb_clouds, name):
+    screened = screen_candidates([ycb_clouds[name]], CONFIG, [1])
+    # Grasps the planner would sweep (clear of the table, under the volume limit), every tenth.
+    rows, slots = (part[::10] for part in screened.usable.nonzero(as_tuple=True))
+    culled = screened.hand_clearance(rows, slots)
+    dense = torch.cat([torch.stack(dense_hand_clearance(screened, r, s), dim=1) for r, s in zip(rows.split(512), slots.split(512))])
+    blocked, clearance = dense[:, 0].bool(), dense[:, 1]
+    assert torch.equal(culled.blocked, blocked)
+    assert torch.equal(culled.clearance_m[~blocked], clearance[~blocked])
+    # Blocked grasps report a separation under the margin (of a point that blocks them).
+    assert (culled.clearance_m[blocked] < CONFIG.planner.hand_clearance_margin_m).all()
+    # Both verdicts occur, or the comparison says little.
+    assert blocked.any() and not blocked.all()
+
+
+@pytest.mark.parametrize("name", [*OBJECTS, "grid box"])
+def test_the_table_check_decides_every_pose_as_checking_every_hull_point_does(ycb_clouds, name):
+    screened = screen_candidates([ycb_clouds[name]], CONFIG, [0])
+    hand = hand_geometry(CONFIG.planner)
+    centre, rotation = screened.centre_world, screened.rotation_world
+    # A grid of table heights puts the table top close to many poses' lowest points.
+    for table_z in np.linspace(TABLE_Z - 0.02, TABLE_Z + 0.06, 9):
+        for links in (FINGER_LINKS, tuple(n for n in hand.links if n not in FINGER_LINKS)):
+            points = hand.vertices(links)
+            through = table_penetration(centre, rotation, points, CONFIG.execution.pregrasp_offset_m, float(table_z))
+            assert torch.equal(through, dense_table_penetration(centre, rotation, points, CONFIG.execution.pregrasp_offset_m, float(table_z)))
+    assert 0.05 < through.float().mean() < 0.95
+
+
+def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window_round_at_a_time_returns(ycb_clouds, monkeypatch):
+    """``plan_batch`` with its lookahead blocks and culled hand check, against the same planner
+    screening exactly the window's unscreened candidates per round with the dense hand check."""
+    clouds = [ycb_clouds["025_mug"], ycb_clouds["box beside the mug"]]
+    seeds = [3, 4]
+    config = CONFIG.override("planner", n_pairs=2000)
+    fast = plan_batch(clouds, config, seeds)
+    monkeypatch.setattr(_ScreenVerdicts, "block_sizes", lambda self, missing, object_index: missing)
+    monkeypatch.setattr(ScreenedCandidates, "hand_clearance", dense_hand_clearance)
+    reference = plan_batch(clouds, config, seeds)
+    for got, expected in zip(fast, reference):
+        assert got.counts == expected.counts
+        assert torch.equal(got.contacts_world, expected.contacts_world)
+        assert torch.equal(got.s_geom, expected.s_geom)
+        assert torch.equal(got.approach, expected.approach)
+        assert torch.equal(got.joint_path, expected.joint_path)
+        assert torch.equal(got.hand_clearance_m, expected.hand_clearance_m)
+    assert sum(result.counts["rejected_hand"] for result in fast) > 0 and all(len(result) > 0 for result in fast)
+
+
+def dense_gripper_points(screened: ScreenedCandidates, rows: torch.Tensor) -> torch.Tensor:
+    """(R, K) points inside the finger slabs plus points inside the palm, every point and approach."""
+    geometry = gripper_geometry(screened.planner)
+    n_approaches, n_points = screened.rotation_world.shape[1], screened.occupancy_points.shape[1]
+    relative = screened.occupancy_points[screened.object_index[rows]] - screened.centre_world[rows, None, :]
+    axes = screened.rotation_world[rows].transpose(-1, -2).reshape(rows.numel(), n_approaches * 3, 3)
+    x, y, z = (axes @ relative.transpose(1, 2)).view(rows.numel(), n_approaches, 3, n_points).unbind(dim=2)
+    finger_z_max = geometry.fingertip_offset_m
+    finger_z_min = finger_z_max - geometry.finger_length_m
+    palm_z_min = finger_z_min - geometry.palm_depth_m
+    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
+    finger_y_min = (screened.width_m[rows] / 2 + geometry.contact_clearance_m)[:, None, None]
+    # The interval tests in the kernel's |value - middle| <= half-length form, whose rounding
+    # decides points that lie exactly on a face (the grid box's).
+    def within(value, lower, upper):
+        return (value - (lower + upper) / 2).abs() <= (upper - lower) / 2
+    fingers = within(y.abs(), finger_y_min, finger_y_max) & (x.abs() <= geometry.finger_width_m / 2) & within(z, finger_z_min, finger_z_max)
+    palm = (y.abs() <= geometry.palm_span_m / 2) & (x.abs() <= geometry.palm_width_m / 2) & within(z, palm_z_min, finger_z_min)
+    return fingers.sum(dim=-1) + palm.sum(dim=-1)
+
+
+@pytest.mark.parametrize("name", ["025_mug", "box beside the mug", "grid box"])
+def test_volumes_counted_only_where_the_table_is_clear_give_the_verdicts_of_counting_every_pose(ycb_clouds, name):
+    screened = screen_candidates([ycb_clouds[name]], CONFIG, [2])
+    rows = torch.arange(0, screened.width_m.shape[0], 3)
+    counted = torch.cat([dense_gripper_points(screened, part) for part in rows.split(256)])
+    under_limit = counted.to(torch.float32) <= CONFIG.planner.occupancy_max_fraction * screened.occupancy_total[0]
+    clear_of_table = screened.clear_of_table(rows)
+    expected = clear_of_table & under_limit
+    assert torch.equal(screened.table_and_volume_ok(rows), expected)
+    assert expected.any() and not expected.all() and (clear_of_table & ~under_limit).any()
