@@ -349,13 +349,16 @@ def check_motions(
     stage_time["ik"], clock = stage_time["ik"] + now - clock, now
 
     others = torch.arange(waypoints.shape[1]) != grasp_index
-    # Joint 7 held at the grasp's value first (closed form); motions that fail that way, mostly
-    # near the shoulder singularity where holding it swings joints 1 and 3, are followed again
-    # with every joint free to move.
-    joints, motion_ok = _checked_motion(ik, grasp_joints, waypoints[candidates], rotation[candidates], grasp_index, config, hold_joint7=True)
-    retry = (~motion_ok).nonzero().squeeze(1)
+    # Joint 7 held at the grasp's value first (closed form). Motions that reach every waypoint
+    # that way but fail a step or the table, mostly near the shoulder singularity where holding
+    # joint 7 swings joints 1 and 3, are followed again with every joint free to move; a waypoint
+    # out of reach at the held value was already given that chance inside ``follow``.
+    joints, reached_all, motion_ok = _checked_motion(
+        ik, grasp_joints, waypoints[candidates], rotation[candidates], grasp_index, config, hold_joint7=True
+    )
+    retry = (reached_all & ~motion_ok).nonzero().squeeze(1)
     if retry.numel():
-        joints[retry], motion_ok[retry] = _checked_motion(
+        joints[retry], _, motion_ok[retry] = _checked_motion(
             ik, grasp_joints[retry], waypoints[candidates[retry]], rotation[candidates[retry]], grasp_index, config, hold_joint7=False
         )
     rejected_by[candidates[~motion_ok], 1] = 1
@@ -380,11 +383,12 @@ def _checked_motion(
     grasp_index: int,
     config: Config,
     hold_joint7: bool,
-) -> tuple[torch.Tensor, torch.Tensor]:
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(M, W, 7) joints along M motions through (M, W, 3) ``waypoints`` from their grasp solutions
-    (M, 7) at waypoint ``grasp_index``, holding (M, 3, 3) ``rotation``; and (M,) bool whether each
-    motion passes execution's checks: every waypoint within the IK tolerances, no joint moving more
-    than ``max_waypoint_joint_step_rad`` between waypoints, the arm's links clear of the table."""
+    (M, 7) at waypoint ``grasp_index``, holding (M, 3, 3) ``rotation``; (M,) bool whether every
+    waypoint is within the IK tolerances; and (M,) bool whether each motion passes all of
+    execution's checks: those tolerances, no joint moving more than ``max_waypoint_joint_step_rad``
+    between waypoints, and the arm's links clear of the table."""
     planner = config.planner
     others = torch.arange(waypoints.shape[1]) != grasp_index
     hulls = _arm_hulls(planner)
@@ -393,13 +397,15 @@ def _checked_motion(
     joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
     steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
     arm_lowest_z = torch.minimum(path.lowest_link_z_m.amin(dim=1), ik.lowest_link_point_z(grasp_joints, hulls))
+    reached_all = (path.position_error_m < planner.ik_pos_tolerance_m).all(dim=1) & (
+        path.rotation_error_rad < planner.ik_rot_tolerance_rad
+    ).all(dim=1)
     ok = (
-        (path.position_error_m < planner.ik_pos_tolerance_m).all(dim=1)
-        & (path.rotation_error_rad < planner.ik_rot_tolerance_rad).all(dim=1)
+        reached_all
         & (steps <= config.execution.max_waypoint_joint_step_rad)
         & (arm_lowest_z >= config.scene.table_top_z_m + planner.arm_table_clearance_m)
     )
-    return joints, ok
+    return joints, reached_all, ok
 
 
 class _ScreenVerdicts:
