@@ -361,6 +361,14 @@ class RatingConfig:
 
 
 @dataclass
+class TaskConfig:
+    # Published task definitions: t2 keeps the object within 15 deg of its resting orientation
+    # (also the OP metric's threshold), t3 moves no distractor more than 5 cm.
+    orientation_tolerance_deg: float = 15.0
+    distractor_tolerance_m: float = 0.05
+
+
+@dataclass
 class RunConfig:
     objects: tuple[str, ...] = ("all",)
     tasks: tuple[str, ...] = ("t1", "t2", "t3")
@@ -387,6 +395,7 @@ class Config:
     execution: ExecutionConfig = field(default_factory=ExecutionConfig)
     zones: ZonesConfig = field(default_factory=ZonesConfig)
     rating: RatingConfig = field(default_factory=RatingConfig)
+    tasks: TaskConfig = field(default_factory=TaskConfig)
     run: RunConfig = field(default_factory=RunConfig)
 
     def to_dict(self) -> dict[str, Any]:

@@ -6,6 +6,7 @@ Each method's result is one JSON-ready record.
 """
 from __future__ import annotations
 
+import dataclasses
 import signal
 import time
 import traceback
@@ -19,13 +20,9 @@ import numpy as np
 from .config import GEOMETRY_ONLY_WEIGHTS, Config
 from .functional_regions import region_membership
 from .objects import ObjectSet, ObjectSpec
-from .types import GraspCandidates, PerceivedCloud, PerceptionFailure
+from .judging import judge_task
+from .types import METHODS, GraspCandidates, PerceivedCloud, PerceptionFailure
 
-TASKS = {"t1": "stable pickup", "t2": "functional grasp", "t3": "cluttered grasp"}
-METHODS = ("go", "sagp", "vd")
-# Published tasks: t2 keeps the object within 15 deg of its resting orientation, t3 moves no distractor > 5 cm.
-ORIENTATION_TOLERANCE_DEG = 15.0
-DISTRACTOR_TOLERANCE_M = 0.05
 
 
 class TrialTimeout(RuntimeError):
@@ -297,10 +294,6 @@ class TrialRunner:
         record["grasp"] = grasp
         record["success"] = bool(final.success)
         record["failure_reason"] = final.failure_reason
-        record["orientation_change_deg"] = float(final.orientation_change_deg)
-        record["orientation_kept"] = bool(final.orientation_change_deg <= ORIENTATION_TOLERANCE_DEG)
-        displacement = float(final.details.get("distractors_max_displacement_m", 0.0))
-        record["distractors_max_displacement_m"] = displacement
         # PZA uses the published single zone of the contact midpoint; AC ("outside every avoid zone")
         # uses every zone the midpoint lies in (its third or protrusion, and its sides), as S_avoid does.
         zone_names = decomposition.candidate_zone_names(candidates.position_world[final_index:final_index + 1])[0]
@@ -309,12 +302,11 @@ class TrialRunner:
         record["in_avoid_zone"] = any(rating.avoids(name) for name in zone_names)
         # FRA/FAR measure the grasp against the object's annotated parts, not the pipeline's own zones.
         record.update(region_membership(record["object"], np.asarray(grasp["midpoint_object"])))
-        task_success = record["success"]
-        if unit.task == "t2":
-            task_success = task_success and bool(record["in_preferred_zone"]) and record["orientation_kept"]
-        if unit.task == "t3":
-            task_success = task_success and displacement <= DISTRACTOR_TOLERANCE_M
-        record["task_success"] = bool(task_success)
+        outcome = judge_task(
+            unit.task, record["success"], bool(record["in_preferred_zone"]), final.orientation_change_deg,
+            final.details.get("distractors_max_displacement_m", 0.0), self.config.tasks,
+        )
+        record.update(dataclasses.asdict(outcome))
 
 
 def _jsonable(details: dict[str, Any]) -> dict[str, Any]:

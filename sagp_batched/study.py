@@ -17,9 +17,10 @@ from typing import Any, Callable, Iterable
 
 from . import provenance
 from .config import Config, ConfigError, load_config
-from .experiment import METHODS, TASKS, TrialRunner, TrialUnit, record_key
+from .experiment import TrialRunner, TrialUnit, record_key
 from .metrics import summarise
 from .objects import ObjectSet, load_object_set
+from .types import METHODS, TASKS
 
 TRIALS_FILE = "trials.jsonl"
 # Settings that say how a run is executed, not what it computes: they may differ on resume.

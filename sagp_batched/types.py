@@ -44,6 +44,16 @@ def general_zone(name: str) -> str | None:
     return PROTRUSION if _NUMBERED_PROTRUSION.fullmatch(name) else None
 
 
+# The study's tasks, described as a rating model is told them.
+TASKS: dict[str, str] = {
+    "t1": "stable pickup: lift the object 20 cm and hold it without dropping it",
+    "t2": "functional grasp: hold the object where a person holds it to use it, keeping it within 15 degrees of its resting orientation",
+    "t3": "cluttered grasp: pick the object up while 3-4 other objects stand within 15 cm of it, without moving them",
+}
+# The compared methods: Geometry-Only, SAGP's fused score, VLM-Direct.
+METHODS: tuple[str, ...] = ("go", "sagp", "vd")
+
+
 class PerceptionFailure(RuntimeError):
     """The target could not be perceived well enough to plan on.
 

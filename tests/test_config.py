@@ -22,6 +22,7 @@ PUBLISHED = {
     "execution.ik_iterations": 500, "execution.settle_steps": 60, "execution.pregrasp_offset_m": 0.1,
     "execution.lift_height_m": 0.2, "execution.hold_steps": 80, "execution.success_height_above_table_m": 0.15,
     "execution.max_attempts": 3,
+    "tasks.orientation_tolerance_deg": 15.0, "tasks.distractor_tolerance_m": 0.05,
     "run.n_trials": 20, "run.tasks": ("t1", "t2", "t3"), "run.methods": ("go", "sagp", "vd"),
 }
 

@@ -15,7 +15,6 @@ from PIL import Image
 
 from sagp_batched.config import RatingConfig
 from sagp_batched.rating import (
-    TASKS,
     CachedRater,
     OpenAIVLM,
     PriorRater,
@@ -25,6 +24,7 @@ from sagp_batched.rating import (
     get_rater,
 )
 from sagp_batched.rating.vlm import ModelAnswer
+from sagp_batched.types import TASKS
 
 STUDY_OBJECTS = (
     "025_mug", "019_pitcher_base", "005_tomato_soup_can", "035_power_drill", "037_scissors", "051_large_clamp",

@@ -5,7 +5,6 @@ from .raters import CachedRater, PriorRater, Rater, VLMRater, get_rater
 from .types import (
     PHI,
     RATING_LEVELS,
-    TASKS,
     RatingError,
     RatingProvenance,
     VLMRequestError,
@@ -15,7 +14,7 @@ from .types import (
 from .vlm import OpenAIVLM, TransformersVLM, VLMClient, get_vlm_client
 
 __all__ = [
-    "PHI", "PROMPT_VERSION", "RATING_LEVELS", "TASKS", "CachedRater", "OpenAIVLM", "PriorRater", "Rater",
+    "PHI", "PROMPT_VERSION", "RATING_LEVELS", "CachedRater", "OpenAIVLM", "PriorRater", "Rater",
     "RatingError", "RatingProvenance", "TransformersVLM", "VLMClient", "VLMRater", "VLMRequestError", "ZoneRating",
     "build_zone_prompt", "extract_json_object", "get_rater", "get_vlm_client", "neutral_rating", "parse_zone_rating",
 ]

@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 
-from ..types import PROTRUSION, ZONE_NAMES, is_zone_name
-from .types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, TASKS, RatingError
+from ..types import PROTRUSION, TASKS, ZONE_NAMES, is_zone_name
+from .types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, RatingError
 
 PROMPT_VERSION = "sagp-zones-v2"
 # A model names an approach direction; a world vector ("vector") is not asked of it.

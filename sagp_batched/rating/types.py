@@ -14,11 +14,6 @@ RATING_LEVELS: tuple[str, ...] = tuple(PHI)
 # side of the object (the gripper moves toward it from outside), "any", or "vector" with a world vector.
 APPROACH_NAMES: tuple[str, ...] = ("top", "side", "front", "back", "left", "right", "any", "vector")
 GRASP_STYLES: tuple[str, ...] = ("pinch", "power", "wrap", "hook", "any")
-TASKS: dict[str, str] = {
-    "t1": "stable pickup: lift the object 20 cm and hold it without dropping it",
-    "t2": "functional grasp: hold the object where a person holds it to use it, keeping it within 15 degrees of its resting orientation",
-    "t3": "cluttered grasp: pick the object up while 3-4 other objects stand within 15 cm of it, without moving them",
-}
 # "ok": the answer validated as given; "repaired": safe repairs were made (listed in ``issues``);
 # "neutral": nothing trustworthy was left, the rating is neutral (SAGP falls back to geometry).
 OUTCOMES: tuple[str, ...] = ("ok", "repaired", "neutral")

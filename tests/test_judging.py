@@ -1,0 +1,35 @@
+"""Task success by the published task definitions, with the thresholds the config holds."""
+import pytest
+
+from sagp_batched.config import TaskConfig
+from sagp_batched.judging import judge_task
+
+PUBLISHED = TaskConfig()
+
+
+def test_a_stable_pickup_needs_only_the_grasp_to_succeed():
+    assert judge_task("t1", True, False, 40.0, 0.2, PUBLISHED).task_success
+    assert not judge_task("t1", False, True, 0.0, 0.0, PUBLISHED).task_success
+
+
+def test_a_functional_grasp_needs_the_preferred_zone_and_the_orientation_kept_within_15_degrees():
+    assert judge_task("t2", True, True, 14.9, 0.0, PUBLISHED).task_success
+    tilted = judge_task("t2", True, True, 15.1, 0.0, PUBLISHED)
+    assert not tilted.task_success and not tilted.orientation_kept
+    assert not judge_task("t2", True, False, 1.0, 0.0, PUBLISHED).task_success
+
+
+def test_a_cluttered_grasp_fails_when_a_distractor_moves_more_than_5_cm():
+    assert judge_task("t3", True, False, 30.0, 0.049, PUBLISHED).task_success
+    assert not judge_task("t3", True, False, 0.0, 0.051, PUBLISHED).task_success
+
+
+def test_the_thresholds_come_from_the_config():
+    lenient = TaskConfig(orientation_tolerance_deg=30.0, distractor_tolerance_m=0.1)
+    assert judge_task("t2", True, True, 20.0, 0.0, lenient).task_success
+    assert judge_task("t3", True, False, 0.0, 0.08, lenient).task_success
+
+
+def test_an_unknown_task_is_named():
+    with pytest.raises(ValueError, match="unknown task 't9'"):
+        judge_task("t9", True, True, 0.0, 0.0, PUBLISHED)
