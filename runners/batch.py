@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from sagp_batched.config import ConfigError, load_config
+from sagp_batched.methods import REGISTRY
 from sagp_batched.objects import ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
@@ -73,14 +74,17 @@ def main(argv: list[str] | None = None) -> int:
 
     methods = list(config.run.methods)
     not_run: dict[str, str] = {}
-    if "vd" in methods and config.rating.backend not in MODEL_BACKENDS:
+    for name in [m for m in methods if m in REGISTRY and REGISTRY[m].needs_model]:
+        if config.rating.backend in MODEL_BACKENDS:
+            continue
+        label = REGISTRY[name].label
         reason = f"needs a model backend ({', '.join(MODEL_BACKENDS)}); the rater is '{config.rating.backend}'"
         if args.methods is not None:
-            print(f"error: VLM-Direct {reason}: choose --rater transformers|openai or drop vd from --methods", file=sys.stderr)
+            print(f"error: {label} {reason}: choose --rater transformers|openai or drop {name} from --methods", file=sys.stderr)
             return 2
-        methods.remove("vd")
-        not_run["vd"] = reason + " (not run)"
-        print(f"note: VLM-Direct {not_run['vd']}", file=sys.stderr)
+        methods.remove(name)
+        not_run[name] = reason + " (not run)"
+        print(f"note: {label} {not_run[name]}", file=sys.stderr)
 
     try:
         preflight(config)

@@ -17,11 +17,12 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from .config import GEOMETRY_ONLY_WEIGHTS, Config
+from .config import Config
 from .functional_regions import region_membership
-from .objects import ObjectSet, ObjectSpec
 from .judging import judge_task
-from .types import METHODS, GraspCandidates, PerceivedCloud, PerceptionFailure
+from .methods import RankingInputs, get_method
+from .objects import ObjectSet, ObjectSpec
+from .types import GraspCandidates, PerceivedCloud, PerceptionFailure
 
 
 
@@ -205,7 +206,9 @@ class TrialRunner:
             record = base_record(spec, unit, method, config)
             record["n_candidates"] = {key: candidates.counts.get(key) for key in record["n_candidates"]}
             method_start = time.perf_counter()
-            ranked, order = self._rank(method, candidates, cloud, rating, decomposition, spec, unit)
+            ranked, order = get_method(method).rank(
+                RankingInputs(candidates, cloud, rating, decomposition, spec.name, unit.task, config, self._model_client)
+            )
             scored_by_method[method] = ranked
             ranking_s = time.perf_counter() - method_start
             method_rating_s = rating_s if method != "go" else 0.0
@@ -252,26 +255,6 @@ class TrialRunner:
                 Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path)
                 saved[f"{prefix}{moment}"] = str(path.relative_to(out_dir))
         return saved
-
-    def _rank(self, method, candidates: GraspCandidates, cloud, rating, decomposition, spec, unit):
-        """(scored candidates, indices of the attempts to make, best first).
-
-        Every method scores the same candidate set; GO and VD keep S_geom order (VD then lets the
-        model pick among the top geometric candidates), SAGP uses the fused score.
-        """
-        from .scoring import score_candidates
-
-        n_attempts = self.config.execution.max_attempts
-        weights = self.config.weights if method == "sagp" else GEOMETRY_ONLY_WEIGHTS
-        if method not in METHODS:
-            raise ValueError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
-        scored = score_candidates(candidates, rating, weights, decomposition, self.config)
-        if method == "vd":
-            from .vlm_direct import vlm_direct_rank
-
-            shortlist = vlm_direct_rank(cloud, scored, self._model_client(), self.config, unit.task, spec.name)
-            return scored, [int(i) for i in shortlist.order[:n_attempts]]
-        return scored, list(range(min(n_attempts, len(scored))))
 
     def _model_client(self):
         """The rater's own model client, so VLM-Direct never loads a second copy of the model."""

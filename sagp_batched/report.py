@@ -6,10 +6,11 @@ from pathlib import Path
 from typing import Any
 
 from .functional_regions import load_regions
+from .methods import REGISTRY
 from .metrics import per_object
 
 RATE_METRICS = ("GSR", "FAS", "TSR", "PZA", "AC", "OP", "FRA", "FAR")
-METHOD_LABELS = {"go": "Geometry-Only", "sagp": "SAGP", "vd": "VLM-Direct"}
+METHOD_LABELS = {name: method.label for name, method in REGISTRY.items()}
 
 
 def format_rate(metrics: dict[str, Any], name: str) -> str:

@@ -1,4 +1,4 @@
-"""Task success by the published task definitions, with the thresholds the config holds."""
+"""Task success by the published task definitions, with the thresholds the config holds; the method registry."""
 import pytest
 
 from sagp_batched.config import TaskConfig
@@ -33,3 +33,13 @@ def test_the_thresholds_come_from_the_config():
 def test_an_unknown_task_is_named():
     with pytest.raises(ValueError, match="unknown task 't9'"):
         judge_task("t9", True, True, 0.0, 0.0, PUBLISHED)
+
+
+def test_every_method_name_has_one_registered_ranking_and_only_vlm_direct_asks_a_model_itself():
+    from sagp_batched.methods import REGISTRY, get_method
+    from sagp_batched.types import METHODS
+
+    assert tuple(REGISTRY) == METHODS
+    assert [name for name, method in REGISTRY.items() if method.needs_model] == ["vd"]
+    with pytest.raises(ValueError, match="unknown method 'xx'"):
+        get_method("xx")
