@@ -451,6 +451,138 @@ class _ScreenVerdicts:
         self.hand_s += time.perf_counter() - hand_clock
 
 
+@dataclass
+class _CandidateSearch:
+    """Where the search for each screened candidate's first executable approach stands.
+
+    Approaches are tried in prior order: a candidate is UNDECIDED while an untried approach that
+    passed the screens is left (``cursor``), FEASIBLE once one passes the motion check, EXHAUSTED
+    when none is left.
+    """
+
+    usable: torch.Tensor  # (A, K) bool: approach passed table, gripper volume and swept hand
+    next_usable: torch.Tensor  # (A, K + 1) first usable approach at or after prior position k (K: none left)
+    cursor: torch.Tensor  # (A,) approach to try next (K: none)
+    screened: torch.Tensor  # (A,) bool: the screens' verdicts are applied
+    status: torch.Tensor  # (A,) UNDECIDED / FEASIBLE / EXHAUSTED
+    joint_path: torch.Tensor  # (A, W, 7) planned joints of feasible candidates
+    s_reach: torch.Tensor  # (A,)
+    clearance_m: torch.Tensor  # (A, K) swept hand's clearance where computed
+    rejected: torch.Tensor  # (A, 3) int64 rejections per candidate: hand, grasp IK, motion
+
+    @classmethod
+    def start(cls, n_candidates: int, n_approaches: int, n_waypoints: int) -> "_CandidateSearch":
+        # Candidates without a table-clear approach are found, and exhausted, when screened.
+        return cls(
+            usable=torch.zeros(n_candidates, n_approaches, dtype=torch.bool),
+            next_usable=torch.full((n_candidates, n_approaches + 1), n_approaches),
+            cursor=torch.full((n_candidates,), n_approaches),
+            screened=torch.zeros(n_candidates, dtype=torch.bool),
+            status=torch.full((n_candidates,), UNDECIDED),
+            joint_path=torch.zeros(n_candidates, n_waypoints, 7),
+            s_reach=torch.zeros(n_candidates),
+            clearance_m=torch.full((n_candidates, n_approaches), float("inf")),
+            rejected=torch.zeros(n_candidates, 3, dtype=torch.int64),
+        )
+
+    def apply_screens(self, rows: torch.Tensor, verdicts: "_ScreenVerdicts") -> None:
+        n_approaches = self.usable.shape[1]
+        self.usable[rows] = verdicts.usable[rows]
+        self.clearance_m[rows] = verdicts.clearance_m[rows]
+        self.rejected[rows, 0] += verdicts.hand_blocked[rows].sum(dim=1)
+        self.screened[rows] = True
+        first_usable = torch.where(self.usable[rows], torch.arange(n_approaches), n_approaches)
+        first_usable = torch.cat((first_usable, torch.full((rows.numel(), 1), n_approaches)), dim=1)
+        self.next_usable[rows] = first_usable.flip(1).cummin(1).values.flip(1)
+        self.cursor[rows] = self.next_usable[rows, 0]
+        self.status[rows] = torch.where(self.cursor[rows] < n_approaches, UNDECIDED, EXHAUSTED)
+
+    def apply_motions(self, rows: torch.Tensor, slots: torch.Tensor, motion: MotionCheck) -> None:
+        self.rejected[rows, 1:] += motion.rejected_by
+        done = rows[motion.feasible]
+        self.status[done] = FEASIBLE
+        self.joint_path[done] = motion.joint_path[motion.feasible]
+        self.s_reach[done] = motion.s_reach[motion.feasible]
+        retry = rows[~motion.feasible]
+        self.cursor[retry] = self.next_usable[retry, slots[~motion.feasible] + 1]
+        self.status[retry] = torch.where(self.cursor[retry] < self.usable.shape[1], UNDECIDED, EXHAUSTED)
+
+
+def _window_with_verdicts(
+    search: _CandidateSearch, verdicts: "_ScreenVerdicts", candidate_object: torch.Tensor, n_objects: int, max_candidates: int
+) -> torch.Tensor:
+    """(A,) bool: each object's first ``max_candidates`` candidates still alive, with the screens'
+    verdicts computed for every candidate in it.
+
+    With verdicts known for the whole window, the window of the first candidates still alive after
+    screening is the fixed point that screening round by round (each round moving the window past
+    the candidates it exhausted) reaches, and it screens the same candidates. Verdicts are computed
+    ahead, in blocks sized by the survival rate seen so far, so a mug (one antipodal candidate in
+    several hundred survives) takes ~15 blocks at 500,000 pairs, not one round per 200 candidates
+    each recounting every candidate's window.
+    """
+    while True:
+        waiting = (search.status == UNDECIDED) & ~search.screened
+        unknown = waiting & ~verdicts.ready
+        alive = torch.where(waiting & verdicts.ready, verdicts.usable.any(dim=1), search.status != EXHAUSTED)
+        in_window = _segment_exclusive_cumsum(alive.to(torch.int64), candidate_object, n_objects) < max_candidates
+        missing = unknown & in_window
+        if not missing.any():
+            return in_window
+        per_object = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
+        block = verdicts.block_sizes(per_object, candidate_object)
+        rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, n_objects)
+        verdicts.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
+
+
+def _planned_candidates(
+    screened: ScreenedCandidates, search: _CandidateSearch, n_objects: int, config: Config
+) -> list[GraspCandidates]:
+    """One ``GraspCandidates`` per object: its first ``max_candidates`` feasible candidates, with counts."""
+    planner = config.planner
+    candidate_object = screened.object_index
+    feasible = search.status == FEASIBLE
+    collision_free = search.screened & search.usable.any(dim=1)
+    rank_in_object = _segment_exclusive_cumsum(feasible.to(torch.int64), candidate_object, n_objects)
+    keep = feasible & (rank_in_object < planner.max_candidates)
+    final_slot = search.cursor.clamp_max(search.usable.shape[1] - 1)
+    results = []
+    for index in range(n_objects):
+        mine = (keep & (candidate_object == index)).nonzero().squeeze(1)
+        slot = final_slot[mine]
+        zeros = torch.zeros(mine.numel())
+        results.append(
+            GraspCandidates(
+                contacts_world=screened.contacts_world[mine],
+                closing_axis=screened.closing_axis[mine],
+                width_m=screened.width_m[mine],
+                s_geom=screened.s_geom[mine],
+                approach=screened.approach[mine, slot],
+                rotation_world=screened.rotation_world[mine, slot],
+                s_reach=search.s_reach[mine],
+                ik_solution=search.joint_path[mine, grasp_waypoint_index(config.execution)],
+                joint_path=search.joint_path[mine],
+                hand_clearance_m=search.clearance_m[mine, slot],
+                zone=torch.full((mine.numel(),), -1, dtype=torch.int64),
+                s_afford=zeros.clone(),
+                s_avoid=zeros.clone(),
+                s_task=zeros.clone(),
+                score=screened.s_geom[mine].clone(),
+                counts={
+                    "sampled": planner.n_pairs,
+                    "antipodal": int((candidate_object == index).sum()),
+                    "collision_free": int((collision_free & (candidate_object == index)).sum()),
+                    "ik_feasible": int((feasible & (candidate_object == index)).sum()),
+                    **{
+                        f"rejected_{stage}": int(search.rejected[candidate_object == index, column].sum())
+                        for column, stage in enumerate(("hand", *MotionCheck.STAGES))
+                    },
+                },
+            )
+        )
+    return results
+
+
 def plan_batch(
     clouds: Sequence[PerceivedCloud],
     config: Config,
@@ -485,124 +617,34 @@ def plan_batch(
     if not clouds:
         return []
     stage_time: dict[str, float] = {}
-    n_objects = len(clouds)
     screened = screen_candidates(clouds, config, seeds, stage_time)
-    candidate_object = screened.object_index
-    contacts, closing_axis, width, s_geom = screened.contacts_world, screened.closing_axis, screened.width_m, screened.s_geom
-    centre, approach, rotation = screened.centre_world, screened.approach, screened.rotation_world
-
-    n_candidates, n_approaches = rotation.shape[:2]
-    usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-    approach_slots = torch.arange(n_approaches)
-    # next_usable[c, k]: first usable approach at or after prior position k (K when none left);
-    # filled for a candidate once it is screened (table, gripper volume, swept hand).
-    next_usable = torch.full((n_candidates, n_approaches + 1), n_approaches)
-    cursor = torch.full((n_candidates,), n_approaches)
-    volume_screened = torch.zeros(n_candidates, dtype=torch.bool)
-    # Candidates without a table-clear approach are found, and exhausted, when screened.
-    status = torch.full((n_candidates,), UNDECIDED)
-    n_waypoints = motion_waypoints(centre[:0], approach[:0, 0], config.execution).shape[1]
-    chosen_path = torch.zeros(n_candidates, n_waypoints, 7)
-    chosen_reach = torch.zeros(n_candidates)
-    clearance = torch.full((n_candidates, n_approaches), float("inf"))
-    rejected = torch.zeros(n_candidates, 3, dtype=torch.int64)  # per candidate: hand, grasp IK, motion
+    n_candidates, n_approaches = screened.rotation_world.shape[:2]
+    n_waypoints = motion_waypoints(screened.centre_world[:0], screened.approach[:0, 0], config.execution).shape[1]
+    search = _CandidateSearch.start(n_candidates, n_approaches, n_waypoints)
+    verdicts = _ScreenVerdicts(screened)
     ik = panda_ik(config)
     ik_targets = 0
-    verdicts = _ScreenVerdicts(screened)
     motion_time = {"ik": 0.0, "motion": 0.0}
     while True:
-        # Screen every candidate the window reaches before the next IK round, in one step: with
-        # verdicts known for the whole window, the window of first max_candidates candidates still
-        # alive after screening is the fixed point that screening round by round (each round
-        # moving the window past the candidates it exhausted) reaches, and it screens the same
-        # candidates. Verdicts are computed ahead, in blocks sized by the survival rate seen so
-        # far, so a mug (one antipodal candidate in several hundred survives) takes ~15 blocks at
-        # 500,000 pairs, not one round per 200 candidates each recounting every candidate's window.
-        while True:
-            waiting = (status == UNDECIDED) & ~volume_screened
-            unknown = waiting & ~verdicts.ready
-            alive = torch.where(waiting & verdicts.ready, verdicts.usable.any(dim=1), status != EXHAUSTED)
-            in_window = _segment_exclusive_cumsum(alive.to(torch.int64), candidate_object, n_objects) < planner.max_candidates
-            missing = unknown & in_window
-            if not missing.any():
-                break
-            per_object = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
-            block = verdicts.block_sizes(per_object, candidate_object)
-            rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, n_objects)
-            verdicts.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
-        to_screen = (in_window & (status == UNDECIDED) & ~volume_screened).nonzero().squeeze(1)
+        in_window = _window_with_verdicts(search, verdicts, screened.object_index, len(clouds), planner.max_candidates)
+        to_screen = (in_window & (search.status == UNDECIDED) & ~search.screened).nonzero().squeeze(1)
         if to_screen.numel():
-            usable[to_screen] = verdicts.usable[to_screen]
-            clearance[to_screen] = verdicts.clearance_m[to_screen]
-            rejected[to_screen, 0] += verdicts.hand_blocked[to_screen].sum(dim=1)
-            volume_screened[to_screen] = True
-            first_usable = torch.where(usable[to_screen], approach_slots, n_approaches)
-            first_usable = torch.cat((first_usable, torch.full((to_screen.numel(), 1), n_approaches)), dim=1)
-            next_usable[to_screen] = first_usable.flip(1).cummin(1).values.flip(1)
-            cursor[to_screen] = next_usable[to_screen, 0]
-            status[to_screen] = torch.where(cursor[to_screen] < n_approaches, UNDECIDED, EXHAUSTED)
+            search.apply_screens(to_screen, verdicts)
             continue
-        pending = (in_window & (status == UNDECIDED)).nonzero().squeeze(1)
+        pending = (in_window & (search.status == UNDECIDED)).nonzero().squeeze(1)
         if pending.numel() == 0:
             break
-        slot = cursor[pending]
-        motion = check_motions(screened, pending, slot, ik, config, motion_time)
+        slots = search.cursor[pending]
+        motion = check_motions(screened, pending, slots, ik, config, motion_time)
         ik_targets += motion.ik_targets
-        rejected[pending, 1:] += motion.rejected_by
-        done = pending[motion.feasible]
-        status[done] = FEASIBLE
-        chosen_path[done] = motion.joint_path[motion.feasible]
-        chosen_reach[done] = motion.s_reach[motion.feasible]
-        retry = pending[~motion.feasible]
-        cursor[retry] = next_usable[retry, slot[~motion.feasible] + 1]
-        status[retry] = torch.where(cursor[retry] < n_approaches, UNDECIDED, EXHAUSTED)
-    collision_free = volume_screened & usable.any(dim=1)
+        search.apply_motions(pending, slots, motion)
     stage_time["frames_volume"] += verdicts.volume_s
     stage_time["hand_sweep"] = verdicts.hand_s
     stage_time.update(motion_time)
-
-    feasible = status == FEASIBLE
-    rank_in_object = _segment_exclusive_cumsum(feasible.to(torch.int64), candidate_object, n_objects)
-    keep = feasible & (rank_in_object < planner.max_candidates)
-    final_slot = cursor.clamp_max(n_approaches - 1)
-    results = []
-    for index, cloud in enumerate(clouds):
-        mine = (keep & (candidate_object == index)).nonzero().squeeze(1)
-        count = mine.numel()
-        zeros = torch.zeros(count)
-        results.append(
-            GraspCandidates(
-                contacts_world=contacts[mine],
-                closing_axis=closing_axis[mine],
-                width_m=width[mine],
-                s_geom=s_geom[mine],
-                approach=approach[mine, final_slot[mine]],
-                rotation_world=rotation[mine, final_slot[mine]],
-                s_reach=chosen_reach[mine],
-                ik_solution=chosen_path[mine, grasp_waypoint_index(config.execution)],
-                joint_path=chosen_path[mine],
-                hand_clearance_m=clearance[mine, final_slot[mine]],
-                zone=torch.full((count,), -1, dtype=torch.int64),
-                s_afford=zeros.clone(),
-                s_avoid=zeros.clone(),
-                s_task=zeros.clone(),
-                score=s_geom[mine].clone(),
-                counts={
-                    "sampled": planner.n_pairs,
-                    "antipodal": int((candidate_object == index).sum()),
-                    "collision_free": int((collision_free & (candidate_object == index)).sum()),
-                    "ik_feasible": int((feasible & (candidate_object == index)).sum()),
-                    **{
-                        f"rejected_{stage}": int(rejected[candidate_object == index, column].sum())
-                        for column, stage in enumerate(("hand", *MotionCheck.STAGES))
-                    },
-                },
-            )
-        )
     if timings is not None:
         timings.update(stage_time)
         timings["ik_targets"] = ik_targets
-    return results
+    return _planned_candidates(screened, search, len(clouds), config)
 
 
 def plan(cloud: PerceivedCloud, config: Config, seed: int | None = None, timings: dict[str, float] | None = None) -> GraspCandidates:
