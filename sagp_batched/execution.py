@@ -25,7 +25,7 @@ import numpy as np
 import pybullet
 import torch
 
-from .config import Config
+from .config import Config, ExecutionConfig
 from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
 from .scene import PANDA_ARM_JOINTS, PANDA_FINGER_JOINTS, PANDA_GRASPTARGET_LINK, Scene
@@ -251,70 +251,16 @@ def execute_grasp(
     "pregrasp", "descent", "close", "lift").
     """
     execution = config.execution
-    position = _as_vector(position_world, 3, "position_world")
-    quat = _as_vector(quat_xyzw, 4, "quat_xyzw")
-    approach = _as_vector(approach_world, 3, "approach_world")
-    if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
-        raise InvalidGraspError("quat_xyzw and approach_world must be non-zero")
-    if not 0.0 <= float(width_m) <= execution.finger_open_width_m:
-        raise InvalidGraspError(f"width_m {float(width_m)} is outside the gripper's 0..{execution.finger_open_width_m} m")
-    quat = quat / np.linalg.norm(quat)
-    approach = approach / np.linalg.norm(approach)
-    waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), execution)[0].double().numpy()
+    quat, waypoints, joint_path = _checked_grasp(position_world, quat_xyzw, width_m, approach_world, joint_path, execution)
     grasp_index = grasp_waypoint_index(execution)
-    if joint_path is not None:
-        joint_path = np.asarray(joint_path.detach().cpu().numpy() if isinstance(joint_path, torch.Tensor) else joint_path, dtype=float)
-        if joint_path.shape != (len(waypoints), 7) or not np.all(np.isfinite(joint_path)):
-            raise InvalidGraspError(f"joint_path must be ({len(waypoints)}, 7) finite joints, got shape {joint_path.shape}")
-
     client, target = scene.client, scene.target_id
-    table_top = config.scene.table_top_z_m
-    rest_com, rest_quat = scene.centre_of_mass(target)
-    distractor_start = [scene.centre_of_mass(body)[0] for body in scene.distractor_ids]
-    details: dict[str, Any] = {}
-    frames: dict[str, np.ndarray] = {}
-    camera = None
-    if record_frames:
-        camera = make_camera("frames", config, rest_com + np.asarray(execution.frame_camera_offset_m), rest_com, (0.0, 0.0, 1.0))
-
-    def finish(success: bool, reason: str | None, phase: str | None) -> GraspAttempt:
-        com, com_quat = scene.centre_of_mass(target)
-        moved = [float(np.linalg.norm(scene.centre_of_mass(body)[0] - start)) for body, start in zip(scene.distractor_ids, distractor_start)]
-        details["failed_at"] = phase
-        details["distractors_max_displacement_m"] = max(moved, default=0.0)
-        details["object_height_above_table_m"] = float(com[2] - table_top)
-        if reason == "collision":
-            details["collision_links"] = _touching_links(scene, [scene.table_id, target, *scene.distractor_ids])
-        if camera is not None:
-            frames["lifted" if success else f"failed_{phase}"] = render(scene, camera)[0]
-            details["frames"] = frames
-        return GraspAttempt(
-            success=success,
-            failure_reason=reason,
-            object_height_above_table_m=float(com[2] - table_top),
-            orientation_change_deg=_quat_angle_deg(com_quat, rest_quat),
-            details=details,
-        )
-
-    for finger in PANDA_FINGER_JOINTS:
-        pybullet.changeDynamics(
-            scene.robot_id,
-            finger,
-            lateralFriction=execution.finger_lateral_friction,
-            spinningFriction=execution.finger_spinning_friction,
-            physicsClientId=client,
-        )
+    outcome = _AttemptOutcome(scene, config, record_frames)
+    details, finish, rest_com = outcome.details, outcome.finish, outcome.rest_com
+    _set_finger_friction(scene, execution)
 
     # Every joint is known before stepping: IK and checks teleport the arm, harmless while time stands still.
-    ik = _ArmIK(scene, config)
     start_joints = scene.arm_joints()
-    if joint_path is not None and ik.reproduces(joint_path, waypoints, quat):
-        details["ik_source"] = "planner"
-    else:
-        details["ik_fallback"] = "no planned path" if joint_path is None else "planned joints miss a waypoint in PyBullet"
-        seeds = [_as_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
-        joint_path = ik.plan(waypoints, quat, seeds, grasp_index)
-        details["ik_source"] = ik.source
+    joint_path = _path_to_execute(scene, config, waypoints, quat, joint_path, ik_seed, details)
     if joint_path is None:
         scene.set_arm_joints(start_joints)
         return finish(False, "unreachable", "plan")
@@ -322,9 +268,7 @@ def execute_grasp(
     scene.set_finger_width(execution.finger_open_width_m)
     scene.set_arm_joints(joint_path[0])
     pybullet.performCollisionDetection(physicsClientId=client)
-    if _robot_contacts(scene, scene.table_id) or _robot_contacts(scene, target) or any(
-        _robot_contacts(scene, body) for body in scene.distractor_ids
-    ):
+    if any(_robot_contacts(scene, body) for body in (scene.table_id, target, *scene.distractor_ids)):
         return finish(False, "collision", "pregrasp")
     _step(scene, execution.settle_steps)
 
@@ -336,15 +280,8 @@ def execute_grasp(
     if descent_blocked():
         return finish(False, "collision", "descent")
 
-    scene.command_fingers(0.0)
-    _step(scene, execution.close_steps)
-    details["fingers_touching_after_close"] = _fingers_holding(scene)
-    # Against the planned contact width this tells a squeeze from fingers stopped by a wider
-    # collision shape than the cloud showed.
-    details["finger_width_after_close_m"] = scene.finger_width()
-    details["planned_width_m"] = float(width_m)
-    if camera is not None:
-        frames["contact"] = render(scene, camera)[0]
+    _close_fingers(scene, execution, width_m, details)
+    outcome.record_frame("contact")
 
     highest_rise = [0.0]
 
@@ -356,11 +293,109 @@ def execute_grasp(
     _step(scene, execution.hold_steps)
 
     com = scene.centre_of_mass(target)[0]
-    high_enough = com[2] - table_top >= execution.success_height_above_table_m
+    high_enough = com[2] - config.scene.table_top_z_m >= execution.success_height_above_table_m
     if high_enough and _fingers_holding(scene):
         return finish(True, None, None)
     phase = "lift" if details["fingers_touching_after_close"] else "close"
     return finish(False, "slipped" if highest_rise[0] >= execution.lifted_detect_height_m else "not_lifted", phase)
+
+
+def _checked_grasp(
+    position_world: Any, quat_xyzw: Any, width_m: float, approach_world: Any, joint_path: Any, execution: ExecutionConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(unit quaternion, (W, 3) motion waypoints, (W, 7) planned joints or None) of a grasp, or
+    ``InvalidGraspError`` naming what is malformed."""
+    position = _as_vector(position_world, 3, "position_world")
+    quat = _as_vector(quat_xyzw, 4, "quat_xyzw")
+    approach = _as_vector(approach_world, 3, "approach_world")
+    if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
+        raise InvalidGraspError("quat_xyzw and approach_world must be non-zero")
+    if not 0.0 <= float(width_m) <= execution.finger_open_width_m:
+        raise InvalidGraspError(f"width_m {float(width_m)} is outside the gripper's 0..{execution.finger_open_width_m} m")
+    quat = quat / np.linalg.norm(quat)
+    approach = approach / np.linalg.norm(approach)
+    waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), execution)[0].double().numpy()
+    if joint_path is not None:
+        joint_path = np.asarray(joint_path.detach().cpu().numpy() if isinstance(joint_path, torch.Tensor) else joint_path, dtype=float)
+        if joint_path.shape != (len(waypoints), 7) or not np.all(np.isfinite(joint_path)):
+            raise InvalidGraspError(f"joint_path must be ({len(waypoints)}, 7) finite joints, got shape {joint_path.shape}")
+    return quat, waypoints, joint_path
+
+
+class _AttemptOutcome:
+    """Judges an attempt when it ends and keeps its details: where the object and the distractors
+    ended, which links touched what in a collision, and frames when asked for."""
+
+    def __init__(self, scene: Scene, config: Config, record_frames: bool):
+        self.scene, self.table_top = scene, config.scene.table_top_z_m
+        self.rest_com, self.rest_quat = scene.centre_of_mass(scene.target_id)
+        self.distractor_start = [scene.centre_of_mass(body)[0] for body in scene.distractor_ids]
+        self.details: dict[str, Any] = {}
+        self.frames: dict[str, np.ndarray] = {}
+        self.camera = None
+        if record_frames:
+            eye = self.rest_com + np.asarray(config.execution.frame_camera_offset_m)
+            self.camera = make_camera("frames", config, eye, self.rest_com, (0.0, 0.0, 1.0))
+
+    def record_frame(self, moment: str) -> None:
+        if self.camera is not None:
+            self.frames[moment] = render(self.scene, self.camera)[0]
+            self.details["frames"] = self.frames
+
+    def finish(self, success: bool, reason: str | None, phase: str | None) -> GraspAttempt:
+        scene, details = self.scene, self.details
+        com, com_quat = scene.centre_of_mass(scene.target_id)
+        moved = [float(np.linalg.norm(scene.centre_of_mass(body)[0] - start)) for body, start in zip(scene.distractor_ids, self.distractor_start)]
+        details["failed_at"] = phase
+        details["distractors_max_displacement_m"] = max(moved, default=0.0)
+        details["object_height_above_table_m"] = float(com[2] - self.table_top)
+        if reason == "collision":
+            details["collision_links"] = _touching_links(scene, [scene.table_id, scene.target_id, *scene.distractor_ids])
+        self.record_frame("lifted" if success else f"failed_{phase}")
+        return GraspAttempt(
+            success=success,
+            failure_reason=reason,
+            object_height_above_table_m=float(com[2] - self.table_top),
+            orientation_change_deg=_quat_angle_deg(com_quat, self.rest_quat),
+            details=details,
+        )
+
+
+def _close_fingers(scene: Scene, execution: ExecutionConfig, planned_width_m: float, details: dict[str, Any]) -> None:
+    scene.command_fingers(0.0)
+    _step(scene, execution.close_steps)
+    details["fingers_touching_after_close"] = _fingers_holding(scene)
+    # Against the planned contact width this tells a squeeze from fingers stopped by a wider
+    # collision shape than the cloud showed.
+    details["finger_width_after_close_m"] = scene.finger_width()
+    details["planned_width_m"] = float(planned_width_m)
+
+
+def _set_finger_friction(scene: Scene, execution: ExecutionConfig) -> None:
+    for finger in PANDA_FINGER_JOINTS:
+        pybullet.changeDynamics(
+            scene.robot_id,
+            finger,
+            lateralFriction=execution.finger_lateral_friction,
+            spinningFriction=execution.finger_spinning_friction,
+            physicsClientId=scene.client,
+        )
+
+
+def _path_to_execute(
+    scene: Scene, config: Config, waypoints: np.ndarray, quat: np.ndarray, joint_path: np.ndarray | None, ik_seed: Any, details: dict[str, Any]
+) -> np.ndarray | None:
+    """The planner's joint path if PyBullet's kinematics confirms it reaches the waypoints, else
+    PyBullet IK's (None if it finds none); ``details`` records which and why."""
+    ik = _ArmIK(scene, config)
+    if joint_path is not None and ik.reproduces(joint_path, waypoints, quat):
+        details["ik_source"] = "planner"
+        return joint_path
+    details["ik_fallback"] = "no planned path" if joint_path is None else "planned joints miss a waypoint in PyBullet"
+    seeds = [_as_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
+    path = ik.plan(waypoints, quat, seeds, grasp_waypoint_index(config.execution))
+    details["ik_source"] = ik.source
+    return path
 
 
 def execute_ranked(

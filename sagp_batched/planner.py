@@ -245,7 +245,6 @@ def screen_candidates(
     closing_axis = pair_eval["closing_axis"][antipodal]
     width = pair_eval["width_m"][antipodal]
     contacts = points[pairs[antipodal]]  # (A, 2, 3)
-    centre = contacts.mean(dim=1)
     now = time.perf_counter()
     stage_time["antipodal"], clock = now - clock, now
 
