@@ -141,6 +141,30 @@ def panda_ik_closed_form(
     cos4, sin4 = cos4[..., None], sin4[..., None]
     arm_ok = elbow_ok[..., None] & q5_inside & q6_inside  # (N, K, 2, 2)
 
+    q1, q2, q3 = _shoulder_angles(x6, y6, z6, cos4, sin4, cos5, sin5, cos6, sin6)  # (N, K, 2, 2, 2) each
+    (q1, q1_inside), (q2, q2_inside), (q3, q3_inside) = (
+        _into_limits(angle, lower[joint], upper[joint]) for joint, angle in enumerate((q1, q2, q3))
+    )
+    q7_inside = (q7 >= lower[6]) & (q7 <= upper[6])
+    valid = q1_inside & q2_inside & q3_inside & arm_ok[..., None] & q7_inside[..., None, None, None]
+
+    shape = q1.shape
+    joints = torch.stack(
+        (q1, q2, q3, q4[..., None, None].expand(shape), q5[..., None].expand(shape), q6[..., None].expand(shape),
+         q7[..., None, None, None].expand(shape)),
+        dim=-1,
+    )
+    return PandaIKSolutions(joints=joints.reshape(n_targets, n_q7, N_BRANCHES, 7), valid=valid.reshape(n_targets, n_q7, N_BRANCHES))
+
+
+def _shoulder_angles(
+    x6: torch.Tensor, y6: torch.Tensor, z6: torch.Tensor,
+    cos4: torch.Tensor, sin4: torch.Tensor, cos5: torch.Tensor, sin5: torch.Tensor, cos6: torch.Tensor, sin6: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(q1, q2, q3), each (N, K, 2, 2, 2), that give frame 3 the orientation frame 6's axes
+    (``x6``, ``y6``, ``z6``: (N, K, 3), base frame) and the (N, K, 2, 1) / (N, K, 2, 2) cosines and
+    sines of q4, q5 and q6 leave for it; the last dimension is the shoulder branch (sign of q2).
+    Angles are wrapped to (-pi, pi], not yet moved into the joint limits."""
     # Shoulder: R03 = R6 R36^T, R36 = Rx(pi/2) Rz(q4) Rx(-pi/2) Rz(q5) Rx(pi/2) Rz(q6) = Ry(-q4) Rz(q5) Rx(pi/2) Rz(q6).
     # Row 2 of R03 is R36 applied to the base z axis in frame 6; column 2 is R6 R36^T e_z.
     up_x, up_y, up_z = (axis[..., 2, None, None] for axis in (x6, y6, z6))  # base z axis in frame 6
@@ -166,16 +190,4 @@ def panda_ik_closed_form(
     q1 = torch.where(shoulder_down, q1_up[..., None], _wrap(torch.stack((q1_up, q1_up + math.pi), dim=-1)))
     q3 = torch.where(shoulder_down, q3_up[..., None], _wrap(torch.stack((q3_up, q3_up + math.pi), dim=-1)))
     q2 = torch.stack((q2_magnitude, -q2_magnitude), dim=-1)  # (N, K, 2, 2, 2)
-    (q1, q1_inside), (q2, q2_inside), (q3, q3_inside) = (
-        _into_limits(angle, lower[joint], upper[joint]) for joint, angle in enumerate((q1, q2, q3))
-    )
-    q7_inside = (q7 >= lower[6]) & (q7 <= upper[6])
-    valid = q1_inside & q2_inside & q3_inside & arm_ok[..., None] & q7_inside[..., None, None, None]
-
-    shape = q1.shape
-    joints = torch.stack(
-        (q1, q2, q3, q4[..., None, None].expand(shape), q5[..., None].expand(shape), q6[..., None].expand(shape),
-         q7[..., None, None, None].expand(shape)),
-        dim=-1,
-    )
-    return PandaIKSolutions(joints=joints.reshape(n_targets, n_q7, N_BRANCHES, 7), valid=valid.reshape(n_targets, n_q7, N_BRANCHES))
+    return q1, q2, q3
