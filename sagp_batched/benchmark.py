@@ -22,10 +22,11 @@ import torch
 
 from ._open3d import o3d
 from .config import Config
-from .ik import PandaIK
+from .ik import PandaIK, link_moved_by
 from .objects import ObjectSpec
 from .planner import plan
 from .reference import plan_reference
+from .robot import PANDA
 from .types import PerceivedCloud
 
 STAGES = ("sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion")
@@ -151,20 +152,20 @@ def reachable_ik_targets(ik: PandaIK, table_top_z_m: float, count: int, seed: in
 
 
 def shoulder_world(ik: PandaIK) -> torch.Tensor:
-    """(3,) world position of the shoulder (origin of ``panda_link2``, on joint 1's axis, so fixed)."""
+    """(3,) world position of the shoulder (origin of the link joint 2 moves, on joint 1's axis, so fixed)."""
     frames = ik.chain.forward_kinematics(torch.zeros(1, 7), end_only=False)
-    return frames["panda_link2"].get_matrix()[0, :3, 3] + ik.base_xyz_world
+    return frames[link_moved_by(ik.chain, PANDA.arm_joints[1])].get_matrix()[0, :3, 3] + ik.base_xyz_world
 
 
 def reach_bound_from_shoulder_m(ik: PandaIK) -> float:
     """Upper bound (m) on the distance of ``panda_grasptarget`` from the shoulder in any configuration.
 
-    The sum of the lengths of every frame offset after ``panda_link2`` (triangle inequality), so no
+    The sum of the lengths of every frame offset after the shoulder's link (triangle inequality), so no
     joint values can exceed it: 1.09 m for the Panda, whose sampled maximum is ~0.95 m.
     """
     names = ik.chain.get_frame_names(exclude_fixed=False)
     bound = 0.0
-    for name in names[names.index("panda_link2") + 1 :]:
+    for name in names[names.index(link_moved_by(ik.chain, PANDA.arm_joints[1])) + 1 :]:
         frame = ik.chain.find_frame(name)
         for offset in (frame.joint.offset, frame.link.offset):
             if offset is not None:

@@ -28,7 +28,7 @@ import torch
 from .config import Config, ExecutionConfig
 from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
-from .scene import PANDA_ARM_JOINTS, PANDA_FINGER_JOINTS, PANDA_GRASPTARGET_LINK, Scene
+from .scene import Scene
 from .types import GraspAttempt, GraspCandidates
 
 # Joint-limit slack for accepting an IK solution: PyBullet clamps to the limits within float noise.
@@ -66,7 +66,7 @@ class _ArmIK:
         self.movable = movable
         self.lower = np.array([i[8] for i in info])
         self.upper = np.array([i[9] for i in info])
-        self.arm_slots = [movable.index(j) for j in PANDA_ARM_JOINTS]
+        self.arm_slots = [movable.index(j) for j in scene.robot_indices.arm_joints]
         self.rng = np.random.default_rng(config.scene.seed_base + (scene.trial or 0))
         self.source = "pybullet"
 
@@ -79,7 +79,7 @@ class _ArmIK:
         """(valid, position error m, rotation error rad) of arm joints against a grasptarget pose."""
         lower, upper = self.lower[self.arm_slots], self.upper[self.arm_slots]
         inside = bool(np.all(arm_joints >= lower - LIMIT_SLACK_RAD) and np.all(arm_joints <= upper + LIMIT_SLACK_RAD))
-        for joint, angle in zip(PANDA_ARM_JOINTS, arm_joints):
+        for joint, angle in zip(self.scene.robot_indices.arm_joints, arm_joints):
             pybullet.resetJointState(self.scene.robot_id, joint, float(angle), physicsClientId=self.scene.client)
         reached_position, reached_quat = self.scene.grasptarget_pose()
         position_error = float(np.linalg.norm(reached_position - position))
@@ -91,11 +91,11 @@ class _ArmIK:
     def _pybullet(self, position: np.ndarray, quat: np.ndarray, seed: np.ndarray) -> np.ndarray | None:
         client, robot = self.scene.client, self.scene.robot_id
         # PyBullet's IK iterates from the body's current joints, so the seed is set first.
-        for joint, angle in zip(PANDA_ARM_JOINTS, seed):
+        for joint, angle in zip(self.scene.robot_indices.arm_joints, seed):
             pybullet.resetJointState(robot, joint, float(angle), physicsClientId=client)
         solution = pybullet.calculateInverseKinematics(
             robot,
-            PANDA_GRASPTARGET_LINK,
+            self.scene.robot_indices.grasp_target_link,
             position.tolist(),
             quat.tolist(),
             lowerLimits=self.lower.tolist(),
@@ -197,7 +197,7 @@ def _touching_links(scene: Scene, bodies: Sequence[int]) -> list[str]:
 def _fingers_holding(scene: Scene) -> bool:
     return all(
         pybullet.getContactPoints(bodyA=scene.robot_id, bodyB=scene.target_id, linkIndexA=finger, physicsClientId=scene.client)
-        for finger in PANDA_FINGER_JOINTS
+        for finger in scene.robot_indices.finger_joints
     )
 
 
@@ -372,7 +372,7 @@ def _close_fingers(scene: Scene, execution: ExecutionConfig, planned_width_m: fl
 
 
 def _set_finger_friction(scene: Scene, execution: ExecutionConfig) -> None:
-    for finger in PANDA_FINGER_JOINTS:
+    for finger in scene.robot_indices.finger_joints:
         pybullet.changeDynamics(
             scene.robot_id,
             finger,

@@ -36,12 +36,10 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .hand import hand_to_grasp_target_m
 from .objects import ObjectSpec
+from .robot import PANDA
 from .types import GraspAttempt, GraspCandidates, PerceivedCloud
-
-# panda_grasptarget sits 0.105 m along panda_hand's z axis (pybullet_data franka_panda/panda.urdf):
-# the executed grasp closed its fingers there, so the exported poses put the contacts there too.
-HAND_TO_GRASPTARGET_M = 0.105
 
 # ACRONYM's Franka gripper is the same hand as panda_hand (finger joints 0.0584 m above the base,
 # pads reaching ~0.105 m), but its fingers open along x where panda_hand's close along y. Turning
@@ -63,7 +61,10 @@ def acronym_gripper_transforms_object(cloud: PerceivedCloud, candidates: GraspCa
     """
     world_from_object = _pose(cloud)
     rotation_planner = candidates.rotation_world.double().numpy()
-    base_position = candidates.position_world.double().numpy() - HAND_TO_GRASPTARGET_M * rotation_planner[:, :, 2]
+    # The executed grasp closed its fingers at the grasp target, 0.105 m along panda_hand's z axis
+    # in the robot's URDF, so the exported poses put the contacts there too.
+    hand_offset = hand_to_grasp_target_m(PANDA.urdf_path)
+    base_position = candidates.position_world.double().numpy() - hand_offset * rotation_planner[:, :, 2]
     world_from_gripper = np.tile(np.eye(4), (len(candidates), 1, 1))
     world_from_gripper[:, :3, :3] = rotation_planner @ ACRONYM_FROM_PLANNER_ROTATION
     world_from_gripper[:, :3, 3] = base_position

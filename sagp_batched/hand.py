@@ -24,14 +24,10 @@ import pytorch_kinematics as pk
 import torch
 from scipy.spatial import ConvexHull
 
+from .robot import PANDA
+
 log = logging.getLogger(__name__)
 
-# The links the open hand collides with as it descends: the hand, both fingers, and link 7 (the
-# wrist flange behind the hand, rigidly attached to it).
-HAND_COLLISION_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger", "panda_link7")
-GRASP_LINK = "panda_grasptarget"
-FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
-FINGER_LINKS = ("panda_leftfinger", "panda_rightfinger")
 
 
 def _dop_directions() -> torch.Tensor:
@@ -128,15 +124,27 @@ def link_hulls(urdf_path: Path, links: tuple[str, ...]) -> dict[str, np.ndarray]
 
 
 @functools.lru_cache(maxsize=4)
-def load_hand_geometry(urdf_path: Path, open_width_m: float, links: tuple[str, ...] = HAND_COLLISION_LINKS) -> HandGeometry:
+def hand_to_grasp_target_m(urdf_path: Path) -> float:
+    """Distance (m) of the grasp target from the hand link's origin along the hand's z axis (the
+    approach), from ``urdf_path``; the grasp target must lie on that axis with the hand's orientation."""
+    chain = quiet_urdf(pk.build_chain_from_urdf, urdf_path).to(dtype=torch.float64)
+    poses = chain.forward_kinematics(torch.zeros(1, len(chain.get_joint_parameter_names()), dtype=torch.float64))
+    hand_to_target = (torch.linalg.inv(poses[PANDA.hand_link].get_matrix()[0]) @ poses[PANDA.grasp_target_link].get_matrix()[0]).numpy()
+    if not np.allclose(hand_to_target[:3, :3], np.eye(3), atol=1e-6) or not np.allclose(hand_to_target[:2, 3], 0.0, atol=1e-6):
+        raise ValueError(f"{urdf_path}: {PANDA.grasp_target_link} is not on {PANDA.hand_link}'s z axis with its orientation")
+    return float(hand_to_target[2, 3])
+
+
+@functools.lru_cache(maxsize=4)
+def load_hand_geometry(urdf_path: Path, open_width_m: float, links: tuple[str, ...] = PANDA.hand_collision_links) -> HandGeometry:
     """The hand's collision hulls from ``urdf_path`` with the fingers ``open_width_m`` apart."""
     chain = quiet_urdf(pk.build_chain_from_urdf, urdf_path)
     joint_names = chain.get_joint_parameter_names()
     joints = torch.zeros(1, len(joint_names), dtype=torch.float64)
-    for name in FINGER_JOINTS:
+    for name in PANDA.finger_joints:
         joints[0, joint_names.index(name)] = open_width_m / 2.0
     poses = chain.to(dtype=torch.float64).forward_kinematics(joints)
-    grasp_from_base = torch.linalg.inv(poses[GRASP_LINK].get_matrix()[0]).numpy()
+    grasp_from_base = torch.linalg.inv(poses[PANDA.grasp_target_link].get_matrix()[0]).numpy()
     hulls = []
     for name, vertices in link_hulls(urdf_path, links).items():
         transform = grasp_from_base @ poses[name].get_matrix()[0].numpy()

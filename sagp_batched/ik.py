@@ -11,10 +11,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Sequence
 
-import pybullet_data
 import pytorch_kinematics as pk
 import torch
 
@@ -22,10 +20,8 @@ from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form
 
 from .config import PlannerConfig, SceneConfig
 from .hand import quiet_urdf
+from .robot import PANDA
 
-PANDA_URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
-END_LINK = "panda_grasptarget"
-LAST_ARM_LINK = "panda_link7"
 N_ARM_JOINTS = 7
 # The closed form holds for joint frames of this shape: modified Denavit-Hartenberg twist angles,
 # and the a and d entries it models (all others zero).
@@ -57,8 +53,13 @@ class PathResult:
 
 
 def _panda_chain() -> pk.SerialChain:
-    """The Panda arm chain up to ``END_LINK``."""
-    return quiet_urdf(lambda text: pk.build_serial_chain_from_urdf(text, END_LINK), PANDA_URDF)
+    """The Panda arm chain up to its grasp target."""
+    return quiet_urdf(lambda text: pk.build_serial_chain_from_urdf(text, PANDA.grasp_target_link), PANDA.urdf_path)
+
+
+def link_moved_by(chain: pk.SerialChain, joint_name: str) -> str:
+    """Name of the link that joint ``joint_name`` of ``chain`` moves (the link of its frame)."""
+    return next(name for name in chain.get_frame_names() if chain.find_frame(name).joint.name == joint_name)
 
 
 def panda_arm_geometry(chain: pk.SerialChain) -> PandaArmGeometry:
@@ -107,7 +108,7 @@ class PandaIK:
         # sin q5 = +-1) float32 input rounding alone moves the answer by ~1e-3 rad.
         chain64 = _panda_chain().to(dtype=torch.float64)  # ``to`` converts in place: a chain of its own
         frames = chain64.forward_kinematics(torch.zeros(1, N_ARM_JOINTS, dtype=torch.float64), end_only=False)
-        link7_in_target = frames[END_LINK].get_matrix()[0].inverse() @ frames[LAST_ARM_LINK].get_matrix()[0]
+        link7_in_target = frames[PANDA.grasp_target_link].get_matrix()[0].inverse() @ frames[link_moved_by(self.chain, PANDA.arm_joints[-1])].get_matrix()[0]
         self._link7_in_target = link7_in_target  # (4, 4): fixed flange, hand and grasp-target offsets
         self._q7_grid = torch.linspace(float(self.lower[6]), float(self.upper[6]), config.ik_q7_samples, dtype=torch.float64)
         self._q7_fine_grid = torch.linspace(float(self.lower[6]), float(self.upper[6]), config.ik_q7_fine_samples, dtype=torch.float64)
@@ -322,7 +323,7 @@ class PandaIK:
             )
         # One forward-kinematics pass judges the answers and places the links.
         link_poses = self.chain.forward_kinematics(joints, end_only=False)
-        position_error, rotation_error = _errors_of_pose(link_poses[END_LINK].get_matrix(), target_position, target_rotation)
+        position_error, rotation_error = _errors_of_pose(link_poses[PANDA.grasp_target_link].get_matrix(), target_position, target_rotation)
         lowest = None if hulls is None else self._lowest_hull_z(link_poses, hulls).view(n_motions, n_waypoints)
         return PathResult(
             joints=joints.view(n_motions, n_waypoints, N_ARM_JOINTS),

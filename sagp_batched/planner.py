@@ -30,9 +30,10 @@ from sagp_batched_kernels.sampling import (
 )
 
 from .config import Config, PlannerConfig
-from .hand import DOP_DIRECTIONS, FINGER_LINKS, HandGeometry, link_hulls, load_hand_geometry
-from .ik import PANDA_URDF, PandaIK
+from .hand import DOP_DIRECTIONS, HandGeometry, link_hulls, load_hand_geometry
+from .ik import PandaIK
 from .motion import grasp_waypoint_index, motion_waypoints
+from .robot import PANDA
 from .types import GraspCandidates, PerceivedCloud
 
 # Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
@@ -68,7 +69,7 @@ def gripper_geometry(config: PlannerConfig) -> GripperGeometry:
 
 def hand_geometry(config: PlannerConfig) -> HandGeometry:
     """The open Panda hand's collision hulls, derived from the robot's URDF."""
-    return load_hand_geometry(PANDA_URDF, config.gripper_open_width_m)
+    return load_hand_geometry(PANDA.urdf_path, config.gripper_open_width_m)
 
 
 def _check_cloud(cloud: PerceivedCloud, position: int) -> None:
@@ -175,8 +176,8 @@ class ScreenedCandidates:
         """
         planner = self.planner
         hand = hand_geometry(planner)
-        fingers = hand.vertices(FINGER_LINKS)
-        rest = hand.vertices(tuple(name for name in hand.links if name not in FINGER_LINKS))
+        fingers = hand.vertices(PANDA.finger_links)
+        rest = hand.vertices(tuple(name for name in hand.links if name not in PANDA.finger_links))
         centre, rotation = self.centre_world[rows], self.rotation_world[rows]
         through_table = table_penetration(
             centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m
@@ -272,7 +273,7 @@ def screen_candidates(
 
 @functools.lru_cache(maxsize=4)
 def _arm_hulls_of(links: tuple[str, ...]) -> dict[str, torch.Tensor]:
-    return {name: torch.tensor(vertices, dtype=torch.float32) for name, vertices in link_hulls(PANDA_URDF, links).items()}
+    return {name: torch.tensor(vertices, dtype=torch.float32) for name, vertices in link_hulls(PANDA.urdf_path, links).items()}
 
 
 def _arm_hulls(planner: PlannerConfig) -> dict[str, torch.Tensor]:

@@ -18,9 +18,9 @@ import pybullet
 import torch
 
 from .config import Config
-from .ik import END_LINK, N_ARM_JOINTS, PANDA_URDF
-from .hand import FINGER_LINKS
+from .ik import N_ARM_JOINTS
 from .planner import hand_geometry, jaw_width_limit, sample_inputs
+from .robot import PANDA
 from .types import GraspCandidates, PerceivedCloud
 
 
@@ -43,10 +43,10 @@ class PyBulletPandaIK:
         self.config = config
         self.client = pybullet.connect(pybullet.DIRECT)
         self.robot = pybullet.loadURDF(
-            str(PANDA_URDF), basePosition=config.scene.robot_base_xyz_m, useFixedBase=True, physicsClientId=self.client
+            str(PANDA.urdf_path), basePosition=config.scene.robot_base_xyz_m, useFixedBase=True, physicsClientId=self.client
         )
         joints = [pybullet.getJointInfo(self.robot, j, physicsClientId=self.client) for j in range(pybullet.getNumJoints(self.robot, physicsClientId=self.client))]
-        self.end_link = next(j[0] for j in joints if j[12].decode() == END_LINK)
+        self.end_link = next(j[0] for j in joints if j[12].decode() == PANDA.grasp_target_link)
         self.movable = [j[0] for j in joints if j[2] != pybullet.JOINT_FIXED]
         self.lower = np.array([joints[j][8] for j in self.movable])
         self.upper = np.array([joints[j][9] for j in self.movable])
@@ -122,7 +122,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
     # planner does: the fingers and the rest of the hand each with their own clearance.
     hand = hand_geometry(planner)
     table_levels = [
-        (hull.double().numpy(), planner.finger_table_clearance_m if name in FINGER_LINKS else planner.arm_table_clearance_m)
+        (hull.double().numpy(), planner.finger_table_clearance_m if name in PANDA.finger_links else planner.arm_table_clearance_m)
         for name, hull in zip(hand.links, hand.hull_vertices)
     ]
 

@@ -8,22 +8,14 @@ poses bit for bit.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import pybullet
-import pybullet_data
 
 from .config import Config
 from .objects import ObjectLoadError, ObjectSpec
-
-PANDA_URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
-# Facts of pybullet_data's panda.urdf (the cross-team grasp-frame contract relies on them).
-PANDA_ARM_JOINTS = (0, 1, 2, 3, 4, 5, 6)
-PANDA_FINGER_JOINTS = (9, 10)
-PANDA_HAND_LINK = 8
-PANDA_GRASPTARGET_LINK = 11
+from .robot import PANDA, body_indices
 
 
 class ScenePlacementError(RuntimeError):
@@ -90,9 +82,10 @@ class Scene:
         self.target_spec = target
         self.table_id = self._create_table()
         self.robot_id = pybullet.loadURDF(
-            str(PANDA_URDF), basePosition=scene_config.robot_base_xyz_m, useFixedBase=True, physicsClientId=client
+            str(PANDA.urdf_path), basePosition=scene_config.robot_base_xyz_m, useFixedBase=True, physicsClientId=client
         )
-        self._arm_max_forces = tuple(pybullet.getJointInfo(self.robot_id, j, physicsClientId=client)[10] for j in PANDA_ARM_JOINTS)
+        self.robot_indices = body_indices(PANDA, self.robot_id, client)
+        self._arm_max_forces = tuple(pybullet.getJointInfo(self.robot_id, j, physicsClientId=client)[10] for j in self.robot_indices.arm_joints)
         self.set_arm_joints(scene_config.robot_home_joints)
         self.set_finger_width(self.config.execution.finger_open_width_m)
 
@@ -127,22 +120,22 @@ class Scene:
 
     # -- robot -----------------------------------------------------------------------------------
     def arm_joints(self) -> np.ndarray:
-        states = pybullet.getJointStates(self.robot_id, PANDA_ARM_JOINTS, physicsClientId=self.client)
+        states = pybullet.getJointStates(self.robot_id, self.robot_indices.arm_joints, physicsClientId=self.client)
         return np.array([s[0] for s in states])
 
     def set_arm_joints(self, joints: Sequence[float]) -> None:
         """Teleport the arm (resetJointState) and command its motors to hold there."""
-        for joint, angle in zip(PANDA_ARM_JOINTS, joints):
+        for joint, angle in zip(self.robot_indices.arm_joints, joints):
             pybullet.resetJointState(self.robot_id, joint, float(angle), physicsClientId=self.client)
         self.command_arm(joints)
 
     def finger_width(self) -> float:
         """Current distance between the fingers, metres (each finger joint is half of it)."""
-        states = pybullet.getJointStates(self.robot_id, PANDA_FINGER_JOINTS, physicsClientId=self.client)
+        states = pybullet.getJointStates(self.robot_id, self.robot_indices.finger_joints, physicsClientId=self.client)
         return float(sum(state[0] for state in states))
 
     def set_finger_width(self, width_m: float) -> None:
-        for joint in PANDA_FINGER_JOINTS:
+        for joint in self.robot_indices.finger_joints:
             pybullet.resetJointState(self.robot_id, joint, width_m / 2.0, physicsClientId=self.client)
         self.command_fingers(width_m)
 
@@ -150,11 +143,11 @@ class Scene:
         gain = self.config.execution.arm_position_gain
         pybullet.setJointMotorControlArray(
             self.robot_id,
-            PANDA_ARM_JOINTS,
+            self.robot_indices.arm_joints,
             pybullet.POSITION_CONTROL,
             targetPositions=[float(j) for j in joints],
             forces=self._arm_max_forces,
-            positionGains=[gain] * len(PANDA_ARM_JOINTS),
+            positionGains=[gain] * len(self.robot_indices.arm_joints),
             physicsClientId=self.client,
         )
 
@@ -162,7 +155,7 @@ class Scene:
         force = self.config.execution.gripper_force_n if force_n is None else force_n
         pybullet.setJointMotorControlArray(
             self.robot_id,
-            PANDA_FINGER_JOINTS,
+            self.robot_indices.finger_joints,
             pybullet.POSITION_CONTROL,
             targetPositions=[width_m / 2.0] * 2,
             forces=[force] * 2,
@@ -172,7 +165,7 @@ class Scene:
     def grasptarget_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """World position and xyzw quaternion of ``panda_grasptarget`` from forward kinematics."""
         state = pybullet.getLinkState(
-            self.robot_id, PANDA_GRASPTARGET_LINK, computeForwardKinematics=True, physicsClientId=self.client
+            self.robot_id, self.robot_indices.grasp_target_link, computeForwardKinematics=True, physicsClientId=self.client
         )
         return np.array(state[4]), np.array(state[5])
 

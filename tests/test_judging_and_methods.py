@@ -1,4 +1,4 @@
-"""Task success by the published task definitions, with the thresholds the config holds; the method registry."""
+"""Task success by the published task definitions, with the thresholds the config holds; the method registry; the robot description."""
 import pytest
 
 from sagp_batched.config import TaskConfig
@@ -43,3 +43,22 @@ def test_every_method_name_has_one_registered_ranking_and_only_vlm_direct_asks_a
     assert [name for name, method in REGISTRY.items() if method.needs_model] == ["vd"]
     with pytest.raises(ValueError, match="unknown method 'xx'"):
         get_method("xx")
+
+
+def test_the_robot_is_described_once_and_its_joints_are_found_by_name_in_the_loaded_urdf():
+    import pybullet
+
+    from sagp_batched.hand import hand_to_grasp_target_m
+    from sagp_batched.robot import PANDA, body_indices
+
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        body = pybullet.loadURDF(str(PANDA.urdf_path), useFixedBase=True, physicsClientId=client)
+        indices = body_indices(PANDA, body, client)
+        names = {pybullet.getJointInfo(body, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(body, physicsClientId=client))}
+        assert indices.arm_joints == tuple(names[name] for name in PANDA.arm_joints) and len(indices.arm_joints) == 7
+        assert pybullet.getJointInfo(body, indices.grasp_target_link, physicsClientId=client)[12].decode() == PANDA.grasp_target_link
+    finally:
+        pybullet.disconnect(client)
+    # The grasp target's offset from the hand comes from the URDF (pybullet_data's is 0.105 m).
+    assert abs(hand_to_grasp_target_m(PANDA.urdf_path) - 0.105) < 1e-6

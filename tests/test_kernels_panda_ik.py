@@ -3,7 +3,8 @@ import pytest
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched.ik import LAST_ARM_LINK, N_ARM_JOINTS, _panda_chain, panda_arm_geometry
+from sagp_batched.ik import N_ARM_JOINTS, _panda_chain, link_moved_by, panda_arm_geometry
+from sagp_batched.robot import PANDA
 from sagp_batched_kernels.panda_ik import N_BRANCHES, panda_ik_closed_form
 
 
@@ -23,7 +24,7 @@ def _random_joints(limits, count, seed):
 
 
 def _link7_pose(chain64, joints):
-    return chain64.forward_kinematics(joints, end_only=False)[LAST_ARM_LINK].get_matrix()
+    return chain64.forward_kinematics(joints, end_only=False)[link_moved_by(chain64, PANDA.arm_joints[-1])].get_matrix()
 
 
 def test_arm_geometry_is_read_from_the_urdf_chain():

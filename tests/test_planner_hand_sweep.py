@@ -9,8 +9,8 @@ import torch
 
 from planner_clouds import box_surface, cylinder_surface, make_cloud
 from sagp_batched.config import Config
-from sagp_batched.hand import DOP_DIRECTIONS, HAND_COLLISION_LINKS
-from sagp_batched.ik import PANDA_URDF
+from sagp_batched.hand import DOP_DIRECTIONS
+from sagp_batched.robot import PANDA
 from sagp_batched.planner import gripper_geometry, hand_geometry, plan
 from sagp_batched_kernels.grasp_frames import grasp_rotations
 from sagp_batched_kernels.gripper_volume import gripper_occupancy
@@ -99,10 +99,10 @@ def test_the_hand_geometry_is_the_urdf_collision_shapes_as_pybullet_places_them(
     posed axis-aligned (pointing down) and the margin is taken off; link 7 sits turned 45 deg
     about the approach, so its hull must lie inside PyBullet's box and match it along z."""
     geometry = hand_geometry(PLANNER)
-    assert geometry.links == HAND_COLLISION_LINKS
+    assert geometry.links == PANDA.hand_collision_links
     client = pybullet.connect(pybullet.DIRECT)
     try:
-        robot = pybullet.loadURDF(str(PANDA_URDF), useFixedBase=True, physicsClientId=client)
+        robot = pybullet.loadURDF(str(PANDA.urdf_path), useFixedBase=True, physicsClientId=client)
         names = {pybullet.getJointInfo(robot, j, physicsClientId=client)[12].decode(): j
                  for j in range(pybullet.getNumJoints(robot, physicsClientId=client))}
         for joint, angle in zip(range(7), CONFIG.execution.ik_seed_joints):

@@ -16,7 +16,8 @@ from planner_clouds import box_surface, make_cloud
 from sagp_batched import load_object_set
 from sagp_batched.benchmark import BenchmarkSettings, mesh_cloud
 from sagp_batched.config import Config
-from sagp_batched.hand import DOP_DIRECTIONS, FINGER_LINKS
+from sagp_batched.hand import DOP_DIRECTIONS
+from sagp_batched.robot import PANDA
 from sagp_batched.planner import ScreenedCandidates, _ScreenVerdicts, gripper_geometry, hand_geometry, plan_batch, screen_candidates
 from sagp_batched_kernels.gripper_volume import table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance
@@ -83,7 +84,7 @@ def test_the_table_check_decides_every_pose_as_checking_every_hull_point_does(yc
     centre, rotation = screened.centre_world, screened.rotation_world
     # A grid of table heights puts the table top close to many poses' lowest points.
     for table_z in np.linspace(TABLE_Z - 0.02, TABLE_Z + 0.06, 9):
-        for links in (FINGER_LINKS, tuple(n for n in hand.links if n not in FINGER_LINKS)):
+        for links in (PANDA.finger_links, tuple(n for n in hand.links if n not in PANDA.finger_links)):
             points = hand.vertices(links)
             through = table_penetration(centre, rotation, points, CONFIG.execution.pregrasp_offset_m, float(table_z))
             assert torch.equal(through, dense_table_penetration(centre, rotation, points, CONFIG.execution.pregrasp_offset_m, float(table_z)))
