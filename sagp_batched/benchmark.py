@@ -233,8 +233,8 @@ def pk_pseudo_inverse_solve(ik: PandaIK, config: Config, seed: int = 0) -> IKSol
             max_iterations=30,
             early_stopping_any_converged=True,
             regularlization=1e-6,
-            pos_tolerance=config.planner.ik_pos_tolerance_m,
-            rot_tolerance=config.planner.ik_rot_tolerance_rad,
+            pos_tolerance=PANDA.ik_position_tolerance_m,
+            rot_tolerance=PANDA.ik_rotation_tolerance_rad,
         )
 
     def solve(positions_world: torch.Tensor, rotations_world: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -278,7 +278,7 @@ def measure_ik_solver(
         durations.append(time.perf_counter() - start)
     position_error, rotation_error = pose_errors(ik, joints, reachable)
     inside = inside_joint_limits(ik, joints)
-    success = (position_error <= config.planner.ik_pos_tolerance_m) & (rotation_error <= config.planner.ik_rot_tolerance_rad) & inside
+    success = (position_error <= PANDA.ik_position_tolerance_m) & (rotation_error <= PANDA.ik_rotation_tolerance_rad) & inside
     _, claimed_unreachable = solve(unreachable.positions_world, unreachable.rotations_world)
     seconds = _median(durations)
     return IKSolverMeasures(
@@ -310,8 +310,8 @@ def benchmark_ik(config: Config, settings: BenchmarkSettings) -> dict[str, Any]:
         "reachable_targets": settings.ik_targets,
         "unreachable_targets": settings.ik_unreachable_targets,
         "unreachable_min_distance_from_shoulder_m": settings.ik_unreachable_min_distance_m,
-        "pos_tolerance_m": config.planner.ik_pos_tolerance_m,
-        "rot_tolerance_rad": config.planner.ik_rot_tolerance_rad,
+        "pos_tolerance_m": PANDA.ik_position_tolerance_m,
+        "rot_tolerance_rad": PANDA.ik_rotation_tolerance_rad,
         "solvers": [m.figures() for m in measures],
     }
 

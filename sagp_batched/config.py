@@ -126,16 +126,14 @@ class PlannerConfig:
     # fine grid found the one target 128 misses (a 0.012 rad window between two joint limits).
     ik_q7_samples: int = 16
     ik_q7_fine_samples: int = 128
-    ik_pos_tolerance_m: float = 0.005
-    ik_rot_tolerance_rad: float = 0.05
     seed: int = 0
     # The boxes of the published 12 % gripper-volume proxy, sized to the hulls PyBullet collides
     # the hand with (panda.urdf's meshes/collision/{hand,finger}.obj): from the grasp target the
     # finger hulls reach 0.0073 m beyond it, the hand hull's face is 0.039 m short of it and the
     # hull is 0.092 m deep, 0.063 m wide and 0.204 m across; a finger hull is 0.021 m wide, 0.026 m
     # thick at the hand and 0.014 m at the tip. Executability is checked on the hulls themselves
-    # (``sagp_batched.hand``), not on these boxes.
-    gripper_open_width_m: float = 0.08
+    # (``sagp_batched.hand``), not on these boxes. The fingers' open width is the robot's
+    # (``sagp_batched/data/robots/panda.toml``).
     # Each open finger must clear its contact by this much to descend without brushing the object:
     # a 7.9 cm pair under an 8 cm jaw passes the published width filter but hits the fingers in practice.
     jaw_clearance_m: float = 0.005
@@ -155,10 +153,6 @@ class PlannerConfig:
     # (candidate, approach, point) triples the occupancy check holds at once: chunks of ~3 MB of
     # float32 coordinates stay in cache and measured 2x faster than 4M-element chunks.
     occupancy_chunk_elements: int = 262_144
-    # Among a grasp's IK solutions the one nearest in joint space to this posture (Franka's "ready"
-    # pose, hand down over the table), joint 1 turned toward the target, is kept: the branch a local
-    # solver started from it would reach, so motions continue from a familiar arm posture.
-    ik_reference_joints: tuple[float, ...] = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
     # Damped-least-squares steps for closed-form answers that float32 forward kinematics puts
     # outside the tolerance: none at 5 mm, ~1 % at a 1 um tolerance, which 3 steps bring inside.
     ik_polish_iterations: int = 3
@@ -238,19 +232,13 @@ class ExecutionConfig:
     close_steps: int = 120
     # Panda hand: 70 N continuous grip force per the datasheet; enough for the 1.13 kg bleach bottle.
     gripper_force_n: float = 70.0
-    finger_open_width_m: float = 0.08
     # Rubber-like finger pads; PyBullet multiplies this with the object's friction (YCB URDFs: 0.9).
     finger_lateral_friction: float = 1.5
     # Torsional friction of the pads resists tall objects swinging about the closing axis during the lift.
     finger_spinning_friction: float = 0.05
     arm_position_gain: float = 0.3
-    # IK solutions are accepted only within these errors of the requested grasptarget pose (forward kinematics check).
-    ik_position_tolerance_m: float = 0.005
-    ik_rotation_tolerance_rad: float = 0.05
     # PyBullet IK restarts from seeded random joints inside the limits when the given seeds fail.
     ik_random_restarts: int = 8
-    # Franka's "ready" pose (hand down over the table): a seed far from joint limits for tabletop grasps.
-    ik_seed_joints: tuple[float, ...] = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
     # Neighbouring waypoints are ~1-2 cm apart; a larger joint jump means IK switched branch mid-path.
     max_waypoint_joint_step_rad: float = 0.3
     # A fingertip grazing the table on the way down (grasps on flat objects end millimetres above

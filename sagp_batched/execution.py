@@ -28,6 +28,7 @@ import torch
 from .config import Config, ExecutionConfig
 from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
+from .robot import PANDA
 from .scene import Scene
 from .types import GraspAttempt, GraspCandidates
 
@@ -84,8 +85,7 @@ class _ArmIK:
         reached_position, reached_quat = self.scene.grasptarget_pose()
         position_error = float(np.linalg.norm(reached_position - position))
         rotation_error = math.radians(_quat_angle_deg(reached_quat, quat))
-        execution = self.config.execution
-        valid = inside and position_error <= execution.ik_position_tolerance_m and rotation_error <= execution.ik_rotation_tolerance_rad
+        valid = inside and position_error <= PANDA.ik_position_tolerance_m and rotation_error <= PANDA.ik_rotation_tolerance_rad
         return valid, position_error, rotation_error
 
     def _pybullet(self, position: np.ndarray, quat: np.ndarray, seed: np.ndarray) -> np.ndarray | None:
@@ -130,7 +130,7 @@ class _ArmIK:
     def _seeds(self, given: Sequence[np.ndarray]) -> Iterator[np.ndarray]:
         lower, upper = self.lower[self.arm_slots], self.upper[self.arm_slots]
         yield from (np.clip(seed, lower, upper) for seed in given)
-        yield np.asarray(self.config.execution.ik_seed_joints, dtype=float)
+        yield np.asarray(PANDA.ik_reference_joints, dtype=float)
         yield (lower + upper) / 2.0
         for _ in range(self.config.execution.ik_random_restarts):
             yield self.rng.uniform(lower, upper)
@@ -265,7 +265,7 @@ def execute_grasp(
         scene.set_arm_joints(start_joints)
         return finish(False, "unreachable", "plan")
 
-    scene.set_finger_width(execution.finger_open_width_m)
+    scene.set_finger_width(PANDA.open_width_m)
     scene.set_arm_joints(joint_path[0])
     pybullet.performCollisionDetection(physicsClientId=client)
     if any(_robot_contacts(scene, body) for body in (scene.table_id, target, *scene.distractor_ids)):
@@ -310,8 +310,8 @@ def _checked_grasp(
     approach = _as_vector(approach_world, 3, "approach_world")
     if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
         raise InvalidGraspError("quat_xyzw and approach_world must be non-zero")
-    if not 0.0 <= float(width_m) <= execution.finger_open_width_m:
-        raise InvalidGraspError(f"width_m {float(width_m)} is outside the gripper's 0..{execution.finger_open_width_m} m")
+    if not 0.0 <= float(width_m) <= PANDA.open_width_m:
+        raise InvalidGraspError(f"width_m {float(width_m)} is outside the gripper's 0..{PANDA.open_width_m} m")
     quat = quat / np.linalg.norm(quat)
     approach = approach / np.linalg.norm(approach)
     waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), execution)[0].double().numpy()

@@ -20,7 +20,7 @@ from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form
 
 from .config import PlannerConfig, SceneConfig
 from .hand import quiet_urdf
-from .robot import PANDA
+from .robot import PANDA, RobotDescription
 
 N_ARM_JOINTS = 7
 # The closed form holds for joint frames of this shape: modified Denavit-Hartenberg twist angles,
@@ -92,13 +92,20 @@ class PandaIK:
     """Inverse kinematics of the Panda arm to ``panda_grasptarget``, batched over targets.
 
     The robot base stands at ``robot_base_xyz_m`` in the world with identity orientation (facing +x).
+    ``robot`` gives the tolerances an answer must meet and the posture answers stay near.
     """
 
-    def __init__(self, config: PlannerConfig, robot_base_xyz_m: Sequence[float] = SceneConfig.robot_base_xyz_m):
-        reference = torch.tensor(config.ik_reference_joints, dtype=torch.float32)
+    def __init__(
+        self,
+        config: PlannerConfig,
+        robot_base_xyz_m: Sequence[float] = SceneConfig.robot_base_xyz_m,
+        robot: RobotDescription = PANDA,
+    ):
+        reference = torch.tensor(robot.ik_reference_joints, dtype=torch.float32)
         if reference.shape != (N_ARM_JOINTS,):
-            raise ValueError(f"planner.ik_reference_joints must hold {N_ARM_JOINTS} joint values, got {len(config.ik_reference_joints)}")
+            raise ValueError(f"{robot.name}: ik_reference_joints must hold {N_ARM_JOINTS} joint values, got {len(robot.ik_reference_joints)}")
         self.config = config
+        self.robot = robot
         self.chain = _panda_chain()
         self.lower, self.upper = (torch.tensor(bound, dtype=torch.float32) for bound in self.chain.get_joint_limits())
         self.reference_joints = reference.clamp(self.lower, self.upper)
@@ -246,7 +253,7 @@ class PandaIK:
         )
 
     def _within_tolerance(self, position_error: torch.Tensor, rotation_error: torch.Tensor) -> torch.Tensor:
-        return (position_error < self.config.ik_pos_tolerance_m) & (rotation_error < self.config.ik_rot_tolerance_rad)
+        return (position_error < self.robot.ik_position_tolerance_m) & (rotation_error < self.robot.ik_rotation_tolerance_rad)
 
     def _pose_errors(
         self, joints: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor

@@ -55,7 +55,7 @@ def panda_ik(config: Config) -> PandaIK:
 
 def gripper_geometry(config: PlannerConfig) -> GripperGeometry:
     return GripperGeometry(
-        open_width_m=config.gripper_open_width_m,
+        open_width_m=PANDA.open_width_m,
         finger_width_m=config.finger_width_m,
         finger_thickness_m=config.finger_thickness_m,
         finger_length_m=config.finger_length_m,
@@ -69,7 +69,7 @@ def gripper_geometry(config: PlannerConfig) -> GripperGeometry:
 
 def hand_geometry(config: PlannerConfig) -> HandGeometry:
     """The open Panda hand's collision hulls, derived from the robot's URDF."""
-    return load_hand_geometry(PANDA.urdf_path, config.gripper_open_width_m)
+    return load_hand_geometry(PANDA.urdf_path, PANDA.open_width_m)
 
 
 def _check_cloud(cloud: PerceivedCloud, position: int) -> None:
@@ -291,7 +291,7 @@ def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
 
 def jaw_width_limit(planner) -> float:
     """Widest pair the open jaws can descend around with ``jaw_clearance_m`` on each side."""
-    return planner.gripper_open_width_m - 2.0 * planner.jaw_clearance_m
+    return PANDA.open_width_m - 2.0 * planner.jaw_clearance_m
 
 
 @dataclass
@@ -397,8 +397,8 @@ def _checked_motion(
     joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
     steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
     arm_lowest_z = torch.minimum(path.lowest_link_z_m.amin(dim=1), ik.lowest_link_point_z(grasp_joints, hulls))
-    reached_all = (path.position_error_m < planner.ik_pos_tolerance_m).all(dim=1) & (
-        path.rotation_error_rad < planner.ik_rot_tolerance_rad
+    reached_all = (path.position_error_m < ik.robot.ik_position_tolerance_m).all(dim=1) & (
+        path.rotation_error_rad < ik.robot.ik_rotation_tolerance_rad
     ).all(dim=1)
     ok = (
         reached_all

@@ -117,7 +117,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
     finger_z_max = planner.fingertip_offset_m
     finger_z_min = finger_z_max - planner.finger_length_m
     palm_z_min = finger_z_min - planner.palm_depth_m
-    finger_y_max = planner.gripper_open_width_m / 2 + planner.finger_thickness_m
+    finger_y_max = PANDA.open_width_m / 2 + planner.finger_thickness_m
     # The table check tests the hand's collision hulls (derived from the robot's URDF), as the
     # planner does: the fingers and the rest of the hand each with their own clearance.
     hand = hand_geometry(planner)
@@ -186,7 +186,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
                 rotation = rotations_rows[rank][slot]
                 joints, position_error, rotation_error = ik.solve(centre, _matrix_to_quat_xyzw(rotation))
                 s_reach = (1.0 + math.cos(rotation_error)) / 2.0
-                feasible = (position_error < planner.ik_pos_tolerance_m and rotation_error < planner.ik_rot_tolerance_rad
+                feasible = (position_error < PANDA.ik_position_tolerance_m and rotation_error < PANDA.ik_rotation_tolerance_rad
                             and s_reach >= planner.min_reach)
                 trials.append({"rank": rank, "slot": slot, "position": centre, "rotation": rotation, "feasible": feasible})
                 if feasible:

@@ -26,6 +26,10 @@ class RobotDescription:
     grasp_target_link: str
     hand_collision_links: tuple[str, ...]
     finger_links: tuple[str, ...]
+    open_width_m: float
+    ik_position_tolerance_m: float
+    ik_rotation_tolerance_rad: float
+    ik_reference_joints: tuple[float, ...]
 
 
 @functools.lru_cache(maxsize=None)
@@ -45,6 +49,10 @@ def load_robot(name: str = "panda") -> RobotDescription:
         grasp_target_link=values["grasp_target_link"],
         hand_collision_links=tuple(values["hand_collision_links"]),
         finger_links=tuple(values["finger_links"]),
+        open_width_m=float(values["open_width_m"]),
+        ik_position_tolerance_m=float(values["ik_position_tolerance_m"]),
+        ik_rotation_tolerance_rad=float(values["ik_rotation_tolerance_rad"]),
+        ik_reference_joints=tuple(float(q) for q in values["ik_reference_joints"]),
     )
 
 

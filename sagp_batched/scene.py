@@ -87,7 +87,7 @@ class Scene:
         self.robot_indices = body_indices(PANDA, self.robot_id, client)
         self._arm_max_forces = tuple(pybullet.getJointInfo(self.robot_id, j, physicsClientId=client)[10] for j in self.robot_indices.arm_joints)
         self.set_arm_joints(scene_config.robot_home_joints)
-        self.set_finger_width(self.config.execution.finger_open_width_m)
+        self.set_finger_width(PANDA.open_width_m)
 
         rng = np.random.default_rng(scene_config.seed_base + trial)
         x = rng.uniform(*scene_config.object_x_range_m)
@@ -116,7 +116,7 @@ class Scene:
         pybullet.restoreState(self._state_id, physicsClientId=self.client)
         # saveState keeps joint positions and velocities, not motor targets.
         self.command_arm(self.config.scene.robot_home_joints)
-        self.command_fingers(self.config.execution.finger_open_width_m)
+        self.command_fingers(PANDA.open_width_m)
 
     # -- robot -----------------------------------------------------------------------------------
     def arm_joints(self) -> np.ndarray:

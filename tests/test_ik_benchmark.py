@@ -3,6 +3,7 @@ import pytest
 import pytorch_kinematics as pk
 import torch
 
+from sagp_batched.robot import PANDA
 from sagp_batched.benchmark import (
     BenchmarkSettings,
     benchmark_ik,
@@ -65,7 +66,7 @@ def _within_tolerance(ik, joints, targets):
     position_error = (reached[:, :3, 3] + ik.base_xyz_world.double() - targets.positions_world.double()).norm(dim=1)
     relative = reached[:, :3, :3] @ targets.rotations_world.double().transpose(1, 2)
     rotation_error = pk.matrix_to_axis_angle(relative).norm(dim=1)
-    return (position_error <= CONFIG.planner.ik_pos_tolerance_m) & (rotation_error <= CONFIG.planner.ik_rot_tolerance_rad)
+    return (position_error <= PANDA.ik_position_tolerance_m) & (rotation_error <= PANDA.ik_rotation_tolerance_rad)
 
 
 def test_success_rate_is_the_fraction_within_tolerance_by_forward_kinematics(ik, solved):
@@ -99,7 +100,7 @@ def test_planner_ik_success_flag_passes_the_independent_check(ik, solved):
 def test_report_has_the_figures_per_solver():
     report = benchmark_ik(CONFIG, SETTINGS)
     assert report["reachable_targets"] == 50 and report["unreachable_targets"] == 50
-    assert report["pos_tolerance_m"] == CONFIG.planner.ik_pos_tolerance_m
+    assert report["pos_tolerance_m"] == PANDA.ik_position_tolerance_m
     for row in report["solvers"]:
         assert set(row) == {
             "solver", "seconds_median", "targets_per_s", "success_rate", "claimed_success_rate",

@@ -105,10 +105,10 @@ def test_the_hand_geometry_is_the_urdf_collision_shapes_as_pybullet_places_them(
         robot = pybullet.loadURDF(str(PANDA.urdf_path), useFixedBase=True, physicsClientId=client)
         names = {pybullet.getJointInfo(robot, j, physicsClientId=client)[12].decode(): j
                  for j in range(pybullet.getNumJoints(robot, physicsClientId=client))}
-        for joint, angle in zip(range(7), CONFIG.execution.ik_seed_joints):
+        for joint, angle in zip(range(7), PANDA.ik_reference_joints):
             pybullet.resetJointState(robot, joint, angle, physicsClientId=client)
         for finger in ("panda_leftfinger", "panda_rightfinger"):
-            pybullet.resetJointState(robot, names[finger], PLANNER.gripper_open_width_m / 2, physicsClientId=client)
+            pybullet.resetJointState(robot, names[finger], PANDA.open_width_m / 2, physicsClientId=client)
         state = pybullet.getLinkState(robot, names["panda_grasptarget"], computeForwardKinematics=True, physicsClientId=client)
         rotation = np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3)
         for name, hull in zip(geometry.links, geometry.hull_vertices):
@@ -166,4 +166,4 @@ def test_a_grasp_whose_pregrasp_is_out_of_reach_is_rejected_though_the_grasp_pos
 
     reached = ik.forward(motion_down.joint_path[0])[:, :3, 3]
     waypoints = motion_waypoints(centre, DOWN.view(1, 3), CONFIG.execution)[0]
-    assert (reached - waypoints).norm(dim=1).max() < PLANNER.ik_pos_tolerance_m
+    assert (reached - waypoints).norm(dim=1).max() < PANDA.ik_position_tolerance_m

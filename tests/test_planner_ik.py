@@ -1,5 +1,6 @@
 """Batched Panda IK: answers reach their targets by pk forward kinematics, stay inside the joint limits,
 follow the requested posture, and are deterministic."""
+import dataclasses
 import math
 
 import pytest
@@ -8,6 +9,7 @@ import torch
 from sagp_batched.benchmark import reachable_ik_targets, shoulder_world
 from sagp_batched.config import Config
 from sagp_batched.ik import PandaIK
+from sagp_batched.robot import PANDA
 
 
 @pytest.fixture(scope="module")
@@ -38,12 +40,12 @@ def test_at_least_99_percent_of_reachable_targets_are_solved(ik, reachable):
 def test_every_success_reproduces_its_target_through_forward_kinematics(ik, reachable):
     result = ik.solve(reachable.positions_world, reachable.rotations_world)
     position_error, angle = _pose_errors(ik, result.joints, reachable.positions_world, reachable.rotations_world)
-    assert position_error[result.success].max() < ik.config.ik_pos_tolerance_m
-    assert angle[result.success].max() < ik.config.ik_rot_tolerance_rad
+    assert position_error[result.success].max() < PANDA.ik_position_tolerance_m
+    assert angle[result.success].max() < PANDA.ik_rotation_tolerance_rad
     assert torch.allclose(result.position_error_m.double(), position_error, atol=1e-5)
     assert torch.allclose(result.rotation_error_rad.double(), angle, atol=2e-3)  # arccos is coarse near 0
     assert torch.allclose(result.s_reach, (1 + torch.cos(result.rotation_error_rad)) / 2)
-    assert (result.s_reach[result.success] > (1 + math.cos(ik.config.ik_rot_tolerance_rad)) / 2).all()
+    assert (result.s_reach[result.success] > (1 + math.cos(PANDA.ik_rotation_tolerance_rad)) / 2).all()
 
 
 def test_joints_are_always_inside_the_limits(ik, reachable):
@@ -83,9 +85,9 @@ def test_bad_shapes_are_named(ik):
 
 def test_polish_steps_bring_float32_rounding_misses_within_a_micrometre_tolerance(reachable):
     config = Config()
-    tight = {"ik_pos_tolerance_m": 1e-6, "ik_rot_tolerance_rad": 1e-5}
-    unpolished = PandaIK(config.override("planner", ik_polish_iterations=0, **tight).planner, config.scene.robot_base_xyz_m)
-    polished = PandaIK(config.override("planner", **tight).planner, config.scene.robot_base_xyz_m)
+    tight = dataclasses.replace(PANDA, ik_position_tolerance_m=1e-6, ik_rotation_tolerance_rad=1e-5)
+    unpolished = PandaIK(config.override("planner", ik_polish_iterations=0).planner, config.scene.robot_base_xyz_m, tight)
+    polished = PandaIK(config.planner, config.scene.robot_base_xyz_m, tight)
     before = unpolished.solve(reachable.positions_world, reachable.rotations_world).success
     after = polished.solve(reachable.positions_world, reachable.rotations_world).success
     assert not before.all()  # the closed form's float32 answers alone miss a micrometre on some targets

@@ -8,6 +8,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from sagp_batched.robot import PANDA
 from sagp_batched import Config, GraspCandidates
 from sagp_batched.execution import InvalidGraspError, execute_grasp, execute_ranked
 from sagp_batched.objects import load_object_set
@@ -83,7 +84,7 @@ def test_ranked_execution_stops_at_the_first_success(can_scene):
         approach=torch.tensor(DOWN, dtype=torch.float32).repeat(n, 1),
         rotation_world=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(n, 1, 1),
         s_reach=torch.ones(n),
-        ik_solution=torch.tensor(config.execution.ik_seed_joints, dtype=torch.float32).repeat(n, 1),
+        ik_solution=torch.tensor(PANDA.ik_reference_joints, dtype=torch.float32).repeat(n, 1),
         zone=torch.full((n,), -1),
         s_afford=torch.zeros(n),
         s_avoid=torch.zeros(n),
