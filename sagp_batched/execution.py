@@ -17,7 +17,6 @@ solution's IK branch.
 """
 from __future__ import annotations
 
-import importlib.util
 import math
 from typing import Any, Iterator, Sequence
 
@@ -26,6 +25,7 @@ import pybullet
 import torch
 
 from .config import Config, ExecutionConfig
+from .ik import panda_ik
 from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
 from .robot import PANDA
@@ -34,8 +34,6 @@ from .types import GraspAttempt, GraspCandidates
 
 # Joint-limit slack for accepting an IK solution: PyBullet clamps to the limits within float noise.
 LIMIT_SLACK_RAD = 1e-6
-
-_panda_ik_cache: dict[str, Any] = {}
 
 
 class InvalidGraspError(ValueError):
@@ -110,16 +108,8 @@ class _ArmIK:
         return arm_joints if self.check(arm_joints, position, quat)[0] else None
 
     def _panda_ik(self, position: np.ndarray, quat: np.ndarray, seed: np.ndarray) -> np.ndarray | None:
-        # sagp_batched.ik is the planner engineer's module; execution must work without it.
-        if importlib.util.find_spec("sagp_batched.ik") is None:
-            return None
-        from .ik import PandaIK
-
-        key = repr((self.config.planner, self.config.scene.robot_base_xyz_m))
-        if key not in _panda_ik_cache:
-            _panda_ik_cache[key] = PandaIK(self.config.planner, self.config.scene.robot_base_xyz_m)
         rotation = np.array(pybullet.getMatrixFromQuaternion(quat.tolist())).reshape(3, 3)
-        result = _panda_ik_cache[key].solve(
+        result = panda_ik(self.config).solve(
             torch.tensor(position, dtype=torch.float32).view(1, 3),
             torch.tensor(rotation, dtype=torch.float32).view(1, 3, 3),
             torch.tensor(seed, dtype=torch.float32).view(1, 7),

@@ -9,8 +9,9 @@ pytorch-kinematics' Jacobian. The arm's link offsets are read from the same chai
 """
 from __future__ import annotations
 
+import functools
 import math
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 from typing import Sequence
 
 import pytorch_kinematics as pk
@@ -18,7 +19,7 @@ import torch
 
 from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form
 
-from .config import PlannerConfig, SceneConfig
+from .config import Config, PlannerConfig, SceneConfig
 from .hand import quiet_urdf
 from .robot import PANDA, RobotDescription
 
@@ -338,6 +339,17 @@ class PandaIK:
             rotation_error_rad=rotation_error.view(n_motions, n_waypoints),
             lowest_link_z_m=lowest,
         )
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_ik(planner_values: tuple, robot_base_xyz_m: tuple[float, float, float]) -> PandaIK:
+    return PandaIK(PlannerConfig(*planner_values), robot_base_xyz_m)
+
+
+def panda_ik(config: Config) -> PandaIK:
+    """The ``PandaIK`` of this configuration, built once per distinct planner and base settings
+    and shared by planning and execution."""
+    return _cached_ik(astuple(config.planner), tuple(config.scene.robot_base_xyz_m))
 
 
 def _errors_of_pose(pose: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

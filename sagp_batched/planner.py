@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Sequence
-from dataclasses import astuple, dataclass
+from dataclasses import dataclass
 
 import torch
 
@@ -31,7 +31,7 @@ from sagp_batched_kernels.sampling import (
 
 from .config import Config, PlannerConfig
 from .hand import DOP_DIRECTIONS, HandGeometry, link_hulls, load_hand_geometry
-from .ik import PandaIK
+from .ik import PandaIK, panda_ik
 from .motion import grasp_waypoint_index, motion_waypoints
 from .robot import PANDA
 from .types import GraspCandidates, PerceivedCloud
@@ -41,16 +41,6 @@ from .types import GraspCandidates, PerceivedCloud
 WORLD_DOWN = torch.tensor([0.0, 0.0, -1.0])
 
 UNDECIDED, FEASIBLE, EXHAUSTED = 0, 1, 2
-
-
-@functools.lru_cache(maxsize=4)
-def _cached_ik(planner_values: tuple, robot_base_xyz_m: tuple[float, float, float]) -> PandaIK:
-    return PandaIK(PlannerConfig(*planner_values), robot_base_xyz_m)
-
-
-def panda_ik(config: Config) -> PandaIK:
-    """The ``PandaIK`` for this configuration, built once per distinct planner/base settings."""
-    return _cached_ik(astuple(config.planner), tuple(config.scene.robot_base_xyz_m))
 
 
 def gripper_geometry(config: PlannerConfig) -> GripperGeometry:
