@@ -74,9 +74,8 @@ def main(argv: list[str] | None = None) -> int:
 
     methods = list(config.run.methods)
     not_run: dict[str, str] = {}
-    for name in [m for m in methods if m in REGISTRY and REGISTRY[m].needs_model]:
-        if config.rating.backend in MODEL_BACKENDS:
-            continue
+    model_less = config.rating.backend not in MODEL_BACKENDS
+    for name in [m for m in methods if model_less and m in REGISTRY and REGISTRY[m].needs_model]:
         label = REGISTRY[name].label
         reason = f"needs a model backend ({', '.join(MODEL_BACKENDS)}); the rater is '{config.rating.backend}'"
         if args.methods is not None:

@@ -12,6 +12,7 @@ from typing import Any
 
 from .config import GEOMETRY_ONLY_WEIGHTS, Config, ScoreWeights
 from .rating.types import ZoneRating
+from .scoring import score_candidates
 from .types import METHODS, GraspCandidates, PerceivedCloud
 from .zones import ZoneDecomposition
 
@@ -40,8 +41,6 @@ class Method:
 
 
 def _scored(inputs: RankingInputs, weights: ScoreWeights) -> GraspCandidates:
-    from .scoring import score_candidates
-
     return score_candidates(inputs.candidates, inputs.rating, weights, inputs.zones, inputs.config)
 
 

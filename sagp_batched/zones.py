@@ -176,15 +176,16 @@ def _cluster_protrusions(points: np.ndarray, config: ZonesConfig) -> np.ndarray:
     return np.asarray(labels, dtype=np.int64)
 
 
-def _stands_upright(points: torch.Tensor, config: ZonesConfig) -> bool:
-    """Whether the cloud ``points`` (N, 3) is at least ``body_min_height_ratio`` as tall as its widest horizontal extent."""
-    offsets = points @ _world_reference_axes(config)
+def _stands_upright(points: torch.Tensor, reference_axes: torch.Tensor, config: ZonesConfig) -> bool:
+    """Whether the cloud ``points`` (N, 3) is at least ``body_min_height_ratio`` as tall as its widest
+    horizontal extent; ``reference_axes`` (3, 3): columns up, left, front."""
+    offsets = points @ reference_axes
     extent = offsets.amax(dim=0) - offsets.amin(dim=0)
     return float(extent[0]) >= config.body_min_height_ratio * float(extent[1:].max())
 
 
 def _far_points(
-    batch_points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, upright: bool, config: ZonesConfig
+    batch_points: torch.Tensor, valid: torch.Tensor, centroid: torch.Tensor, reference_axes: torch.Tensor, upright: bool, config: ZonesConfig
 ) -> tuple[str, torch.Tensor, torch.Tensor, float, float]:
     """(rule applied, far (N,), distance (N,) by that rule, the body's reference distance, median
     centroid distance) of one cloud; the body rule applies to upright clouds with a round wall."""
@@ -193,10 +194,10 @@ def _far_points(
     if config.protrusion_rule == "body" and upright:
         # A body standing on the table has its axis along world up; the principal axes tilt
         # toward a handle or spout, which is what the rule must not absorb.
-        reference_axes = _world_reference_axes(config).unsqueeze(0)
-        axis_point, roundness_error = zone_kernels.fit_body_axis(batch_points, valid, centroid, reference_axes, config.body_radius_factor)
+        upright_axes = reference_axes.unsqueeze(0)
+        axis_point, roundness_error = zone_kernels.fit_body_axis(batch_points, valid, centroid, upright_axes, config.body_radius_factor)
         if float(roundness_error[0]) <= config.body_max_roundness_error:
-            far_body, radial, radius = zone_kernels.far_from_axis(batch_points, valid, axis_point, reference_axes[:, :, 0], config.body_radius_factor)
+            far_body, radial, radius = zone_kernels.far_from_axis(batch_points, valid, axis_point, upright_axes[:, :, 0], config.body_radius_factor)
             return "body", far_body[0], radial[0], float(radius[0]), median_centroid
     return "centroid", far[0], distance[0], median_centroid, median_centroid
 
@@ -239,12 +240,12 @@ def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> 
     )
     primary_zone = _VERTICAL_ZONE[third[0]]
     split, length_axis = "vertical", None
-    upright = _stands_upright(points, config)
+    upright = _stands_upright(points, reference_axes, config)
     if config.length_split and not frame_fallback and not upright:
         length_third, axis, elongation, _ = zone_kernels.length_split(batch_points, valid, centroid, up, config.min_split_extent_m)
         if float(elongation[0]) >= config.length_split_min_elongation:
             split, length_axis, primary_zone = "length", axis[0], _LENGTH_ZONE[length_third[0]]
-    rule, far, protrusion_distance, reference, median_centroid = _far_points(batch_points, valid, centroid, upright, config)
+    rule, far, protrusion_distance, reference, median_centroid = _far_points(batch_points, valid, centroid, reference_axes, upright, config)
     protrusion_label = torch.full((n,), -1, dtype=torch.int64)
     if split == "length":
         rule = "none"
