@@ -7,6 +7,7 @@ The public API: build a scene, perceive, plan, zone, rate, score, execute::
     scene = Scene(config)
     scene.reset(load_object_set("../shared/ycb").get("025_mug"), trial=0)
     grasps = plan(capture(scene, config), config, seed=0)   # GraspCandidates, ranked by S_geom
+    attempt = execute_grasp(scene, config, grasps[0])      # grasps[0] is the best Grasp
 """
 from .config import GEOMETRY_ONLY_WEIGHTS, Config, ConfigError, ScoreWeights, load_config
 from .execution import execute_grasp, execute_ranked
@@ -17,13 +18,13 @@ from .rating import ZoneRating, get_rater
 from .scene import Scene
 from .scoring import score_candidates
 from .study import run_study
-from .types import CameraData, GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
+from .types import CameraData, Grasp, GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
 from .zones import ZoneDecomposition, assign_zones
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "GEOMETRY_ONLY_WEIGHTS", "CameraData", "Config", "ConfigError", "GraspAttempt", "GraspCandidates", "ObjectSet",
+    "GEOMETRY_ONLY_WEIGHTS", "CameraData", "Config", "ConfigError", "Grasp", "GraspAttempt", "GraspCandidates", "ObjectSet",
     "ObjectSpec", "PerceivedCloud", "PerceptionFailure", "Scene", "ScoreWeights", "ZoneDecomposition", "ZoneRating",
     "assign_zones", "capture", "execute_grasp", "execute_ranked", "get_rater", "load_config", "load_object_set",
     "plan", "plan_batch", "run_study", "score_candidates",

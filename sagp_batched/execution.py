@@ -30,21 +30,10 @@ from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
 from .robot import PANDA
 from .scene import Scene
-from .types import GraspAttempt, GraspCandidates
+from .types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
 
 # Joint-limit slack for accepting an IK solution: PyBullet clamps to the limits within float noise.
 LIMIT_SLACK_RAD = 1e-6
-
-
-class InvalidGraspError(ValueError):
-    """A grasp handed to execution is malformed (wrong shapes, zero-length vectors, bad width)."""
-
-
-def _as_vector(value: Any, length: int, name: str) -> np.ndarray:
-    array = np.asarray(value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else value, dtype=float).reshape(-1)
-    if array.shape != (length,) or not np.all(np.isfinite(array)):
-        raise InvalidGraspError(f"{name} must be {length} finite numbers, got {value!r}")
-    return array
 
 
 def _quat_angle_deg(quat_a: Sequence[float], quat_b: Sequence[float]) -> float:
@@ -210,38 +199,24 @@ def _track(scene: Scene, config: Config, joint_path: np.ndarray, after_each=None
     return deviation
 
 
-def execute_grasp(
-    scene: Scene,
-    config: Config,
-    position_world: Any,
-    quat_xyzw: Any,
-    width_m: float,
-    approach_world: Any,
-    ik_seed: Any = None,
-    joint_path: Any = None,
-    record_frames: bool = False,
-) -> GraspAttempt:
+def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: bool = False) -> GraspAttempt:
     """Execute one grasp from the scene's current state and judge it.
 
-    Args:
-        position_world: (3,) grasp centre (contact midpoint) where ``panda_grasptarget`` goes, metres.
-        quat_xyzw: (4,) grasp orientation (columns: x = y cross z, y = closing axis, z = approach).
-        width_m: object width between the contacts; the gripper opens fully regardless (published sequence).
-        approach_world: (3,) direction the gripper moves in toward the object.
-        ik_seed: (7,) arm joints reaching the grasp (the planner's), the first seed of the fallback IK.
-        joint_path: (W, 7) the planner's joints at every waypoint of ``motion.motion_waypoints``:
-            executed as given once PyBullet's kinematics confirms they reach the waypoints. Without
-            it, or when it does not, the motion is solved with PyBullet IK (``details["ik_source"]``
-            says which was executed, ``details["ik_fallback"]`` why the plan was not).
-        record_frames: put RGB images at contact and after the lift (or when the attempt failed)
-            in ``details["frames"]``.
+    The gripper opens fully whatever ``grasp.width_m`` (published sequence). ``grasp.joint_path``,
+    the planner's joints at every waypoint of ``motion.motion_waypoints``, is executed as given
+    once PyBullet's kinematics confirms it reaches the waypoints. Without it, or when it does not,
+    the motion is solved with PyBullet IK seeded by ``grasp.ik_solution`` (``details["ik_source"]``
+    says which was executed, ``details["ik_fallback"]`` why the plan was not). ``record_frames``
+    puts RGB images at contact and after the lift (or when the attempt failed) in
+    ``details["frames"]``. A grasp built by hand comes from ``Grasp.from_pose``.
 
     Returns a ``GraspAttempt`` whose ``failure_reason`` is None, "unreachable", "collision",
     "slipped" or "not_lifted", and whose ``details["failed_at"]`` says in which phase ("plan",
     "pregrasp", "descent", "close", "lift").
     """
     execution = config.execution
-    quat, waypoints, joint_path = _checked_grasp(position_world, quat_xyzw, width_m, approach_world, joint_path, execution)
+    quat, waypoints, joint_path = _checked_grasp(grasp, execution)
+    width_m = grasp.width_m
     grasp_index = grasp_waypoint_index(execution)
     client, target = scene.client, scene.target_id
     outcome = _AttemptOutcome(scene, config, record_frames)
@@ -250,7 +225,7 @@ def execute_grasp(
 
     # Every joint is known before stepping: IK and checks teleport the arm, harmless while time stands still.
     start_joints = scene.arm_joints()
-    joint_path = _path_to_execute(scene, config, waypoints, quat, joint_path, ik_seed, details)
+    joint_path = _path_to_execute(scene, config, waypoints, quat, joint_path, grasp.ik_solution, details)
     if joint_path is None:
         scene.set_arm_joints(start_joints)
         return finish(False, "unreachable", "plan")
@@ -290,23 +265,22 @@ def execute_grasp(
     return finish(False, "slipped" if highest_rise[0] >= execution.lifted_detect_height_m else "not_lifted", phase)
 
 
-def _checked_grasp(
-    position_world: Any, quat_xyzw: Any, width_m: float, approach_world: Any, joint_path: Any, execution: ExecutionConfig
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def _checked_grasp(grasp: Grasp, execution: ExecutionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(unit quaternion, (W, 3) motion waypoints, (W, 7) planned joints or None) of a grasp, or
     ``InvalidGraspError`` naming what is malformed."""
-    position = _as_vector(position_world, 3, "position_world")
-    quat = _as_vector(quat_xyzw, 4, "quat_xyzw")
-    approach = _as_vector(approach_world, 3, "approach_world")
+    position = as_finite_vector(grasp.position_world, 3, "position_world")
+    quat = as_finite_vector(grasp.quat_xyzw, 4, "quat_xyzw")
+    approach = as_finite_vector(grasp.approach, 3, "approach")
     if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
-        raise InvalidGraspError("quat_xyzw and approach_world must be non-zero")
-    if not 0.0 <= float(width_m) <= PANDA.open_width_m:
-        raise InvalidGraspError(f"width_m {float(width_m)} is outside the gripper's 0..{PANDA.open_width_m} m")
+        raise InvalidGraspError("quat_xyzw and approach must be non-zero")
+    if not 0.0 <= grasp.width_m <= PANDA.open_width_m:
+        raise InvalidGraspError(f"width_m {grasp.width_m} is outside the gripper's 0..{PANDA.open_width_m} m")
     quat = quat / np.linalg.norm(quat)
     approach = approach / np.linalg.norm(approach)
     waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), execution)[0].double().numpy()
+    joint_path = grasp.joint_path
     if joint_path is not None:
-        joint_path = np.asarray(joint_path.detach().cpu().numpy() if isinstance(joint_path, torch.Tensor) else joint_path, dtype=float)
+        joint_path = joint_path.detach().cpu().double().numpy()
         if joint_path.shape != (len(waypoints), 7) or not np.all(np.isfinite(joint_path)):
             raise InvalidGraspError(f"joint_path must be ({len(waypoints)}, 7) finite joints, got shape {joint_path.shape}")
     return quat, waypoints, joint_path
@@ -382,49 +356,30 @@ def _path_to_execute(
         details["ik_source"] = "planner"
         return joint_path
     details["ik_fallback"] = "no planned path" if joint_path is None else "planned joints miss a waypoint in PyBullet"
-    seeds = [_as_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
+    seeds = [as_finite_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
     path = ik.plan(waypoints, quat, seeds, grasp_waypoint_index(config.execution))
     details["ik_source"] = ik.source
     return path
 
 
-def execute_ranked(
-    scene: Scene,
-    config: Config,
-    candidates: GraspCandidates,
-    order: Sequence[int],
-    record_frames: bool = False,
-) -> list[GraspAttempt]:
-    """Execute candidates in ``order`` (at most ``max_attempts``), each from the restored settled scene.
+def execute_ranked(scene: Scene, config: Config, ranked: GraspCandidates, record_frames: bool = False) -> list[GraspAttempt]:
+    """Execute the first ``max_attempts`` grasps of a ranked batch, best first, each from the
+    restored settled scene; stops at the first success.
 
-    Stops at the first success. Each attempt's ``details`` name the candidate (``candidate_index``)
-    and what the planner predicted for it (``predicted``: reachable, collision_free, clearance_m).
+    Each attempt's ``details`` name its place in the batch (``candidate_index``) and what the
+    planner predicted for it (``predicted``: reachable, collision_free, clearance_m).
     """
     attempts: list[GraspAttempt] = []
-    positions = candidates.position_world
-    quats = candidates.quat_xyzw()
-    for index in list(order)[: config.execution.max_attempts]:
-        if not 0 <= int(index) < len(candidates):
-            raise IndexError(f"candidate index {index} outside the {len(candidates)} candidates")
+    for index in range(min(config.execution.max_attempts, len(ranked))):
+        grasp = ranked[index]
         scene.restore_state()
-        planned = candidates.joint_path is not None
-        attempt = execute_grasp(
-            scene,
-            config,
-            positions[index],
-            quats[index],
-            float(candidates.width_m[index]),
-            candidates.approach[index],
-            ik_seed=candidates.ik_solution[index],
-            joint_path=candidates.joint_path[index] if planned else None,
-            record_frames=record_frames,
-        )
-        attempt.details["candidate_index"] = int(index)
+        attempt = execute_grasp(scene, config, grasp, record_frames=record_frames)
+        attempt.details["candidate_index"] = index
         # Planned candidates passed the motion and swept-hand checks; others only the grasp-pose IK.
         attempt.details["predicted"] = {
             "reachable": True,
-            "collision_free": planned,
-            "clearance_m": float(candidates.hand_clearance_m[index]) if candidates.hand_clearance_m is not None else None,
+            "collision_free": grasp.joint_path is not None,
+            "clearance_m": grasp.hand_clearance_m,
         }
         attempts.append(attempt)
         if attempt.success:

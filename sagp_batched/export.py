@@ -49,26 +49,24 @@ from .types import GraspAttempt, GraspCandidates, PerceivedCloud
 ACRONYM_FROM_PLANNER_ROTATION = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 
-def acronym_gripper_transforms_object(cloud: PerceivedCloud, candidates: GraspCandidates) -> np.ndarray:
-    """(C, 4, 4) grasp poses in ACRONYM's Franka gripper convention, in the object's link frame.
+def acronym_gripper_transforms_object(candidates_object: GraspCandidates) -> np.ndarray:
+    """(C, 4, 4) grasp poses in ACRONYM's Franka gripper convention, from candidates expressed in the
+    object's link frame (``GraspCandidates.transform(cloud.object_from_world)``).
 
-    Grasp frame of ``candidates``: columns of ``rotation_world`` (C, 3, 3) are (closing x approach,
-    closing axis, approach); origin at the contact midpoint ``position_world`` (C, 3), world, metres.
+    Grasp frame of the candidates: columns of ``rotation_world`` (C, 3, 3) are (closing x approach,
+    closing axis, approach); origin at the contact midpoint ``position_world`` (C, 3), metres.
     Returned: rotation ``R_planner @ Rz(+90 deg)`` (x = closing axis from contact 0 to contact 1,
     z = approach) and origin ``midpoint - 0.105 m * approach`` (the gripper base, which is
-    ``panda_hand``'s origin), both expressed in the object frame, so contact k lies at
-    ``(-+width/2, 0, 0.105)`` in the gripper frame.
+    ``panda_hand``'s origin), so contact k lies at ``(-+width/2, 0, 0.105)`` in the gripper frame.
     """
-    world_from_object = _pose(cloud)
-    rotation_planner = candidates.rotation_world.double().numpy()
+    rotation_planner = candidates_object.rotation_world.double().numpy()
     # The executed grasp closed its fingers at the grasp target, 0.105 m along panda_hand's z axis
     # in the robot's URDF, so the exported poses put the contacts there too.
     hand_offset = hand_to_grasp_target_m(PANDA.urdf_path)
-    base_position = candidates.position_world.double().numpy() - hand_offset * rotation_planner[:, :, 2]
-    world_from_gripper = np.tile(np.eye(4), (len(candidates), 1, 1))
-    world_from_gripper[:, :3, :3] = rotation_planner @ ACRONYM_FROM_PLANNER_ROTATION
-    world_from_gripper[:, :3, 3] = base_position
-    return np.linalg.inv(world_from_object)[None] @ world_from_gripper
+    transforms = np.tile(np.eye(4), (len(candidates_object), 1, 1))
+    transforms[:, :3, :3] = rotation_planner @ ACRONYM_FROM_PLANNER_ROTATION
+    transforms[:, :3, 3] = candidates_object.position_world.double().numpy() - hand_offset * rotation_planner[:, :, 2]
+    return transforms
 
 
 def panda_hand_transforms_object(acronym_transforms_object: np.ndarray) -> np.ndarray:
@@ -116,45 +114,42 @@ def write_acronym(
     spec: ObjectSpec,
     cloud: PerceivedCloud,
     candidates: GraspCandidates,
-    scored_by_method: dict[str, GraspCandidates],
-    executed_by_method: dict[str, tuple[Sequence[int], Sequence[GraspAttempt]]],
+    ranked_by_method: dict[str, GraspCandidates],
+    attempts_by_method: dict[str, Sequence[GraspAttempt]],
 ) -> None:
     """Write every scored candidate of one trial; the file is replaced atomically.
 
-    ``candidates`` is the planner's output; ``scored_by_method`` holds each method's re-ranked
-    copy and ``executed_by_method`` the indices (into that copy) it executed, with their outcomes.
+    ``candidates`` is the planner's output; ``ranked_by_method`` holds each method's ranking of
+    them and ``attempts_by_method`` the outcomes of its leading grasps, in ranked order.
     """
     import h5py
 
     n = len(candidates)
-    transforms = acronym_gripper_transforms_object(cloud, candidates)
+    candidates_object = candidates.transform(cloud.object_from_world)
+    transforms = acronym_gripper_transforms_object(candidates_object)
     mesh_file, urdf_file, mesh_scale, mesh_to_link = object_mesh_reference(spec)
-    object_from_world = np.linalg.inv(_pose(cloud))
-    contacts = candidates.contacts_world.double().numpy()
-    contacts_object = contacts @ object_from_world[:3, :3].T + object_from_world[:3, 3]
     held = np.zeros(n, dtype=np.int8)
     tmp = path.with_suffix(".tmp")
     with h5py.File(tmp, "w") as f:
         f["grasps/transforms"] = transforms
         f["grasps/panda_hand_transforms"] = panda_hand_transforms_object(transforms)
         f["grasps/width"] = candidates.width_m.numpy()
-        f["grasps/contacts"] = contacts_object
+        f["grasps/contacts"] = candidates_object.contacts_world.numpy()
         names = np.array([candidates.zone_names[z] if 0 <= z < len(candidates.zone_names) else "" for z in candidates.zone.tolist()], dtype=object)
         f.create_dataset("grasps/zone", data=names, dtype=h5py.string_dtype())
         for term, values in (("geom", candidates.s_geom), ("reach", candidates.s_reach)):
             f[f"grasps/qualities/terms/{term}"] = values.numpy()
-        for method, scored in scored_by_method.items():
+        for method, ranked in ranked_by_method.items():
             # Methods re-rank the candidates: put their values back in the planner's order.
-            ids = scored.candidate_id.numpy()
-            for term, values in (("score", scored.score), ("afford", scored.s_afford), ("avoid", scored.s_avoid), ("task", scored.s_task)):
+            ids = ranked.candidate_id.numpy()
+            for term, values in (("score", ranked.score), ("afford", ranked.s_afford), ("avoid", ranked.s_avoid), ("task", ranked.s_task)):
                 aligned = np.empty(n, dtype=np.float32)
                 aligned[ids] = values.numpy()
                 f[f"grasps/qualities/{method}/{term}"] = aligned
             executed = np.full(n, -1, dtype=np.int8)
-            order, attempts = executed_by_method.get(method, ((), ()))
-            for index, attempt in zip(order, attempts):
-                executed[ids[index]] = int(attempt.success)
-                held[ids[index]] |= int(attempt.success)
+            for candidate, attempt in zip(ids, attempts_by_method.get(method, ())):
+                executed[candidate] = int(attempt.success)
+                held[candidate] |= int(attempt.success)
             f[f"grasps/executed/{method}"] = executed
         f["grasps/qualities/flex/object_in_gripper"] = held
         f["object/file"] = mesh_file
@@ -165,13 +160,6 @@ def write_acronym(
         f["object/mass"] = float(spec.mass_kg)
         f["gripper/type"] = "panda"
     tmp.replace(path)
-
-
-def _pose(cloud: PerceivedCloud) -> np.ndarray:
-    pose = np.eye(4)
-    pose[:3, :3] = Rotation.from_quat(cloud.object_quat_xyzw).as_matrix()
-    pose[:3, 3] = cloud.object_position_world
-    return pose
 
 
 def _objects_root(urdf_path: Path) -> Path:

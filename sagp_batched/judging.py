@@ -1,4 +1,9 @@
-"""Whether a trial achieved its task, by the published task definitions, with thresholds from ``config.tasks``.
+"""How a trial's executed grasp is judged: where it lies, and whether the trial achieved its task.
+
+Where: the grasp's zones against the rating (preferred zone for PZA, avoid zones for AC) and its
+contact midpoint against the object's annotated functional and avoid regions (FRA, FAR), which are
+independent of the pipeline's own zones. Whether: the published task definitions, with
+thresholds from ``config.tasks``.
 
 t1 (stable pickup) needs the grasp to succeed; t2 (functional grasp) also needs the grasp in a
 zone the rating prefers and the object kept within ``orientation_tolerance_deg`` of its resting
@@ -8,8 +13,35 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+
+import numpy as np
+
 from .config import TaskConfig
-from .types import TASKS
+from .functional_regions import region_membership
+from .rating.types import ZoneRating
+from .types import TASKS, Grasp
+
+
+@dataclass(frozen=True)
+class GraspPlacement:
+    midpoint_object: list[float]  # (3,) contact midpoint in the object's link frame, metres
+    in_preferred_zone: bool  # its primary zone is one the rating prefers
+    in_avoid_zone: bool  # any zone it is rated by is avoided
+    in_functional_region: bool | None  # None for an object without annotated regions
+    in_avoid_region: bool | None
+
+
+def place_grasp(object_id: str, grasp: Grasp, grasp_object: Grasp, rating: ZoneRating) -> GraspPlacement:
+    """Where ``grasp`` (world frame; ``grasp_object`` is the same grasp in the object frame) lies:
+    in the rating's zones, and in the object's annotated regions."""
+    midpoint_object = grasp_object.position_world.tolist()
+    regions = region_membership(object_id, np.asarray(midpoint_object))
+    return GraspPlacement(
+        midpoint_object=midpoint_object,
+        in_preferred_zone=grasp.zone is not None and rating.prefers(grasp.zone),
+        in_avoid_zone=any(rating.avoids(name) for name in grasp.zones),
+        **regions,
+    )
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,9 @@
 """The compared methods as a registry: each name's ranking of a trial's candidates and what it needs.
 
-Every method ranks the identical candidate set of a trial and returns the candidates scored, with
-the attempts to make, best first: Geometry-Only keeps S_geom order, SAGP ranks by the fused score,
-VLM-Direct lets a vision-language model pick among the top geometric candidates.
+Every method ranks the identical candidate set of a trial and returns it scored and ranked, best
+first; execution runs the first ``execution.max_attempts``: Geometry-Only ranks by S_geom, SAGP by
+the fused score, VLM-Direct puts the vision-language model's picks among the top geometric
+candidates first.
 """
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ from typing import Any
 from .config import GEOMETRY_ONLY_WEIGHTS, Config, ScoreWeights
 from .rating.types import ZoneRating
 from .scoring import score_candidates
+import torch
+
 from .types import METHODS, GraspCandidates, PerceivedCloud
 from .zones import ZoneDecomposition
 
@@ -37,33 +40,29 @@ class Method:
     name: str
     label: str  # as tables print it
     needs_model: bool  # asks a vision-language model itself (not only through the zone rating)
-    rank: Callable[[RankingInputs], tuple[GraspCandidates, list[int]]]
+    rank: Callable[[RankingInputs], GraspCandidates]  # the candidates scored and ranked, best first
 
 
 def _scored(inputs: RankingInputs, weights: ScoreWeights) -> GraspCandidates:
-    return score_candidates(inputs.candidates, inputs.rating, weights, inputs.zones, inputs.config)
+    return score_candidates(inputs.candidates, inputs.rating, weights, inputs.zones.centre_of_mass_world, inputs.config)
 
 
-def _first_attempts(scored: GraspCandidates, config: Config) -> list[int]:
-    return list(range(min(config.execution.max_attempts, len(scored))))
+def _rank_geometry_only(inputs: RankingInputs) -> GraspCandidates:
+    return _scored(inputs, GEOMETRY_ONLY_WEIGHTS)
 
 
-def _rank_geometry_only(inputs: RankingInputs) -> tuple[GraspCandidates, list[int]]:
-    scored = _scored(inputs, GEOMETRY_ONLY_WEIGHTS)
-    return scored, _first_attempts(scored, inputs.config)
+def _rank_sagp(inputs: RankingInputs) -> GraspCandidates:
+    return _scored(inputs, inputs.config.weights)
 
 
-def _rank_sagp(inputs: RankingInputs) -> tuple[GraspCandidates, list[int]]:
-    scored = _scored(inputs, inputs.config.weights)
-    return scored, _first_attempts(scored, inputs.config)
-
-
-def _rank_vlm_direct(inputs: RankingInputs) -> tuple[GraspCandidates, list[int]]:
+def _rank_vlm_direct(inputs: RankingInputs) -> GraspCandidates:
     from .vlm_direct import vlm_direct_rank
 
-    scored = _scored(inputs, GEOMETRY_ONLY_WEIGHTS)
-    shortlist = vlm_direct_rank(inputs.cloud, scored, inputs.model_client(), inputs.config, inputs.task, inputs.object_name)
-    return scored, [int(i) for i in shortlist.order[: inputs.config.execution.max_attempts]]
+    geometric = _scored(inputs, GEOMETRY_ONLY_WEIGHTS)
+    shortlist = vlm_direct_rank(inputs.cloud, geometric, inputs.model_client(), inputs.config, inputs.task, inputs.object_name)
+    # The model's order of the shortlist, then every other candidate in geometric order.
+    rest = [index for index in range(len(geometric)) if index not in set(shortlist.order)]
+    return geometric.select(torch.tensor(shortlist.order + rest, dtype=torch.int64))
 
 
 REGISTRY: dict[str, Method] = {

@@ -1,8 +1,8 @@
 """SAGP fused scoring of a candidate batch (the published method's stage 5).
 
-Zone terms use the zones a candidate is rated by (``ZoneDecomposition.candidate_rated_zones``: its
-primary zone, where protrusion wins over the vertical third as the published method says, and its two side
-zones): S_afford follows ``zone_affordance``'s danger-dominates rule, S_avoid is 1 when any of those
+Zone terms use the zones a candidate is rated by, which zoning put on the batch
+(``GraspCandidates.rated_zones``: its primary zone, where protrusion wins over the third as the
+published method says, and its two side zones): S_afford follows ``zone_affordance``'s danger-dominates rule, S_avoid is 1 when any of those
 zones is avoided. S_task
 needs both the prescribed approach (within ``rating.approach_tolerance_deg``; "any" always holds;
 "side" means any approach within the tolerance of horizontal) and the predicted post-lift tilt (a
@@ -21,7 +21,6 @@ from sagp_batched_kernels import scoring as score_kernels
 from .config import Config, ScoreWeights
 from .rating.types import PHI, ZoneRating
 from .types import GraspCandidates
-from .zones import ZoneDecomposition
 
 
 class ScoringInputError(ValueError):
@@ -56,32 +55,33 @@ def score_candidates(
     candidates: GraspCandidates,
     zone_rating: ZoneRating,
     weights: ScoreWeights,
-    zones: ZoneDecomposition,
+    centre_of_mass_world: torch.Tensor | None,
     config: Config,
 ) -> GraspCandidates:
     """``candidates`` with ``s_afford``, ``s_avoid``, ``s_task`` and ``score`` filled, ranked by score (stable).
 
-    ``zones`` is the decomposition of the cloud the candidates were planned on; ``weights`` is
-    ``config.weights`` for SAGP and ``GEOMETRY_ONLY_WEIGHTS`` for Geometry-Only.
+    ``candidates`` must carry their zones (``zones.assign_zones``); ``centre_of_mass_world`` (3,)
+    is the predicted centre of mass (the cloud's centroid; None for an empty cloud), needed only
+    by an orientation constraint; ``weights`` is ``config.weights`` for SAGP and
+    ``GEOMETRY_ONLY_WEIGHTS`` for Geometry-Only.
     """
-    if tuple(zones.zone_names) != tuple(candidates.zone_names) and candidates.zone_names:
-        raise ScoringInputError(f"candidates carry zones {candidates.zone_names}, the decomposition {zones.zone_names}")
-    positions = candidates.position_world
-    memberships = zones.candidate_rated_zones(positions)
+    if candidates.rated_zones is None:
+        raise ScoringInputError("candidates carry no zones: zone them (zones.assign_zones) before scoring")
+    memberships = candidates.rated_zones
     # A protrusion_<n> zone without a rating of its own takes the rating of "protrusion".
-    levels = [zone_rating.level(z) for z in zones.zone_names]
+    levels = [zone_rating.level(z) for z in candidates.zone_names]
     zone_phi = torch.tensor([PHI.get(level or "", 0.0) for level in levels])
     zone_rated = torch.tensor([level is not None for level in levels], dtype=torch.bool)
-    zone_avoid = torch.tensor([zone_rating.avoids(z) for z in zones.zone_names], dtype=torch.bool)
+    zone_avoid = torch.tensor([zone_rating.avoids(z) for z in candidates.zone_names], dtype=torch.bool)
     s_afford = score_kernels.zone_affordance(memberships, zone_phi, zone_rated)
     s_avoid = score_kernels.zone_avoidance(memberships, zone_avoid)
 
     task_ok = approach_satisfied(candidates.approach, zone_rating, config)
     if zone_rating.max_tilt_deg is not None:
-        if zones.n_points == 0:
+        if centre_of_mass_world is None:
             raise ScoringInputError("an orientation constraint needs a centre of mass, but the cloud is empty")
         tilt = score_kernels.predicted_swing_tilt(
-            positions, candidates.closing_axis, zones.centroid_world, torch.tensor(config.zones.up_world),
+            candidates.position_world, candidates.closing_axis, centre_of_mass_world, torch.tensor(config.zones.up_world),
             config.rating.friction_hold_offset_m,
         )
         task_ok = task_ok & (tilt <= math.radians(zone_rating.max_tilt_deg))

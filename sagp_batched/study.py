@@ -17,7 +17,8 @@ from typing import Any, Callable, Iterable
 
 from . import provenance
 from .config import Config, ConfigError, load_config
-from .experiment import TrialRunner, TrialUnit, record_key
+from .experiment import TrialRunner
+from .records import TrialRecord, TrialUnit, record_key
 from .metrics import summarise
 from .objects import ObjectSet, load_object_set
 from .types import METHODS, TASKS
@@ -137,8 +138,8 @@ def _init_worker(config_dict: dict[str, Any], objects_dir: str | None) -> None:
     _WORKER_RUNNER = TrialRunner(config, load_object_set(objects_dir))
 
 
-def _run_unit_in_worker(unit: TrialUnit) -> list[dict[str, Any]]:
-    records: list[dict[str, Any]] = []
+def _run_unit_in_worker(unit: TrialUnit) -> list[TrialRecord]:
+    records: list[TrialRecord] = []
     _WORKER_RUNNER.run_unit(unit, records.append)
     return records
 
@@ -172,16 +173,9 @@ def _run_processes(config: Config, units: list[TrialUnit], emit: Callable, objec
             raise
 
 
-def _crashed_unit_records(config: Config, objects_dir: str | None, unit: TrialUnit, exc: BaseException) -> list[dict[str, Any]]:
-    from .experiment import base_record
-
+def _crashed_unit_records(config: Config, objects_dir: str | None, unit: TrialUnit, exc: BaseException) -> list[TrialRecord]:
     spec = load_object_set(objects_dir).get(unit.object_id)
-    records = []
-    for method in unit.methods:
-        record = base_record(spec, unit, method, config)
-        record["error"] = f"worker process died: {exc}"
-        records.append(record)
-    return records
+    return [TrialRecord.build(spec, unit, method, config, error=f"worker process died: {exc}") for method in unit.methods]
 
 
 def _run_ray(config: Config, units: list[TrialUnit], emit: Callable, objects_dir: str | None) -> None:
@@ -197,7 +191,7 @@ def _run_ray(config: Config, units: list[TrialUnit], emit: Callable, objects_dir
             ray.init(num_cpus=max(1, config.run.workers), include_dashboard=False, log_to_driver=False)
 
     @ray.remote(num_cpus=1)
-    def run_unit_task(config_dict: dict[str, Any], objects_dir_: str | None, unit: TrialUnit) -> list[dict[str, Any]]:
+    def run_unit_task(config_dict: dict[str, Any], objects_dir_: str | None, unit: TrialUnit) -> list[TrialRecord]:
         if _WORKER_RUNNER is None:  # Ray reuses worker processes: build the scene once per process
             _init_worker(config_dict, objects_dir_)
         return _run_unit_in_worker(unit)
@@ -257,13 +251,13 @@ def run_study(
         bar = tqdm(total=sum(len(u.methods) for u in pending), unit="trial", file=sys.stderr, dynamic_ncols=True)
     new_records = 0
 
-    def emit(record: dict[str, Any]) -> None:
+    def emit(record: TrialRecord) -> None:
         nonlocal new_records
-        writer.write(record)
+        writer.write(record.to_json())
         new_records += 1
         if bar is not None:
             bar.update(1)
-            bar.set_postfix_str(f"{record['object']} {record['task']} {record['method']} #{record['trial']}")
+            bar.set_postfix_str(f"{record.object} {record.task} {record.method} #{record.trial}")
 
     try:
         if config.run.backend == "ray":

@@ -104,22 +104,120 @@ class PerceivedCloud:
     def n_points(self) -> int:
         return int(self.points_world.shape[0])
 
-    def in_object_frame(self, points_world: np.ndarray) -> np.ndarray:
-        """(..., 3) world points in the object's own (URDF link) frame, from the ground-truth pose
-        (``object_position_world``, ``object_quat_xyzw``): for expressing results, never for planning."""
+    @property
+    def object_from_world(self) -> np.ndarray:
+        """(4, 4) the world-to-object transform of the ground-truth pose (``object_position_world``,
+        ``object_quat_xyzw``): for expressing results, never for planning."""
         from scipy.spatial.transform import Rotation
 
-        return Rotation.from_quat(self.object_quat_xyzw).inv().apply(np.asarray(points_world) - self.object_position_world)
+        rotation = Rotation.from_quat(self.object_quat_xyzw).as_matrix()
+        transform = np.eye(4)
+        transform[:3, :3] = rotation.T
+        transform[:3, 3] = -rotation.T @ np.asarray(self.object_position_world, dtype=float)
+        return transform
+
+    def in_object_frame(self, points_world: np.ndarray) -> np.ndarray:
+        """(..., 3) world points in the object's own (URDF link) frame (``object_from_world``)."""
+        transform = self.object_from_world
+        return np.asarray(points_world) @ transform[:3, :3].T + transform[:3, 3]
+
+
+class InvalidGraspError(ValueError):
+    """A grasp handed to execution is malformed; the message names the field."""
+
+
+def as_finite_vector(value: Any, length: int, name: str) -> np.ndarray:
+    """``value`` (a sequence, array or tensor) as a (length,) float64 array, or ``InvalidGraspError``."""
+    try:
+        array = np.asarray(value.detach().cpu() if isinstance(value, torch.Tensor) else value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        array = np.full(0, np.nan)
+    if array.shape != (length,) or not np.all(np.isfinite(array)):
+        raise InvalidGraspError(f"{name} must be {length} finite numbers, got {value!r}")
+    return array
+
+
+@dataclass(frozen=True)
+class Grasp:
+    """One candidate of a batch (``GraspCandidates[i]``): what execution runs and a record describes.
+
+    Tensors are the batch's rows without the batch dimension; ``position_world`` is the contact
+    midpoint where ``panda_grasptarget`` goes, ``rotation_world``'s columns are (closing x approach,
+    closing axis, approach).
+    """
+
+    candidate_id: int
+    contacts_world: torch.Tensor  # (2, 3)
+    rotation_world: torch.Tensor  # (3, 3)
+    approach: torch.Tensor  # (3,) unit, direction the gripper moves in toward the object
+    width_m: float
+    ik_solution: torch.Tensor | None = None  # (7,) arm joints reaching the grasp
+    joint_path: torch.Tensor | None = None  # (W, 7) planned joints at every motion waypoint
+    hand_clearance_m: float | None = None
+    zone: str | None = None  # primary zone, None where unzoned
+    zones: tuple[str, ...] = ()  # every zone it is rated by, primary first
+    score: float = 0.0
+    terms: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def from_pose(cls, position_world: Any, quat_xyzw: Any, width_m: float, approach_world: Any, **fields: Any) -> "Grasp":
+        """A grasp given as a pose: centre (3,), orientation xyzw (4,), contact width and approach (3,);
+        ``InvalidGraspError`` names a malformed one."""
+        from scipy.spatial.transform import Rotation
+
+        position = as_finite_vector(position_world, 3, "position_world")
+        quat = as_finite_vector(quat_xyzw, 4, "quat_xyzw")
+        approach = as_finite_vector(approach_world, 3, "approach_world")
+        if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
+            raise InvalidGraspError("quat_xyzw and approach_world must be non-zero")
+        rotation = Rotation.from_quat(quat).as_matrix()
+        half_width = 0.5 * float(width_m) * rotation[:, 1]
+        return cls(
+            candidate_id=fields.pop("candidate_id", 0),
+            contacts_world=torch.tensor(np.stack([position - half_width, position + half_width])),
+            rotation_world=torch.tensor(rotation),
+            approach=torch.tensor(approach / np.linalg.norm(approach)),
+            width_m=float(width_m),
+            **fields,
+        )
+
+    @property
+    def position_world(self) -> torch.Tensor:
+        return self.contacts_world.mean(dim=0)
+
+    @property
+    def quat_xyzw(self) -> torch.Tensor:
+        """(4,) orientation as an xyzw quaternion, in the batch's float precision."""
+        from scipy.spatial.transform import Rotation
+
+        quat = Rotation.from_matrix(self.rotation_world.double().numpy()).as_quat()
+        return torch.as_tensor(quat, dtype=self.rotation_world.dtype)
+
+    def record(self) -> dict[str, Any]:
+        """The grasp as plain JSON-ready values (positions in metres, world frame)."""
+        return {
+            "position": self.position_world.tolist(),
+            "quat_xyzw": self.quat_xyzw.tolist(),
+            "width": self.width_m,
+            "approach": self.approach.tolist(),
+            "contacts_world": self.contacts_world.tolist(),
+            "zone": self.zone,
+            "zones": list(self.zones),
+            "score": self.score,
+            "terms": dict(self.terms),
+        }
 
 
 @dataclass
 class GraspCandidates:
     """A batch of C grasp candidates as a struct of tensors (graspnetAPI's GraspGroup habit).
 
-    Stages add fields or mask the batch; nothing becomes per-grasp Python objects until results
-    are written. Grasp frame: columns of ``rotation_world`` are (x = closing x approach,
-    y = closing axis, z = approach direction); ``position_world`` is the grasp centre (contact
-    midpoint), which is where the Panda's ``panda_grasptarget`` frame is sent.
+    Stages add fields or mask the batch; nothing becomes per-grasp Python objects until a grasp
+    is executed or written (``batch[i]`` is a ``Grasp``; ``batch[a:b]`` or ``batch[mask]`` a
+    batch). Grasp frame: columns of ``rotation_world`` are (x = closing x approach, y = closing
+    axis, z = approach direction); ``position_world`` is the grasp centre (contact midpoint), which
+    is where the Panda's ``panda_grasptarget`` frame is sent. A ranked batch is best first:
+    execution runs its first ``max_attempts``.
     """
 
     contacts_world: torch.Tensor  # (C, 2, 3)
@@ -130,7 +228,7 @@ class GraspCandidates:
     rotation_world: torch.Tensor  # (C, 3, 3)
     s_reach: torch.Tensor  # (C,) in [0, 1]
     ik_solution: torch.Tensor  # (C, 7) Panda arm joints reaching the grasp pose
-    zone: torch.Tensor  # (C,) int64 zone index into ``zone_names``, -1 before zoning
+    zone: torch.Tensor  # (C,) int64 primary zone index into ``zone_names``, -1 before zoning
     s_afford: torch.Tensor  # (C,)
     s_avoid: torch.Tensor  # (C,)
     s_task: torch.Tensor  # (C,)
@@ -145,6 +243,9 @@ class GraspCandidates:
     joint_path: torch.Tensor | None = None
     # (C,) smallest separation (m) of the hand's hulls swept along the descent from the cloud's points.
     hand_clearance_m: torch.Tensor | None = None
+    # (C, Z) bool: the zones each candidate is rated by (its primary zone and its two side
+    # zones), set once by zoning; scoring and records read them. None before zoning.
+    rated_zones: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.candidate_id is None:
@@ -157,11 +258,45 @@ class GraspCandidates:
     def __len__(self) -> int:
         return int(self.width_m.shape[0])
 
+    def __getitem__(self, index: int | slice | torch.Tensor) -> "Grasp | GraspCandidates":
+        """``Grasp`` number ``index``, or the batch picked by a slice, mask or index tensor."""
+        if isinstance(index, (int, np.integer)):
+            return self._grasp(int(index))
+        return self.select(index)
+
+    def _grasp(self, i: int) -> Grasp:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"grasp {i} outside the {len(self)} candidates")
+        zone = int(self.zone[i])
+        primary = self.zone_names[zone] if 0 <= zone < len(self.zone_names) else None
+        rated = self.rated_zones[i].tolist() if self.rated_zones is not None else []
+        others = tuple(name for index, (name, member) in enumerate(zip(self.zone_names, rated)) if member and index != zone)
+        return Grasp(
+            candidate_id=int(self.candidate_id[i]),
+            contacts_world=self.contacts_world[i],
+            rotation_world=self.rotation_world[i],
+            approach=self.approach[i],
+            width_m=float(self.width_m[i]),
+            ik_solution=self.ik_solution[i],
+            joint_path=self.joint_path[i] if self.joint_path is not None else None,
+            hand_clearance_m=float(self.hand_clearance_m[i]) if self.hand_clearance_m is not None else None,
+            zone=primary,
+            zones=((primary,) if primary is not None else ()) + others,
+            score=float(self.score[i]),
+            terms={
+                "geom": float(self.s_geom[i]),
+                "reach": float(self.s_reach[i]),
+                "afford": float(self.s_afford[i]),
+                "avoid": float(self.s_avoid[i]),
+                "task": float(self.s_task[i]),
+            },
+        )
+
     def _tensor_fields(self) -> list[str]:
         return [f.name for f in dataclasses.fields(self) if isinstance(getattr(self, f.name), torch.Tensor)]
 
-    def select(self, index: torch.Tensor) -> "GraspCandidates":
-        """The candidates picked by a boolean mask or an index tensor, in that order."""
+    def select(self, index: torch.Tensor | slice) -> "GraspCandidates":
+        """The candidates picked by a boolean mask, an index tensor or a slice, in that order."""
         return dataclasses.replace(self, **{name: getattr(self, name)[index] for name in self._tensor_fields()})
 
     def with_fields(self, **tensors: torch.Tensor) -> "GraspCandidates":
@@ -172,31 +307,20 @@ class GraspCandidates:
         order = torch.sort(key, descending=True, stable=True).indices
         return self.select(order)
 
-    def quat_xyzw(self) -> torch.Tensor:
-        """(C, 4) grasp orientations as xyzw quaternions."""
-        from scipy.spatial.transform import Rotation
-
-        return torch.as_tensor(Rotation.from_matrix(self.rotation_world.double().numpy()).as_quat(), dtype=torch.float32)
-
-    def record(self, i: int) -> dict[str, Any]:
-        """Grasp ``i`` as plain JSON-ready values (positions in metres, world frame)."""
-        zone = int(self.zone[i])
-        return {
-            "position": self.position_world[i].tolist(),
-            "quat_xyzw": self.select(torch.tensor([i])).quat_xyzw()[0].tolist(),
-            "width": float(self.width_m[i]),
-            "approach": self.approach[i].tolist(),
-            "contacts_world": self.contacts_world[i].tolist(),
-            "zone": self.zone_names[zone] if 0 <= zone < len(self.zone_names) else None,
-            "score": float(self.score[i]),
-            "terms": {
-                "geom": float(self.s_geom[i]),
-                "reach": float(self.s_reach[i]),
-                "afford": float(self.s_afford[i]),
-                "avoid": float(self.s_avoid[i]),
-                "task": float(self.s_task[i]),
-            },
-        }
+    def transform(self, transform: torch.Tensor | np.ndarray) -> "GraspCandidates":
+        """The batch moved by a (4, 4) rigid transform, in float64: ``transform(object_from_world)``
+        expresses it in the object frame (fields keep their ``_world`` names, as graspnetAPI's
+        ``GraspGroup.transform`` keeps its)."""
+        matrix = torch.as_tensor(np.asarray(transform), dtype=torch.float64)
+        if matrix.shape != (4, 4) or not torch.allclose(matrix[:3, :3] @ matrix[:3, :3].T, torch.eye(3, dtype=torch.float64), atol=1e-6):
+            raise ValueError(f"transform must be a (4, 4) rigid transform, got shape {tuple(matrix.shape)}")
+        rotation, translation = matrix[:3, :3], matrix[:3, 3]
+        return self.with_fields(
+            contacts_world=self.contacts_world.double() @ rotation.T + translation,
+            closing_axis=self.closing_axis.double() @ rotation.T,
+            approach=self.approach.double() @ rotation.T,
+            rotation_world=rotation @ self.rotation_world.double(),
+        )
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """VLM-Direct baseline: the model ranks numbered candidates drawn on the object image, with no zones.
 
-The top ``rating.vd_num_candidates`` candidates by S_geom are projected through the camera that
+The first ``rating.vd_num_candidates`` candidates of the batch ranked by Geometry-Only (S_geom) are projected through the camera that
 produced the crop, drawn as numbered markers (1..K), and the model is asked for a ranked shortlist.
 Its answer is untrusted: non-integer, out-of-range and repeated ids are dropped with a logged
 reason. The returned order is the model's shortlist followed by the rest of the top-K in geometric
@@ -53,12 +53,6 @@ def get_vd_client(config: RatingConfig) -> VLMClient:
         return get_vlm_client(config)
     except RatingError as exc:
         raise VLMDirectUnavailable(str(exc)) from exc
-
-
-def geometric_shortlist(candidates: GraspCandidates, count: int) -> torch.Tensor:
-    """(K,) indices of the ``count`` best candidates by S_geom (stable), K = min(count, C)."""
-    order = torch.sort(candidates.s_geom, descending=True, stable=True).indices
-    return order[:count]
 
 
 def project_to_crop(points_world: torch.Tensor, cloud: PerceivedCloud) -> np.ndarray:
@@ -155,13 +149,12 @@ def parse_shortlist(text: str, n_candidates: int) -> tuple[list[int], list[str]]
 def vlm_direct_rank(
     cloud: PerceivedCloud, candidates: GraspCandidates, client: VLMClient, config: Config, task: str, object_name: str
 ) -> VLMDirectResult:
-    """The model's ranking of the top-K geometric candidates, as indices into ``candidates``."""
+    """The model's ranking of the first K of ``candidates`` (ranked by Geometry-Only), as indices into them."""
     task_description(task)
-    shortlist = geometric_shortlist(candidates, config.rating.vd_num_candidates)
-    geometric = shortlist.tolist()
+    geometric = list(range(min(config.rating.vd_num_candidates, len(candidates))))
     if not geometric:
         return VLMDirectResult([], 0, True, client.backend, client.model, 0.0, "", ["no candidates to rank"])
-    image = draw_candidate_markers(cloud.crop_rgb, project_to_crop(candidates.position_world[shortlist], cloud), config.rating)
+    image = draw_candidate_markers(cloud.crop_rgb, project_to_crop(candidates.position_world[: len(geometric)], cloud), config.rating)
     start = time.perf_counter()
     try:
         text = client.generate(image, build_vd_prompt(object_name, task, len(geometric)))

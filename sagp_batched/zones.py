@@ -24,7 +24,7 @@ One zone per candidate (``GraspCandidates.zone``, used for reporting, preferred-
 metrics) is the *primary* zone of its contact midpoint's nearest cloud point: its protrusion if the
 point is in one, else its third (protrusion wins over the thirds).
 Side zones never become primary because they split the same points a second and third time.
-A candidate is *rated* by its primary zone and its two side zones (``candidate_rated_zones``): a
+A candidate is *rated* by its primary zone and its two side zones (``GraspCandidates.rated_zones``): a
 handle point in the top third is the handle, so a dangerous rim must not reach it, while a rating of
 a side still does.
 
@@ -94,6 +94,11 @@ class ZoneDecomposition:
     def n_points(self) -> int:
         return int(self.points_world.shape[0])
 
+    @property
+    def centre_of_mass_world(self) -> torch.Tensor | None:
+        """(3,) the predicted centre of mass (the centroid); None for an empty cloud."""
+        return self.centroid_world if self.n_points else None
+
     def zone_point_counts(self) -> dict[str, int]:
         counts = self.memberships.sum(dim=0).tolist()
         return {name: int(count) for name, count in zip(self.zone_names, counts)}
@@ -117,33 +122,26 @@ class ZoneDecomposition:
             return torch.zeros(positions.shape[0], len(self.zone_names), dtype=torch.bool)
         return self.memberships[self.nearest_points(positions)]
 
-    def candidate_rated_zones(self, positions_world: torch.Tensor) -> torch.Tensor:
-        """(C, Z) bool: the zones each position is scored and counted by: the primary zone of its nearest
-        cloud point (its protrusion wins over the vertical third) and that point's two side zones."""
-        memberships = self.candidate_memberships(positions_world)
+    def candidate_zones(self, positions_world: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Zones of each position's nearest cloud point: ((C,) int64 primary zone, UNZONED on an
+        empty cloud; (C, Z) bool zones it is rated by: the primary zone, where a protrusion wins
+        over the third, and the point's two side zones)."""
+        positions = _checked_positions(positions_world, "positions_world")
         if self.n_points == 0:
-            return memberships
+            return (torch.full((positions.shape[0],), UNZONED, dtype=torch.int64),
+                    torch.zeros(positions.shape[0], len(self.zone_names), dtype=torch.bool))
+        nearest = self.nearest_points(positions)
+        memberships = self.memberships[nearest]
         in_protrusion = memberships[:, len(GEOMETRIC_ZONES):].any(dim=1, keepdim=True)
         overridden = torch.zeros(len(self.zone_names), dtype=torch.bool)
         overridden[[ZONE_INDEX[name] for name in PRIMARY_SPLIT_ZONES]] = True
-        return memberships & ~(in_protrusion & overridden)
+        return self.point_zone[nearest], memberships & ~(in_protrusion & overridden)
 
-    def candidate_zone_names(self, positions_world: torch.Tensor) -> list[tuple[str, ...]]:
-        """Names of ``candidate_rated_zones`` for each position, primary zone first (for trial records)."""
-        rated = self.candidate_rated_zones(positions_world)
-        primary = self.candidate_zone(positions_world).tolist()
-        names = []
-        for first, row in zip(primary, rated.tolist()):
-            others = tuple(name for index, (name, member) in enumerate(zip(self.zone_names, row)) if member and index != first)
-            names.append(((self.zone_names[first],) if first != UNZONED else ()) + others)
-        return names
-
-    def candidate_zone(self, positions_world: torch.Tensor) -> torch.Tensor:
-        """(C,) int64 primary zone of each position's nearest cloud point; UNZONED on an empty cloud."""
-        positions = _checked_positions(positions_world, "positions_world")
-        if self.n_points == 0:
-            return torch.full((positions.shape[0],), UNZONED, dtype=torch.int64)
-        return self.point_zone[self.nearest_points(positions)]
+    def zone_candidates(self, candidates: GraspCandidates) -> GraspCandidates:
+        """``candidates`` carrying their zones (``zone``, ``rated_zones``, ``zone_names``), found once
+        from each contact midpoint's nearest cloud point."""
+        zone, rated = self.candidate_zones(candidates.position_world)
+        return dataclasses.replace(candidates, zone=zone, rated_zones=rated, zone_names=self.zone_names)
 
 
 def _checked_positions(positions: torch.Tensor, name: str) -> torch.Tensor:
@@ -281,10 +279,9 @@ def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> 
 def assign_zones(
     cloud: PerceivedCloud, candidates: GraspCandidates, config: ZonesConfig | None = None
 ) -> tuple[ZoneDecomposition, GraspCandidates]:
-    """Zones of ``cloud`` and ``candidates`` with ``zone`` (primary zone of each contact midpoint) and ``zone_names`` set."""
+    """Zones of ``cloud``, and ``candidates`` carrying theirs (``ZoneDecomposition.zone_candidates``)."""
     decomposition = decompose(cloud.points_world, config)
-    zone = decomposition.candidate_zone(candidates.position_world)
-    return decomposition, dataclasses.replace(candidates, zone=zone, zone_names=decomposition.zone_names)
+    return decomposition, decomposition.zone_candidates(candidates)
 
 
 _SIDE_WORDS = {1: ("left side", "right side"), 2: ("front side", "back side")}

@@ -57,6 +57,11 @@ def mug_candidates():
     )
 
 
+def score_zoned(batch, given, weights, zones, config):
+    """``batch`` zoned on ``zones`` as the pipeline does, then scored."""
+    return score_candidates(zones.zone_candidates(batch), given, weights, zones.centre_of_mass_world, config)
+
+
 def rating(**fields):
     base = dict(ratings={}, preferred=frozenset(), avoid=frozenset(), approach="any", grasp_style="any",
                 max_tilt_deg=None, provenance=RatingProvenance("prior", "test", "v", 0.0, "ok"))
@@ -66,9 +71,9 @@ def rating(**fields):
 def test_sagp_ranks_the_mug_handle_first_for_a_functional_grasp_while_go_keeps_geometry_order():
     zones, config = mug_zones(), Config()
     mug_t2 = PriorRater().rate("025_mug", "mug", "t2", np.zeros((4, 4, 3), np.uint8), {})
-    sagp = score_candidates(mug_candidates(), mug_t2, config.weights, zones, config)
-    go = score_candidates(mug_candidates(), mug_t2, GEOMETRY_ONLY_WEIGHTS, zones, config)
-    assert zones.zone_names[int(zones.candidate_zone(sagp.position_world[:1])[0])] == "protrusion_1"
+    sagp = score_zoned(mug_candidates(), mug_t2, config.weights, zones, config)
+    go = score_zoned(mug_candidates(), mug_t2, GEOMETRY_ONLY_WEIGHTS, zones, config)
+    assert sagp[0].zone == "protrusion_1"
     assert sagp.s_geom.tolist() == pytest.approx([0.6, 0.8, 0.95]), "handle, body, rim"
     assert go.s_geom.tolist() == pytest.approx([0.95, 0.8, 0.6])
     assert torch.allclose(go.score, go.s_geom)
@@ -78,7 +83,7 @@ def test_every_weight_enters_the_fused_score():
     zones, config = mug_zones(), Config()
     weights = ScoreWeights(geom=0.3, reach=0.1, afford=0.3, avoid=0.2, task=0.1)
     given = rating(ratings={"top": "dangerous", "middle": "acceptable", "protrusion": "good"}, avoid=frozenset({"top"}))
-    scored = score_candidates(mug_candidates(), given, weights, zones, config)
+    scored = score_zoned(mug_candidates(), given, weights, zones, config)
     expected = 0.3 * scored.s_geom + 0.1 * scored.s_reach + 0.3 * scored.s_afford - 0.2 * scored.s_avoid + 0.1 * scored.s_task
     assert torch.allclose(scored.score, expected)
     by_geom = {round(float(g), 2): i for i, g in enumerate(scored.s_geom)}
@@ -86,14 +91,14 @@ def test_every_weight_enters_the_fused_score():
     assert scored.s_afford[handle] == 1.0 and scored.s_afford[body] == 0.5 and scored.s_afford[rim] == -1.0
     assert scored.s_avoid.tolist()[rim] == 1.0 and scored.s_avoid[[body, handle]].sum() == 0.0
     for name, value in dataclasses.asdict(weights).items():
-        changed = score_candidates(mug_candidates(), given, dataclasses.replace(weights, **{name: value + 1.0}), zones, config)
+        changed = score_zoned(mug_candidates(), given, dataclasses.replace(weights, **{name: value + 1.0}), zones, config)
         assert not torch.allclose(changed.score.sort().values, scored.score.sort().values), f"weight {name} has no effect"
 
 
 def test_an_avoided_zone_is_penalised_by_its_weight():
     zones, config = mug_zones(), Config()
-    plain = score_candidates(mug_candidates(), rating(), config.weights, zones, config)
-    avoided = score_candidates(mug_candidates(), rating(avoid=frozenset({"top"})), config.weights, zones, config)
+    plain = score_zoned(mug_candidates(), rating(), config.weights, zones, config)
+    avoided = score_zoned(mug_candidates(), rating(avoid=frozenset({"top"})), config.weights, zones, config)
     rim_plain = plain.score[plain.s_geom.argmax()]
     rim_avoided = avoided.score[avoided.s_geom.argmax()]
     assert float(rim_plain - rim_avoided) == pytest.approx(config.weights.avoid)
@@ -104,7 +109,7 @@ def test_neutral_rating_ranks_by_geometry_and_reach_alone():
     zones, config = mug_zones(), Config()
     batch = candidates([RIM, BODY, HANDLE], [DOWN] * 3, [[1.0, 0.0, 0.0]] * 3, s_geom=[0.6, 0.9, 0.8], s_reach=[1.0, 0.6, 0.9])
     neutral = neutral_rating("prior", "zone_priors.json", "prior-1", 0.0, "unknown object")
-    scored = score_candidates(batch, neutral, config.weights, zones, config)
+    scored = score_zoned(batch, neutral, config.weights, zones, config)
     assert (scored.s_afford == 0).all() and (scored.s_avoid == 0).all() and (scored.s_task == 1).all()
     expected_order = torch.argsort(0.3 * batch.s_geom + 0.1 * batch.s_reach, descending=True)
     assert torch.equal(scored.s_geom, batch.s_geom[expected_order])
@@ -124,16 +129,16 @@ def test_a_handle_point_in_the_top_third_is_rated_as_the_handle_not_as_the_rim()
     batch = candidates([upper_handle, RIM], [SIDEWAYS, DOWN], [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], s_geom=[0.6, 0.9])
     members = zones.candidate_memberships(batch.position_world)[0]
     assert members[zones.zone_names.index("protrusion_1")] and members[zones.zone_names.index("top")], "premise: handle point in the top third"
-    assert zones.candidate_zone_names(batch.position_world)[0][0] == "protrusion_1"
-    assert "top" not in zones.candidate_zone_names(batch.position_world)[0]
+    handle_grasp = zones.zone_candidates(batch)[0]
+    assert handle_grasp.zones[0] == "protrusion_1" and "top" not in handle_grasp.zones
     given = rating(ratings={"top": "dangerous", "protrusion": "good"}, avoid=frozenset({"top"}))
-    scored = score_candidates(batch, given, config.weights, zones, config)
+    scored = score_zoned(batch, given, config.weights, zones, config)
     handle, rim = in_geometric_order(scored, "s_afford")[1], in_geometric_order(scored, "s_afford")[0]
     assert (handle, rim) == (1.0, -1.0)
     assert in_geometric_order(scored, "s_avoid") == [1.0, 0.0]
     # A side zone's rating still reaches the handle point: danger dominates.
     side = "left" if members[zones.zone_names.index("left")] else "right"
-    sided = score_candidates(batch, rating(ratings={"protrusion": "good", side: "dangerous"}), config.weights, zones, config)
+    sided = score_zoned(batch, rating(ratings={"protrusion": "good", side: "dangerous"}), config.weights, zones, config)
     assert in_geometric_order(sided, "s_afford")[1] == -1.0
 
 
@@ -147,13 +152,13 @@ def test_task_term_needs_the_prescribed_approach_within_30_degrees():
     tilted = [math.sin(math.radians(25)), 0.0, -math.cos(math.radians(25))]
     too_tilted = [math.sin(math.radians(35)), 0.0, -math.cos(math.radians(35))]
     batch = candidates([RIM, RIM, RIM, BODY], [DOWN, tilted, too_tilted, SIDEWAYS], [[0.0, 1.0, 0.0]] * 4, s_geom=[0.9, 0.8, 0.7, 0.6])
-    top = score_candidates(batch, rating(approach="top"), config.weights, zones, config)
+    top = score_zoned(batch, rating(approach="top"), config.weights, zones, config)
     assert in_geometric_order(top, "s_task") == [1.0, 1.0, 0.0, 0.0]
-    side = score_candidates(batch, rating(approach="side"), config.weights, zones, config)
+    side = score_zoned(batch, rating(approach="side"), config.weights, zones, config)
     assert in_geometric_order(side, "s_task") == [0.0, 0.0, 0.0, 1.0]
-    front = score_candidates(batch, rating(approach="front"), config.weights, zones, config)
+    front = score_zoned(batch, rating(approach="front"), config.weights, zones, config)
     assert in_geometric_order(front, "s_task") == [0.0, 0.0, 0.0, 1.0], "the front faces the robot: the gripper moves along +x"
-    anywhere = score_candidates(batch, rating(approach="any"), config.weights, zones, config)
+    anywhere = score_zoned(batch, rating(approach="any"), config.weights, zones, config)
     assert (anywhere.s_task == 1).all()
 
 
@@ -163,10 +168,10 @@ def test_task_term_needs_the_predicted_tilt_within_the_constraint():
     # leaves its centre of mass ~8 cm off the closing axis, so the mug swings.
     across_body = [0.0, 0.0, 0.04]
     batch = candidates([across_body, HANDLE], [SIDEWAYS, SIDEWAYS], [[0.0, 1.0, 0.0]] * 2, s_geom=[0.9, 0.8])
-    upright = score_candidates(batch, rating(approach="side", max_tilt_deg=15.0), config.weights, zones, config)
+    upright = score_zoned(batch, rating(approach="side", max_tilt_deg=15.0), config.weights, zones, config)
     by_geom = {round(float(g), 1): float(t) for g, t in zip(upright.s_geom, upright.s_task)}
     assert by_geom == {0.9: 1.0, 0.8: 0.0}
-    free = score_candidates(batch, rating(approach="side"), config.weights, zones, config)
+    free = score_zoned(batch, rating(approach="side"), config.weights, zones, config)
     assert (free.s_task == 1).all()
 
 
@@ -181,16 +186,15 @@ def test_swing_tilt_predictor():
     assert torch.allclose(tilt, torch.tensor([0.0, math.pi / 2, 0.0, 0.0]), atol=1e-5)
 
 
-def test_mismatched_inputs_are_named():
+def test_unzoned_candidates_and_a_missing_centre_of_mass_are_named():
     zones, config = mug_zones(), Config()
-    batch = dataclasses.replace(mug_candidates(), zone_names=("a", "b"))
     with pytest.raises(ScoringInputError, match="zones"):
-        score_candidates(batch, rating(), config.weights, zones, config)
+        score_candidates(mug_candidates(), rating(), config.weights, zones.centre_of_mass_world, config)
     empty_zones = decompose(torch.zeros(0, 3))
     with pytest.raises(ScoringInputError, match="empty"):
-        score_candidates(mug_candidates(), rating(max_tilt_deg=15.0), config.weights, empty_zones, config)
-    unzoned = score_candidates(mug_candidates(), rating(ratings={"top": "good"}), config.weights, empty_zones, config)
-    assert (unzoned.s_afford == 0).all()
+        score_zoned(mug_candidates(), rating(max_tilt_deg=15.0), config.weights, empty_zones, config)
+    unzoned = score_zoned(mug_candidates(), rating(ratings={"top": "good"}), config.weights, empty_zones, config)
+    assert (unzoned.s_afford == 0).all() and (unzoned.zone == -1).all()
 
 
 def test_a_rating_that_calls_protrusion_2_dangerous_moves_grasps_off_it_while_protrusion_still_rates_both():
@@ -208,11 +212,11 @@ def test_a_rating_that_calls_protrusion_2_dangerous_moves_grasps_off_it_while_pr
     config = Config()
     on_handle, on_spout = [0.1, 0.0, 0.08], [-0.08, 0.0, 0.145]
     batch = candidates([on_handle, on_spout], [SIDEWAYS, DOWN], [[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]], s_geom=[0.6, 0.9])
-    handle_zone, spout_zone = (zones.zone_names[int(i)] for i in zones.candidate_zone(batch.position_world))
+    handle_zone, spout_zone = (zones.zone_names[int(i)] for i in zones.candidate_zones(batch.position_world)[0])
     assert (handle_zone, spout_zone) == ("protrusion_1", "protrusion_2")
-    both_good = score_candidates(batch, rating(ratings={"protrusion": "good"}), config.weights, zones, config)
+    both_good = score_zoned(batch, rating(ratings={"protrusion": "good"}), config.weights, zones, config)
     assert torch.allclose(both_good.s_afford, torch.ones(2)) and both_good.candidate_id[0] == 1
     spout_dangerous = rating(ratings={"protrusion": "good", "protrusion_2": "dangerous"})
-    moved = score_candidates(batch, spout_dangerous, config.weights, zones, config)
+    moved = score_zoned(batch, spout_dangerous, config.weights, zones, config)
     assert moved.candidate_id[0] == 0 and moved.s_afford.tolist() == [1.0, -1.0]
     assert spout_dangerous.level("protrusion_1") == "good" and spout_dangerous.level("protrusion_2") == "dangerous"

@@ -9,7 +9,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from sagp_batched.robot import PANDA
-from sagp_batched import Config, GraspCandidates
+from sagp_batched import Config, Grasp, GraspCandidates
 from sagp_batched.execution import InvalidGraspError, execute_grasp, execute_ranked
 from sagp_batched.objects import load_object_set
 from sagp_batched.scene import Scene
@@ -40,7 +40,7 @@ def test_top_down_grasp_lifts_the_soup_can(can_scene):
     config = Config()
     can_scene.restore_state()
     position, quat = _top_down_on_can(can_scene)
-    attempt = execute_grasp(can_scene, config, position, quat, 0.068, DOWN, record_frames=True)
+    attempt = execute_grasp(can_scene, config, Grasp.from_pose(position, quat, 0.068, DOWN), record_frames=True)
     assert attempt.success, attempt.failure_reason
     assert attempt.failure_reason is None
     assert attempt.object_height_above_table_m >= config.execution.success_height_above_table_m
@@ -53,7 +53,7 @@ def test_top_down_grasp_lifts_the_soup_can(can_scene):
 def test_the_same_grasp_5cm_beside_the_can_is_not_lifted(can_scene):
     can_scene.restore_state()
     position, quat = _top_down_on_can(can_scene, offset_world=(0.05, 0.0, 0.0))
-    attempt = execute_grasp(can_scene, Config(), position, quat, 0.068, DOWN, record_frames=True)
+    attempt = execute_grasp(can_scene, Config(), Grasp.from_pose(position, quat, 0.068, DOWN), record_frames=True)
     assert not attempt.success
     assert attempt.failure_reason == "not_lifted"
     assert attempt.object_height_above_table_m < 0.1
@@ -65,7 +65,7 @@ def test_the_same_grasp_5cm_beside_the_can_is_not_lifted(can_scene):
 def test_out_of_reach_grasp_is_unreachable(can_scene):
     can_scene.restore_state()
     position, quat = _top_down_on_can(can_scene, offset_world=(1.5, 0.0, 0.0))
-    attempt = execute_grasp(can_scene, Config(), position, quat, 0.068, DOWN)
+    attempt = execute_grasp(can_scene, Config(), Grasp.from_pose(position, quat, 0.068, DOWN))
     assert attempt.failure_reason == "unreachable"
 
 
@@ -91,7 +91,7 @@ def test_ranked_execution_stops_at_the_first_success(can_scene):
         s_task=torch.zeros(n),
         score=torch.ones(n),
     )
-    attempts = execute_ranked(can_scene, config, candidates, order=[0, 1, 2])
+    attempts = execute_ranked(can_scene, config, candidates)
     assert [a.success for a in attempts] == [False, True]
     assert [a.details["candidate_index"] for a in attempts] == [0, 1]
 
@@ -99,9 +99,9 @@ def test_ranked_execution_stops_at_the_first_success(can_scene):
 def test_malformed_grasps_are_rejected_with_a_clear_error(can_scene):
     position, quat = _top_down_on_can(can_scene)
     with pytest.raises(InvalidGraspError, match="position_world"):
-        execute_grasp(can_scene, Config(), position[:2], quat, 0.05, DOWN)
+        execute_grasp(can_scene, Config(), Grasp.from_pose(position[:2], quat, 0.05, DOWN))
     with pytest.raises(InvalidGraspError, match="width_m"):
-        execute_grasp(can_scene, Config(), position, quat, 0.2, DOWN)
+        execute_grasp(can_scene, Config(), Grasp.from_pose(position, quat, 0.2, DOWN))
 
 
 def test_the_executed_joint_path_is_the_planned_one(can_scene):
@@ -113,7 +113,7 @@ def test_the_executed_joint_path_is_the_planned_one(can_scene):
     can_scene.restore_state()
     candidates = plan(capture(can_scene, config), config, seed=0)
     assert len(candidates) > 0 and candidates.joint_path.shape[1:] == (19, 7)
-    attempts = execute_ranked(can_scene, config, candidates, order=[0])
+    attempts = execute_ranked(can_scene, config, candidates[:1])
     details = attempts[0].details
     assert details["ik_source"] == "planner" and "ik_fallback" not in details
     assert details["descent_tracking_error_rad"] < 1e-3

@@ -7,7 +7,7 @@ import pybullet
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sagp_batched import Config
+from sagp_batched import Config, Grasp
 from sagp_batched.execution import execute_grasp
 from sagp_batched.objects import load_object_set
 from sagp_batched.scene import Scene
@@ -44,7 +44,7 @@ def test_grazing_the_table_while_grasping_a_marker_is_not_a_collision(marker_sce
     marker_scene.restore_state()
     # Grasp point 7 mm up: the finger hulls (7.3 mm past it) end level with the table top and touch it.
     position, quat = _across_marker(marker_scene, 0.007)
-    attempt = execute_grasp(marker_scene, config, position, quat, 0.019, DOWN)
+    attempt = execute_grasp(marker_scene, config, Grasp.from_pose(position, quat, 0.019, DOWN))
     assert attempt.success, (attempt.failure_reason, attempt.details)
 
 
@@ -52,7 +52,7 @@ def test_driving_the_fingers_into_the_table_is_a_collision(marker_scene):
     marker_scene.restore_state()
     # Fingertips 8 mm below the table top at the end of the descent: the arm presses on the table.
     position, quat = _across_marker(marker_scene, -0.001)
-    attempt = execute_grasp(marker_scene, Config(), position, quat, 0.019, DOWN)
+    attempt = execute_grasp(marker_scene, Config(), Grasp.from_pose(position, quat, 0.019, DOWN))
     assert attempt.failure_reason == "collision"
     assert attempt.details["failed_at"] == "descent"
     assert any(link.endswith("->table") for link in attempt.details["collision_links"])

@@ -89,7 +89,7 @@ def test_candidate_zone_is_its_midpoints_nearest_point_and_protrusion_wins():
     on_handle = torch.tensor([[0.5 + 0.088, 0.0, TABLE_Z + 0.04]])
     on_rim = torch.tensor([[0.5, 0.04, TABLE_Z + 0.079]])
     near_base = torch.tensor([[0.5 - 0.04, 0.0, TABLE_Z + 0.002]])
-    zone = zones.candidate_zone(torch.cat([on_handle, on_rim, near_base]))
+    zone, _ = zones.candidate_zones(torch.cat([on_handle, on_rim, near_base]))
     assert [zones.zone_names[i] for i in zone.tolist()] == ["protrusion_1", "top", "bottom"]
     members = zones.candidate_memberships(on_handle)[0]
     assert members[zones.zone_names.index("protrusion_1")] and members[ZONE_INDEX["middle"]], "the handle point keeps its third"
@@ -132,7 +132,7 @@ def test_degenerate_clouds_get_a_typed_outcome_and_no_nan_zones(points, outcome)
     assert ((zones.point_zone >= 0) & (zones.point_zone < len(zones.zone_names))).all()
     assert (zones.memberships.sum(dim=1) >= 3).all()
     queries = torch.tensor([[0.5, 0.0, 0.7], [0.45, 0.02, 0.71]])
-    zone = zones.candidate_zone(queries)
+    zone, _ = zones.candidate_zones(queries)
     if outcome == "empty":
         assert (zone == UNZONED).all()
         assert describe_zones(zones) == {}

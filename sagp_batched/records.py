@@ -1,0 +1,170 @@
+"""A trial's identity and its record: one typed value per (object, task, method, trial).
+
+The record is built in one place (``TrialRecord.build``) from typed results (the planning
+summary, the grasps executed with their attempts, the grasp's placement, the task outcome) and
+serialised once (``TrialRecord.to_json``) into a line of ``trials.jsonl``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .config import Config
+from .judging import GraspPlacement, TaskOutcome
+from .objects import ObjectSpec
+from .types import Grasp, GraspAttempt
+
+PLAN_COUNTS: tuple[str, ...] = ("sampled", "antipodal", "collision_free", "ik_feasible")
+STAGE_TIMES: tuple[str, ...] = ("perception", "geometry", "rating", "total_plan")
+
+
+@dataclass(frozen=True)
+class TrialUnit:
+    """One (object, task, trial) and the methods run on it: they share its scene, cloud and candidates."""
+
+    object_id: str
+    task: str
+    trial: int
+    methods: tuple[str, ...]
+
+    def keys(self) -> list[tuple[str, str, str, int]]:
+        return [(self.object_id, self.task, method, self.trial) for method in self.methods]
+
+
+def record_key(record: dict[str, Any]) -> tuple[str, str, str, int]:
+    """The (object, task, method, trial) a serialised record belongs to."""
+    return (record["object"], record["task"], record["method"], int(record["trial"]))
+
+
+def candidate_seed(config: Config, trial: int) -> int:
+    """Seed of a trial's candidate set: fixed per trial so every method sees the same set."""
+    return config.planner.seed + config.scene.seed_base + trial
+
+
+@dataclass(frozen=True)
+class PlanSummary:
+    """What a method's plan cost and found: candidate counts per stage, stage times, the rating used."""
+
+    counts: dict[str, int | None]
+    times_s: dict[str, float]  # keys STAGE_TIMES
+    rating: dict[str, Any]  # the rating's provenance
+
+
+@dataclass(frozen=True)
+class ExecutedGrasps:
+    """The leading grasps of a method's ranking that were executed, each with its attempt, in order."""
+
+    grasps: list[Grasp]
+    attempts: list[GraspAttempt]
+    placement: GraspPlacement  # of the final (last executed) grasp
+    outcome: TaskOutcome
+    frames: dict[str, str] | None = None  # saved images of the attempts, paths relative to the run
+
+
+@dataclass(frozen=True)
+class TrialRecord:
+    object: str
+    category: str
+    asymmetric: bool
+    task: str
+    method: str
+    trial: int
+    seed: int
+    candidate_seed: int
+    plan: PlanSummary | None = None
+    executed: ExecutedGrasps | None = None
+    failure_reason: str | None = None
+    error: str | None = None
+    traceback: str | None = None
+    skipped: bool = False
+
+    @classmethod
+    def build(
+        cls,
+        spec: ObjectSpec,
+        unit: TrialUnit,
+        method: str,
+        config: Config,
+        plan: PlanSummary | None = None,
+        executed: ExecutedGrasps | None = None,
+        failure_reason: str | None = None,
+        error: str | None = None,
+        traceback: str | None = None,
+    ) -> "TrialRecord":
+        """The record of ``method`` on ``unit``: a failure before execution gives ``failure_reason``
+        (or ``error``, for an exception) and no ``executed``."""
+        if executed is not None:
+            failure_reason = executed.attempts[-1].failure_reason
+        return cls(
+            object=spec.id, category=spec.category, asymmetric=spec.asymmetric, task=unit.task, method=method,
+            trial=unit.trial, seed=config.scene.seed_base + unit.trial, candidate_seed=candidate_seed(config, unit.trial),
+            plan=plan, executed=executed, failure_reason=failure_reason, error=error, traceback=traceback,
+        )
+
+    @property
+    def key(self) -> tuple[str, str, str, int]:
+        return (self.object, self.task, self.method, self.trial)
+
+    def to_json(self) -> dict[str, Any]:
+        """The record as one JSON object of ``trials.jsonl``."""
+        record: dict[str, Any] = {
+            "object": self.object, "category": self.category, "asymmetric": self.asymmetric, "task": self.task,
+            "method": self.method, "trial": self.trial, "seed": self.seed, "candidate_seed": self.candidate_seed,
+            "success": False, "task_success": False, "attempts": 0, "attempt_log": [], "grasp": None,
+            "failure_reason": self.failure_reason, "in_preferred_zone": None, "in_avoid_zone": None,
+            "in_functional_region": None, "in_avoid_region": None, "orientation_change_deg": None,
+            "orientation_kept": None, "distractors_max_displacement_m": None,
+            "n_candidates": dict.fromkeys(PLAN_COUNTS), "times_s": dict.fromkeys(STAGE_TIMES), "rating": None,
+            "skipped": self.skipped, "error": self.error,
+        }
+        if self.traceback is not None:
+            record["traceback"] = self.traceback
+        if self.plan is not None:
+            record["n_candidates"] = {key: self.plan.counts.get(key) for key in PLAN_COUNTS}
+            record["times_s"] = dict(self.plan.times_s)
+            record["rating"] = self.plan.rating
+        if self.executed is not None:
+            record.update(_executed_fields(self.executed))
+        return record
+
+
+def _executed_fields(executed: ExecutedGrasps) -> dict[str, Any]:
+    final = executed.attempts[-1]
+    placement, outcome = executed.placement, executed.outcome
+    fields = {
+        "attempts": len(executed.attempts),
+        "attempt_log": [
+            {"candidate": grasp.candidate_id, "success": attempt.success, "failure_reason": attempt.failure_reason,
+             **_jsonable(attempt.details)}
+            for grasp, attempt in zip(executed.grasps, executed.attempts)
+        ],
+        "grasp": {**executed.grasps[len(executed.attempts) - 1].record(), "midpoint_object": placement.midpoint_object},
+        "success": bool(final.success),
+        "in_preferred_zone": placement.in_preferred_zone,
+        "in_avoid_zone": placement.in_avoid_zone,
+        "in_functional_region": placement.in_functional_region,
+        "in_avoid_region": placement.in_avoid_region,
+        "orientation_change_deg": outcome.orientation_change_deg,
+        "orientation_kept": outcome.orientation_kept,
+        "distractors_max_displacement_m": outcome.distractors_max_displacement_m,
+        "task_success": outcome.task_success,
+    }
+    if executed.frames is not None:
+        fields["frames"] = executed.frames
+    return fields
+
+
+def _jsonable(details: dict[str, Any]) -> dict[str, Any]:
+    """Attempt details without images (frames are written as files, not into JSON)."""
+    out = {}
+    for key, value in details.items():
+        if key == "frames":
+            continue
+        if isinstance(value, (np.floating, np.integer)):
+            value = value.item()
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        out[key] = value
+    return out
