@@ -134,6 +134,7 @@ def table_penetration(
     gripper_points_local: torch.Tensor,
     retreat_m: float,
     table_top_z_m: float,
+    cover: tuple[torch.Tensor, float] | None = None,
 ) -> torch.Tensor:
     """Whether the open gripper dips below the table top at the grasp or at the pre-grasp pose.
 
@@ -146,6 +147,8 @@ def table_penetration(
             vertices) in the grasp frame, metres.
         retreat_m: pre-grasp distance back along the approach, metres.
         table_top_z_m: world height of the table top, metres.
+        cover: ``table_cover(gripper_points_local)``, if the caller keeps it for fixed points
+            (default: computed here).
 
     Returns:
         (C, K) bool, True where some gripper point is below the table top at either pose.
@@ -160,7 +163,7 @@ def table_penetration(
     # whose bounds straddle the table top are evaluated on every point, with the same GEMM as the
     # exhaustive check, so every verdict is bit-for-bit the exhaustive one; the slack absorbs the
     # bounds' float32 rounding.
-    subset, reach = _covering_subset(points, TABLE_COVER_POINTS)
+    subset, reach = table_cover(points) if cover is None else cover
     upper = centre[:, 2, None] + (row_z @ points[subset].T).min(dim=-1).values
     lower = upper - reach
     through = (upper < table_top_z_m - TABLE_BOUND_SLACK_M) | (upper - drop < table_top_z_m - TABLE_BOUND_SLACK_M)
@@ -178,12 +181,13 @@ def table_penetration(
     return through
 
 
-def _covering_subset(points: torch.Tensor, size: int) -> tuple[torch.Tensor, float]:
-    """Farthest-point subset of (M, 3) ``points``: (S,) indices and the largest distance (metres)
-    from any point to its nearest subset point."""
+def table_cover(points: torch.Tensor) -> tuple[torch.Tensor, float]:
+    """The ``TABLE_COVER_POINTS`` farthest-point subset of (M, 3) ``points`` that ``table_penetration``
+    bounds poses by: (S,) indices and the largest distance (metres) from any point to its nearest
+    subset point."""
     chosen = [0]
     distance = (points - points[0]).norm(dim=1)
-    for _ in range(min(size, points.shape[0]) - 1):
+    for _ in range(min(TABLE_COVER_POINTS, points.shape[0]) - 1):
         chosen.append(int(distance.argmax()))
         distance = torch.minimum(distance, (points - points[chosen[-1]]).norm(dim=1))
     return torch.tensor(chosen), float(distance.max()) if points.shape[0] else 0.0

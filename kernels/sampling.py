@@ -5,6 +5,8 @@ all randomness comes from an explicit ``torch.Generator``.
 """
 from __future__ import annotations
 
+import math
+
 import torch
 
 
@@ -140,7 +142,15 @@ def voxel_representatives(points: torch.Tensor, voxel_m: float) -> torch.Tensor:
     if points.shape[0] == 0:
         return torch.zeros(0, dtype=torch.int64)
     cells = torch.floor(points / voxel_m).to(torch.int64)
-    _, inverse = torch.unique(cells, dim=0, return_inverse=True)
+    cells = cells - cells.min(dim=0).values
+    extent = cells.max(dim=0).values + 1
+    if math.prod(extent.tolist()) < 2**62:
+        # One int64 key per cell: a 1-D unique is ~5x faster than unique over rows, and which
+        # label a cell gets does not matter, only which points share one.
+        cells = (cells[:, 0] * extent[1] + cells[:, 1]) * extent[2] + cells[:, 2]
+        _, inverse = torch.unique(cells, return_inverse=True)
+    else:
+        _, inverse = torch.unique(cells, dim=0, return_inverse=True)
     first = torch.full((int(inverse.max()) + 1,), points.shape[0], dtype=torch.int64)
     first.scatter_reduce_(0, inverse, torch.arange(points.shape[0]), reduce="amin")
     return first.sort().values

@@ -20,7 +20,7 @@ import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.gripper_volume import GripperGeometry, gripper_occupancy, table_penetration
+from sagp_batched_kernels.gripper_volume import GripperGeometry, gripper_occupancy, table_cover, table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
 from sagp_batched_kernels.sampling import (
     sample_guided_pair_indices,
@@ -165,13 +165,11 @@ class ScreenedCandidates:
         Computed on demand: ``plan_batch`` needs it only for the candidates its window reaches.
         """
         planner = self.planner
-        hand = hand_geometry(planner)
-        fingers = hand.vertices(PANDA.finger_links)
-        rest = hand.vertices(tuple(name for name in hand.links if name not in PANDA.finger_links))
+        (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(hand_geometry(planner))
         centre, rotation = self.centre_world[rows], self.rotation_world[rows]
         through_table = table_penetration(
-            centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m
-        ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m)
+            centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m, fingers_cover
+        ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m, rest_cover)
         return ~through_table & (self.width_m[rows] <= jaw_width_limit(planner))[:, None]
 
     def table_and_volume_ok(self, rows: torch.Tensor) -> torch.Tensor:
@@ -269,6 +267,15 @@ def _arm_hulls_of(links: tuple[str, ...]) -> dict[str, torch.Tensor]:
 def _arm_hulls(planner: PlannerConfig) -> dict[str, torch.Tensor]:
     """Hull vertices of the links checked against the table, in their link frames (built once per link set)."""
     return _arm_hulls_of(tuple(planner.arm_table_links))
+
+
+@functools.lru_cache(maxsize=4)
+def _table_check_points(hand: HandGeometry) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
+    """The fingers' and the other links' hull vertices (grasp frame) the table check tests, each
+    with its ``table_cover``: built once per hand, not on every block of candidates."""
+    fingers = hand.vertices(PANDA.finger_links)
+    rest = hand.vertices(tuple(name for name in hand.links if name not in PANDA.finger_links))
+    return (fingers, table_cover(fingers)), (rest, table_cover(rest))
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
