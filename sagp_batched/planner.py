@@ -20,7 +20,7 @@ import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.gripper_volume import GripperGeometry, gripper_occupancy, table_cover, table_penetration
+from sagp_batched_kernels.gripper_volume import GripperGeometry, gripper_occupancy_within, table_cover, table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
 from sagp_batched_kernels.sampling import (
     sample_guided_pair_indices,
@@ -179,13 +179,11 @@ class ScreenedCandidates:
         ``plan_batch`` runs it only on candidates that can still enter the kept set, in S_geom order.
         """
         planner = self.planner
-        clear_of_table = self.clear_of_table(rows)
-        occupancy = gripper_occupancy(
+        return gripper_occupancy_within(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows],
-            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements, clear_of_table,
+            self.width_m[rows], gripper_geometry(planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
+            planner.occupancy_chunk_elements, self.clear_of_table(rows),
         )
-        total = self.occupancy_total[self.object_index[rows], None]
-        return clear_of_table & (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total)
 
     def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
         """Whether the real hand (its collision hulls) swept along the descent of candidates ``rows``
