@@ -59,20 +59,23 @@ def serial_chain_poses(joints: torch.Tensor, chain: SerialChain) -> torch.Tensor
     """
     n_frames, n_configs = chain.translation.shape[0], joints.shape[0]
     terms, translation = chain.rotation_terms.to(joints.dtype), chain.translation.to(joints.dtype)
-    cos, sin = (function(joints).T[chain.joint_of_frame][:, None, None, :] for function in (torch.cos, torch.sin))  # (F, 1, 1, B)
+    angles = joints.T[chain.joint_of_frame][:, None, None, :]  # (F, 1, 1, B)
     # Every frame's transform from its parent's as (F, 3, 4, B): entry rows of B values.
     local = torch.cat(
-        (terms[:, 0, ..., None] + terms[:, 1, ..., None] * cos + terms[:, 2, ..., None] * sin, translation[:, :, None, None].expand(-1, -1, -1, n_configs)),
+        (
+            torch.addcmul(terms[:, 0, ..., None], terms[:, 1, ..., None], torch.cos(angles)).addcmul_(terms[:, 2, ..., None], torch.sin(angles)),
+            translation[:, :, None, None].expand(-1, -1, -1, n_configs),
+        ),
         dim=2,
     )
-    poses = torch.zeros(n_frames, n_configs, 4, 4, dtype=joints.dtype)
-    pose = local[0]  # (3, 4, B)
-    poses[0, :, :3] = pose.permute(2, 0, 1)
+    frames = [local[0]]
     for frame in range(1, n_frames):
-        moved = (pose[:, :3, None, :] * local[frame][None]).sum(dim=1)  # (3, 4, B): rotation, and the origin's offset
-        moved[:, 3] += pose[:, 3]
-        pose = moved
-        poses[frame, :, :3] = pose.permute(2, 0, 1)
+        parent = frames[-1]
+        pose = (parent[:, :3, None, :] * local[frame]).sum(dim=1)  # (3, 4, B): rotation, and the origin's offset
+        pose[:, 3] += parent[:, 3]
+        frames.append(pose)
+    poses = torch.zeros(n_frames, n_configs, 4, 4, dtype=joints.dtype)
+    poses[..., :3, :] = torch.stack(frames).permute(0, 3, 1, 2)
     poses[..., 3, 3] = 1.0
     return poses
 
