@@ -97,11 +97,16 @@ def sample_guided_pair_indices(
         flat = proposal.reshape(-1)
         offset = points.index_select(0, flat).view(*proposal.shape, 3) - points[anchor][:, None, :]  # (C, K, 3)
         width = offset.norm(dim=-1)
-        closing_axis = offset / width.clamp_min(torch.finfo(points.dtype).tiny).unsqueeze(-1)
-        cos_i = -(normals[anchor][:, None, :] * closing_axis).sum(-1)
-        cos_j = (normals.index_select(0, flat).view(*proposal.shape, 3) * closing_axis).sum(-1)
-        in_reach = (width >= min_width_m) & (width <= max_width_m)
-        quality = torch.where(in_reach, torch.minimum(cos_i, cos_j), torch.full_like(width, -torch.inf))
+        axis_x, axis_y, axis_z = (offset / width.clamp_min(torch.finfo(points.dtype).tiny).unsqueeze(-1)).unbind(-1)
+        # The contact cosines as antipodal_pairs' (n * axis).sum(-1), whose sum over three terms
+        # runs (x + y) + z: the same values from component products, without its broadcast
+        # reduction (a quarter of the sampler's time).
+        normal_i = normals[anchor][:, None, :]
+        normal_j = normals.index_select(0, flat).view(*proposal.shape, 3)
+        cos_i = (normal_i[..., 0] * axis_x).add_(normal_i[..., 1] * axis_y).add_(normal_i[..., 2] * axis_z).neg_()
+        cos_j = (normal_j[..., 0] * axis_x).add_(normal_j[..., 1] * axis_y).add_(normal_j[..., 2] * axis_z)
+        out_of_reach = (width < min_width_m) | (width > max_width_m)
+        quality = torch.minimum(cos_i, cos_j, out=cos_i).masked_fill_(out_of_reach, -torch.inf)
         # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
         best = quality.argmax(dim=1, keepdim=True)
         second[start : start + chunk_pairs] = proposal.gather(1, best).squeeze(1)
