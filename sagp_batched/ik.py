@@ -19,7 +19,7 @@ from typing import Sequence
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form
+from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form, wrist_in_reach
 from sagp_batched_kernels.serial_kinematics import SerialChain, geometric_jacobian, serial_chain, serial_chain_poses
 
 from .config import Config, PlannerConfig, SceneConfig
@@ -267,8 +267,15 @@ class PandaIK:
         preferred = self.preferred_joints(positions_base, seed_joints)
 
         rotation_link7, position_link7 = self._link7_targets(positions_base, rotations)
-        joints, found = self._closed_form_nearest(rotation_link7, position_link7, self._q7_grid, preferred)
-        missing = (~found).nonzero().squeeze(1)
+        joints = torch.zeros(n_targets, N_ARM_JOINTS, dtype=torch.float64)
+        found = torch.zeros(n_targets, dtype=torch.bool)
+        # Targets beyond the arm's reach at every joint-7 value have no solution on either grid.
+        in_reach = wrist_in_reach(rotation_link7, position_link7, self.arm_geometry).nonzero().squeeze(1)
+        if in_reach.numel():
+            joints[in_reach], found[in_reach] = self._closed_form_nearest(
+                rotation_link7[in_reach], position_link7[in_reach], self._q7_grid, preferred[in_reach]
+            )
+        missing = in_reach[~found[in_reach]]
         if missing.numel():
             # Some targets admit joint 7 only in a window narrower than the coarse grid's spacing.
             joints[missing], found[missing] = self._closed_form_nearest(
