@@ -28,6 +28,9 @@ TABLE_BOUND_SLACK_M = 1e-5
 # the most that their rounding (~1e-7 m within the gripper's reach) and the approaches' allowed
 # deviation from exact turns about one closing axis (see ``gripper_occupancy_within``) move them.
 VOLUME_SLACK_M = 2e-5
+# (candidate, approach, point) triples the volume verdict takes at once: its (pose, point)
+# temporaries then stay near 160 kB, measured faster than the exhaustive count's 1 MB blocks.
+VOLUME_BLOCK_ELEMENTS = 131_072
 # Points that bound a pose's lowest hand point for the table check: 32 of the hand's 204 hull
 # vertices cover every vertex within 2.5 cm, leaving ~10 % of a cloud's poses to check on all.
 TABLE_COVER_POINTS = 32
@@ -182,7 +185,7 @@ def gripper_occupancy_within(
     within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     counted = poses.any(dim=1).nonzero().squeeze(1)
-    step = max(1, chunk_elements // max(1, n_approaches * n_points))
+    step = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, n_approaches * n_points))
     for start in range(0, counted.numel(), step):
         rows = counted[start : start + step]
         turn_cos, turn_sin, turns_ok = _turns_about_y(rotation[rows], max_deviation)
