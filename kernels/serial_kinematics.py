@@ -3,9 +3,10 @@
 Why not pytorch-kinematics' own (``Chain.forward_kinematics_tensor``, which these reproduce to
 float32 rounding): it composes the frames as batched 4x4 matrix products, and a product of B tiny
 matrices costs one small GEMM each, and it builds every joint's 4x4 rotation through a dozen
-intermediate tensors; on these CPUs that is ~5 us a configuration (38 ms for the ~7,600 waypoints
-of one motion check). Here each matrix entry is a row of B values (structure of arrays), so a
-frame's product is two elementwise operations over (3, 3, 3, B): ~1 ms for the same 7,600.
+intermediate tensors; on these CPUs that is ~4 us a configuration (25-38 ms for the ~7,600
+waypoints of one motion check). Here each matrix entry is a row of B values (structure of
+arrays), so a frame's product is two elementwise operations over (3, 3, 4, B): ~3 ms for the same
+7,600, and half pk's time for the ~10-configuration calls of damped least squares.
 
 Frames follow pytorch-kinematics' convention: frame f's pose is its parent's (frame f - 1, the
 base for frame 0) times its static offset (the URDF link and joint origin), times the rotation of
