@@ -27,6 +27,9 @@ PROBE_POINTS = 16
 BOUND_SLACK_M = 1e-6
 # MKL's batched GEMM rounds like the exhaustive product only from 12 columns up.
 MIN_GEMM_COLUMNS = 16
+# (candidate, polytope, axis, probe) elements of the probes' bound computed at once: blocks of
+# ~1 MB temporaries, measured 6-8 % faster over a plan's checks than the point pass's blocks.
+PROBE_BLOCK_ELEMENTS = 262_144
 
 
 class HandClearance(NamedTuple):
@@ -101,23 +104,30 @@ def hand_clearance(
     clearance = torch.full((n_candidates,), float("inf"))
     n_probe = min(PROBE_POINTS, probe_points.shape[1])
     step = max(1, chunk_elements // max(1, low.numel() * n_points))
-    for start in range(0, n_candidates, step):
-        stop = min(start + step, n_candidates)
-        axes = directions @ rotation[start:stop].transpose(-1, -2)  # (c, D, 3)
-        if n_probe:
+    if n_probe:
+        # The probes of every candidate first, in blocks sized by the probes' own bound tensor.
+        probe_step = max(1, min(chunk_elements, PROBE_BLOCK_ELEMENTS) // max(1, low.shape[0] * 3 * probe_points.shape[1]))
+        for start in range(0, n_candidates, probe_step):
+            stop = min(start + probe_step, n_candidates)
+            axes = directions @ rotation[start:stop].transpose(-1, -2)  # (c, D, 3)
             probe = probe_points[object_index[start:stop]] - centre[start:stop, None, :]  # (c, P, 3)
             nearest = _lower_bound(probe, axes, middle, half).topk(n_probe, dim=1, largest=False).indices
             clearance[start:stop] = _separation(_gather(probe, nearest), axes, middle, half).amin(dim=1)
+    for start in range(0, n_candidates, step):
+        stop = min(start + step, n_candidates)
         # The rest only where the probes left the gripper clear; there only points whose bound is
         # under the probes' clearance can block it or lower that clearance.
         rows = (clearance[start:stop] >= margin_m).nonzero().squeeze(1)
+        if not rows.numel():
+            continue
+        axes = directions @ rotation[start + rows].transpose(-1, -2)  # (r, D, 3)
         relative = points[object_index[start + rows]] - centre[start + rows, None, :]  # (r, N, 3)
-        candidates = _lower_bound(relative, axes[rows], middle, half) < clearance[start + rows, None]
-        count = int(candidates.sum(dim=1).max()) if rows.numel() else 0
+        candidates = _lower_bound(relative, axes, middle, half) < clearance[start + rows, None]
+        count = int(candidates.sum(dim=1).max())
         if count:
             # Each row's candidate points first (a stable sort of the mask), then NaN padding.
             order = candidates.to(torch.int8).sort(dim=1, descending=True, stable=True).indices[:, :count]
             rest = torch.where(candidates.gather(1, order)[:, :, None], _gather(relative, order), float("nan"))
-            found = _separation(rest, axes[rows], middle, half).amin(dim=1)
+            found = _separation(rest, axes, middle, half).amin(dim=1)
             clearance[start + rows] = torch.minimum(clearance[start + rows], found)
     return HandClearance(clearance < margin_m, clearance)

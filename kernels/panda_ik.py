@@ -157,6 +157,40 @@ def panda_ik_closed_form(
     return PandaIKSolutions(joints=joints.reshape(n_targets, n_q7, N_BRANCHES, 7), valid=valid.reshape(n_targets, n_q7, N_BRANCHES))
 
 
+def wrist_in_reach(rotation_link7: torch.Tensor, position_link7: torch.Tensor, geometry: PandaArmGeometry) -> torch.Tensor:
+    """Whether some value of q7 brings the wrist within the elbow's reach of the shoulder.
+
+    Where it does not, ``panda_ik_closed_form`` finds no solution at any q7 (its elbow test fails
+    by more than its rounding slack), so a caller can skip such targets instead of searching a
+    fine q7 grid for nothing (grasps on the far side of an object beyond the arm's reach).
+
+    O6 = O7 - a6 (cos q7 x7 - sin q7 y7) runs over a circle of radius |a6| about O7 normal to z7,
+    so |O6 - O2|^2 spans [h^2 + (rho - |a6|)^2, h^2 + (rho + |a6|)^2], h and rho the parts of
+    O7 - O2 along z7 and across it; the elbow reaches |O6 - O2|^2 = L + 2 A cos(q4 - phi) only.
+
+    Args:
+        rotation_link7: (N, 3, 3) orientation of frame 7 in the base frame.
+        position_link7: (N, 3) origin of frame 7 in the base frame, metres.
+        geometry: the arm's link offsets.
+
+    Returns:
+        (N,) bool, False only where no q7 can give a solution.
+    """
+    a3, d3, a4, d5 = geometry.elbow_offset_m, geometry.upper_arm_m, geometry.elbow_return_m, geometry.forearm_m
+    length_sq = a3**2 + d3**2 + a4**2 + d5**2
+    amplitude = math.hypot(a3 * a4 + d3 * d5, d3 * a4 - a3 * d5)
+    shoulder_to_target = position_link7 - position_link7.new_tensor([0.0, 0.0, geometry.shoulder_height_m])
+    along = (shoulder_to_target * rotation_link7[..., 2]).sum(dim=-1)
+    across = (shoulder_to_target - along[:, None] * rotation_link7[..., 2]).norm(dim=-1)
+    wrist = abs(geometry.wrist_offset_m)
+    nearest_sq = along.square() + (across - wrist).square()
+    farthest_sq = along.square() + (across + wrist).square()
+    # The closed form admits |O6 - O2|^2 within L +- 2 A (1 + ROUNDING_SLACK); 1e-9 m^2 is far
+    # beyond the float64 rounding of either side and far inside any reach that matters.
+    reach = 2.0 * amplitude * (1.0 + ROUNDING_SLACK) + 1e-9
+    return (nearest_sq <= length_sq + reach) & (farthest_sq >= length_sq - reach)
+
+
 def _shoulder_angles(
     x6: torch.Tensor, y6: torch.Tensor, z6: torch.Tensor,
     cos4: torch.Tensor, sin4: torch.Tensor, cos5: torch.Tensor, sin5: torch.Tensor, cos6: torch.Tensor, sin6: torch.Tensor,

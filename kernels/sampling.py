@@ -5,7 +5,13 @@ all randomness comes from an explicit ``torch.Generator``.
 """
 from __future__ import annotations
 
+import math
+
 import torch
+
+# (pair, proposal) combinations the guided sampler scores at once, in ~10 work tensors of up to
+# 1.5 MB made once per call: at 500,000 pairs 20 % faster than scoring whole chunks in fresh ones.
+SCORE_BLOCK_ELEMENTS = 131_072
 
 
 def sample_pair_indices(n_points: int, n_pairs: int, generator: torch.Generator) -> torch.Tensor:
@@ -85,25 +91,64 @@ def sample_guided_pair_indices(
     first = torch.randint(0, n_points, (n_pairs,), generator=generator)
     second = torch.empty_like(first)
     chunk_pairs = max(1, chunk_elements // n_proposals)
+    # Proposals are drawn a chunk at a time and scored a block at a time into work tensors made
+    # once: fresh multi-megabyte temporaries cost more in page faults (the allocator hands them
+    # back to the system between chunks) than the arithmetic on them. Every value is as before.
+    block_pairs = max(1, min(chunk_pairs, n_pairs, SCORE_BLOCK_ELEMENTS // n_proposals))
+    work = _ScoreWork(block_pairs, n_proposals, points.dtype)
+    tiny = torch.finfo(points.dtype).tiny
     for start in range(0, n_pairs, chunk_pairs):
-        anchor = first[start : start + chunk_pairs]
+        chunk_anchor = first[start : start + chunk_pairs]
         # Same skip trick as sample_pair_indices: distinct from the anchor without rejection.
-        proposal = torch.randint(0, n_points - 1, (anchor.shape[0], n_proposals), generator=generator)
-        proposal = proposal + (proposal >= anchor[:, None]).to(proposal.dtype)
-        # index_select of the flattened proposals gives the same rows as indexing with the (C, K)
-        # tensor, and measured 3-5x faster on 2-core CPUs, where these gathers dominated sampling.
-        flat = proposal.reshape(-1)
-        offset = points.index_select(0, flat).view(*proposal.shape, 3) - points[anchor][:, None, :]  # (C, K, 3)
-        width = offset.norm(dim=-1)
-        closing_axis = offset / width.clamp_min(torch.finfo(points.dtype).tiny).unsqueeze(-1)
-        cos_i = -(normals[anchor][:, None, :] * closing_axis).sum(-1)
-        cos_j = (normals.index_select(0, flat).view(*proposal.shape, 3) * closing_axis).sum(-1)
-        in_reach = (width >= min_width_m) & (width <= max_width_m)
-        quality = torch.where(in_reach, torch.minimum(cos_i, cos_j), torch.full_like(width, -torch.inf))
-        # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
-        best = quality.argmax(dim=1, keepdim=True)
-        second[start : start + chunk_pairs] = proposal.gather(1, best).squeeze(1)
+        chunk_proposal = torch.randint(0, n_points - 1, (chunk_anchor.shape[0], n_proposals), generator=generator)
+        chunk_proposal += chunk_proposal >= chunk_anchor[:, None]
+        for block in range(0, chunk_anchor.shape[0], block_pairs):
+            anchor = chunk_anchor[block : block + block_pairs]
+            proposal = chunk_proposal[block : block + block_pairs]
+            gathered, offset, width, cos_i, cos_j, term, out_of_reach, beyond = work.cut(anchor.shape[0])
+            # index_select of the flattened proposals gives the same rows as indexing with the (C, K)
+            # tensor, and measured 3-5x faster on 2-core CPUs, where these gathers dominated sampling.
+            flat = proposal.reshape(-1)
+            torch.sub(torch.index_select(points, 0, flat, out=gathered).view(offset.shape), points[anchor][:, None, :], out=offset)
+            torch.linalg.vector_norm(offset, dim=-1, out=width)
+            # The clamped widths borrow cos_i's tensor until the cosines are taken.
+            axis = offset.div_(torch.clamp_min(width, tiny, out=cos_i).unsqueeze(-1))
+            # The contact cosines as antipodal_pairs' (n * axis).sum(-1), whose sum over three
+            # terms runs (x + y) + z: the same values from component products, without its
+            # broadcast reduction (a quarter of the sampler's time).
+            _dot(torch.index_select(normals, 0, flat, out=gathered).view(offset.shape), axis, cos_j, term)
+            _dot(normals[anchor][:, None, :], axis, cos_i, term).neg_()
+            torch.lt(width, min_width_m, out=out_of_reach).logical_or_(torch.gt(width, max_width_m, out=beyond))
+            quality = torch.minimum(cos_i, cos_j, out=cos_i).masked_fill_(out_of_reach, -torch.inf)
+            # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
+            best = quality.argmax(dim=1, keepdim=True)
+            second[start + block : start + block + anchor.shape[0]] = proposal.gather(1, best).squeeze(1)
     return torch.stack((first, second), dim=1)
+
+
+class _ScoreWork:
+    """The guided sampler's work tensors for blocks of up to ``pairs`` pairs of ``proposals`` proposals."""
+
+    def __init__(self, pairs: int, proposals: int, dtype: torch.dtype):
+        self.pairs = pairs
+        self.tensors = (
+            torch.empty(pairs * proposals, 3, dtype=dtype),  # gathered points, then normals
+            torch.empty(pairs, proposals, 3, dtype=dtype),  # offsets, then closing axes
+            *(torch.empty(pairs, proposals, dtype=dtype) for _ in range(4)),  # widths, cos_i, cos_j, a product
+            *(torch.empty(pairs, proposals, dtype=torch.bool) for _ in range(2)),  # out of reach, beyond
+        )
+
+    def cut(self, pairs: int) -> tuple[torch.Tensor, ...]:
+        """The work tensors cut to a block of ``pairs`` pairs."""
+        return tuple(tensor[: tensor.shape[0] * pairs // self.pairs] for tensor in self.tensors)
+
+
+def _dot(vectors: torch.Tensor, axis: torch.Tensor, out: torch.Tensor, term: torch.Tensor) -> torch.Tensor:
+    """``(vectors * axis).sum(-1)`` of (..., 3) tensors into ``out``, summed (x + y) + z as that sum is."""
+    torch.mul(vectors[..., 0], axis[..., 0], out=out)
+    out += torch.mul(vectors[..., 1], axis[..., 1], out=term)
+    out += torch.mul(vectors[..., 2], axis[..., 2], out=term)
+    return out
 
 
 def sample_subset_indices(n_points: int, max_points: int, generator: torch.Generator) -> torch.Tensor:
@@ -140,7 +185,15 @@ def voxel_representatives(points: torch.Tensor, voxel_m: float) -> torch.Tensor:
     if points.shape[0] == 0:
         return torch.zeros(0, dtype=torch.int64)
     cells = torch.floor(points / voxel_m).to(torch.int64)
-    _, inverse = torch.unique(cells, dim=0, return_inverse=True)
+    cells = cells - cells.min(dim=0).values
+    extent = cells.max(dim=0).values + 1
+    if math.prod(extent.tolist()) < 2**62:
+        # One int64 key per cell: a 1-D unique is ~5x faster than unique over rows, and which
+        # label a cell gets does not matter, only which points share one.
+        cells = (cells[:, 0] * extent[1] + cells[:, 1]) * extent[2] + cells[:, 2]
+        _, inverse = torch.unique(cells, return_inverse=True)
+    else:
+        _, inverse = torch.unique(cells, dim=0, return_inverse=True)
     first = torch.full((int(inverse.max()) + 1,), points.shape[0], dtype=torch.int64)
     first.scatter_reduce_(0, inverse, torch.arange(points.shape[0]), reduce="amin")
     return first.sort().values

@@ -1,11 +1,13 @@
-"""Batched Panda inverse kinematics for reachability scoring: closed form, checked by pytorch-kinematics.
+"""Batched Panda inverse kinematics for reachability scoring: closed form, checked by forward kinematics.
 
 Grasp poses are solved by the Panda's closed form (``sagp_batched_kernels.panda_ik``) over a grid
 of joint-7 values, for all targets of a planning call at once; per target the solution nearest to a
 deterministic reference posture is kept, so the same targets always give the same joints. Every
-answer is then judged by pytorch-kinematics' forward kinematics, and the rare one that misses the
-tolerance (float32 rounding next to a singularity) is polished by damped-least-squares steps on
-pytorch-kinematics' Jacobian. The arm's link offsets are read from the same chain.
+answer is then judged by the forward kinematics of pytorch-kinematics' chain (computed by
+``sagp_batched_kernels.serial_kinematics``, which matches pk's own to float32 rounding at a
+seventh of its cost), and the rare one that misses the tolerance (float32 rounding next to a
+singularity) is polished by damped-least-squares steps on the chain's geometric Jacobian. The
+arm's link offsets are read from the same chain.
 """
 from __future__ import annotations
 
@@ -17,7 +19,8 @@ from typing import Sequence
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form
+from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form, wrist_in_reach
+from sagp_batched_kernels.serial_kinematics import SerialChain, geometric_jacobian, serial_chain, serial_chain_poses
 
 from .config import Config, PlannerConfig, SceneConfig
 from .hand import quiet_urdf
@@ -61,6 +64,44 @@ def _panda_chain() -> pk.SerialChain:
 def link_moved_by(chain: pk.SerialChain, joint_name: str) -> str:
     """Name of the link that joint ``joint_name`` of ``chain`` moves (the link of its frame)."""
     return next(name for name in chain.get_frame_names() if chain.find_frame(name).joint.name == joint_name)
+
+
+@dataclass(frozen=True)
+class ChainFrames:
+    """A serial chain's frames as ``serial_chain_poses`` takes them, read from a pytorch-kinematics chain."""
+
+    names: tuple[str, ...]  # every frame, base first, fixed ones included
+    chain: SerialChain
+    joint_frames: tuple[int, ...]  # the frame each joint turns
+    axes: torch.Tensor  # (J, 3) joint axes in their frames
+
+    @classmethod
+    def of(cls, chain: pk.SerialChain) -> "ChainFrames":
+        names = tuple(chain.get_frame_names(exclude_fixed=False))
+        joint_names = chain.get_joint_parameter_names()
+        frames = [chain.find_frame(name) for name in names]
+        if any(frame.joint.joint_type not in ("fixed", "revolute") for frame in frames):
+            raise ValueError("serial_chain_poses models fixed and revolute joints only")
+        offsets = []
+        for frame in frames:
+            offset = torch.eye(4, dtype=chain.dtype)
+            for origin in (frame.link.offset, frame.joint.offset):
+                if origin is not None:
+                    offset = offset @ origin.get_matrix()[0]
+            offsets.append(offset)
+        moving = [frame.joint.name if frame.joint.joint_type == "revolute" else None for frame in frames]
+        joint_frames = tuple(moving.index(name) for name in joint_names)
+        axes = torch.stack([frames[index].joint.axis for index in joint_frames])
+        joint_of_frame = tuple(-1 if name is None else joint_names.index(name) for name in moving)
+        return cls(names=names, chain=serial_chain(torch.stack(offsets), joint_of_frame, axes), joint_frames=joint_frames, axes=axes)
+
+    def poses(self, joints: torch.Tensor) -> torch.Tensor:
+        """(F, M, 4, 4) every frame's pose in the chain's base frame at (M, J) ``joints``."""
+        return serial_chain_poses(joints, self.chain)
+
+    def jacobian(self, poses: torch.Tensor) -> torch.Tensor:
+        """(M, 6, J) geometric Jacobian of the last frame from ``poses`` (``self.poses``)."""
+        return geometric_jacobian(poses, self.joint_frames, self.axes, len(self.names) - 1)
 
 
 def panda_arm_geometry(chain: pk.SerialChain) -> PandaArmGeometry:
@@ -108,6 +149,7 @@ class PandaIK:
         self.config = config
         self.robot = robot
         self.chain = _panda_chain()
+        self.frames = ChainFrames.of(self.chain)
         self.lower, self.upper = (torch.tensor(bound, dtype=torch.float32) for bound in self.chain.get_joint_limits())
         self.reference_joints = reference.clamp(self.lower, self.upper)
         self.base_xyz_world = torch.tensor(robot_base_xyz_m, dtype=torch.float32)
@@ -132,13 +174,13 @@ class PandaIK:
 
         ``hulls`` maps link names of the chain to (V, 3) hull vertices in that link's frame.
         """
-        return self._lowest_hull_z(self.chain.forward_kinematics(joints.to(torch.float32), end_only=False), hulls)
+        return self._lowest_hull_z(self.frames.poses(joints.to(torch.float32)), hulls)
 
-    def _lowest_hull_z(self, link_poses: dict[str, pk.Transform3d], hulls: dict[str, torch.Tensor]) -> torch.Tensor:
-        """(M,) lowest world height (m) of the ``hulls`` vertices placed by M link poses (pk forward kinematics, base frame)."""
+    def _lowest_hull_z(self, link_poses: torch.Tensor, hulls: dict[str, torch.Tensor]) -> torch.Tensor:
+        """(M,) lowest world height (m) of the ``hulls`` vertices placed by (F, M, 4, 4) frame poses (``ChainFrames.poses``, base frame)."""
         lowest = None
         for name, vertices in hulls.items():
-            matrix = link_poses[name].get_matrix()  # (M, 4, 4), base frame
+            matrix = link_poses[self.frames.names.index(name)]  # (M, 4, 4), base frame
             heights = (matrix[:, 2, :3] @ vertices.T + matrix[:, 2, 3:]).amin(dim=1)
             lowest = heights if lowest is None else torch.minimum(lowest, heights)
         return lowest + self.base_xyz_world[2]
@@ -206,7 +248,7 @@ class PandaIK:
             ``IKResult``; per target the closed-form solution inside the limits nearest in joint
             space to the preferred posture (``preferred_joints``), preferring those clear of the
             limits by ``ik_limit_margin_rad``, over ``ik_q7_samples`` values of joint 7
-            (``ik_q7_fine_samples`` for targets with none), judged by pk's forward kinematics. A
+            (``ik_q7_fine_samples`` for targets with none), judged by forward kinematics. A
             target without any solution keeps the preferred posture and its errors.
         """
         n_targets = positions_world.shape[0]
@@ -225,8 +267,15 @@ class PandaIK:
         preferred = self.preferred_joints(positions_base, seed_joints)
 
         rotation_link7, position_link7 = self._link7_targets(positions_base, rotations)
-        joints, found = self._closed_form_nearest(rotation_link7, position_link7, self._q7_grid, preferred)
-        missing = (~found).nonzero().squeeze(1)
+        joints = torch.zeros(n_targets, N_ARM_JOINTS, dtype=torch.float64)
+        found = torch.zeros(n_targets, dtype=torch.bool)
+        # Targets beyond the arm's reach at every joint-7 value have no solution on either grid.
+        in_reach = wrist_in_reach(rotation_link7, position_link7, self.arm_geometry).nonzero().squeeze(1)
+        if in_reach.numel():
+            joints[in_reach], found[in_reach] = self._closed_form_nearest(
+                rotation_link7[in_reach], position_link7[in_reach], self._q7_grid, preferred[in_reach]
+            )
+        missing = in_reach[~found[in_reach]]
         if missing.numel():
             # Some targets admit joint 7 only in a window narrower than the coarse grid's spacing.
             joints[missing], found[missing] = self._closed_form_nearest(
@@ -259,9 +308,9 @@ class PandaIK:
     def _pose_errors(
         self, joints: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(M,) position (m) and rotation (rad) error of pk's forward kinematics of (M, 7) ``joints``
+        """(M,) position (m) and rotation (rad) error of the forward kinematics of (M, 7) ``joints``
         against (M, 3) base-frame positions and (M, 3, 3) orientations."""
-        return _errors_of_pose(self.chain.forward_kinematics(joints).get_matrix(), positions_base, rotations)
+        return _errors_of_pose(self.frames.poses(joints)[-1], positions_base, rotations)
 
     def _damped_least_squares(
         self, joints: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor, iterations: int
@@ -270,7 +319,8 @@ class PandaIK:
         (M, 3) base-frame positions and (M, 3, 3) orientations, clamped to the joint limits after every step."""
         damping = torch.eye(6) * self.config.ik_damping**2
         for _ in range(iterations):
-            jacobian, pose = self.chain.jacobian(joints, ret_eef_pose=True)
+            poses = self.frames.poses(joints)
+            jacobian, pose = self.frames.jacobian(poses), poses[-1]
             error = torch.cat((positions_base - pose[:, :3, 3], _rotation_error_vector(rotations, pose[:, :3, :3])), dim=1)
             step = jacobian.transpose(1, 2) @ torch.linalg.solve(jacobian @ jacobian.transpose(1, 2) + damping, error.unsqueeze(-1))
             joints = torch.minimum(torch.maximum(joints + step.squeeze(-1), self.lower), self.upper)
@@ -291,9 +341,9 @@ class PandaIK:
         ``start_joints`` (the grasp solution) is kept: the same branch. A waypoint with no solution
         at that joint-7 value (a joint limit in the way), and every waypoint without
         ``hold_joint7``, takes ``path_ik_iterations`` damped-least-squares steps on
-        pytorch-kinematics' Jacobian from the start joints instead, which move every joint, 7
+        the chain's geometric Jacobian from the start joints instead, which move every joint, 7
         included, the least. The caller checks that neighbouring waypoints stay close in joint
-        space. All N x W waypoints are solved in one batch and judged by pk's forward kinematics,
+        space. All N x W waypoints are solved in one batch and judged by forward kinematics,
         whose link poses also place ``hulls`` (link name -> (V, 3) vertices in its frame) if given.
 
         Args:
@@ -330,8 +380,8 @@ class PandaIK:
                 start[missing], target_position[missing], target_rotation[missing], self.config.path_ik_iterations
             )
         # One forward-kinematics pass judges the answers and places the links.
-        link_poses = self.chain.forward_kinematics(joints, end_only=False)
-        position_error, rotation_error = _errors_of_pose(link_poses[PANDA.grasp_target_link].get_matrix(), target_position, target_rotation)
+        link_poses = self.frames.poses(joints)
+        position_error, rotation_error = _errors_of_pose(link_poses[-1], target_position, target_rotation)
         lowest = None if hulls is None else self._lowest_hull_z(link_poses, hulls).view(n_motions, n_waypoints)
         return PathResult(
             joints=joints.view(n_motions, n_waypoints, N_ARM_JOINTS),
@@ -361,5 +411,20 @@ def _errors_of_pose(pose: torch.Tensor, positions_base: torch.Tensor, rotations:
 
 
 def _rotation_error_vector(target: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
-    """(M, 3) rotation vector (axis x angle, base frame) turning ``current`` into ``target``, both (M, 3, 3)."""
-    return pk.matrix_to_axis_angle(target @ current.transpose(1, 2))
+    """(M, 3) rotation vector (axis x angle, base frame) turning ``current`` into ``target``, both (M, 3, 3).
+
+    ``pk.matrix_to_axis_angle``'s value bit for bit, at a third fewer tensor operations (which
+    are what these small calls cost): where the quaternion's real part is its largest component
+    (turns under 90 degrees, every IK error but gross ones) its own arithmetic for that
+    component alone, without the three other candidate quaternions it builds and picks from;
+    its function itself for the other rows.
+    """
+    matrix = target @ current.transpose(1, 2)
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = matrix.reshape(-1, 9).unbind(dim=1)
+    q_abs = torch.stack((1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22), dim=-1).clamp(min=0.0).sqrt()
+    quaternion = torch.stack((q_abs[:, 0] ** 2, m21 - m12, m02 - m20, m10 - m01), dim=-1) / (2.0 * q_abs[:, :1].clamp(min=0.1))
+    vector = pk.quaternion_to_axis_angle(quaternion)
+    others = (q_abs.argmax(dim=-1) != 0).nonzero().squeeze(1)
+    if others.numel():
+        vector[others] = pk.matrix_to_axis_angle(matrix[others])
+    return vector

@@ -20,7 +20,7 @@ import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.gripper_volume import GripperGeometry, gripper_occupancy, table_penetration
+from sagp_batched_kernels.gripper_volume import GripperGeometry, gripper_occupancy_within, table_cover, table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
 from sagp_batched_kernels.sampling import (
     sample_guided_pair_indices,
@@ -141,6 +141,7 @@ class ScreenedCandidates:
     object_index: torch.Tensor  # (A,) int64 cloud of each candidate
     pair_indices: torch.Tensor  # (A, 2) int64 point indices within its cloud
     contacts_world: torch.Tensor  # (A, 2, 3)
+    centre_world: torch.Tensor  # (A, 3) contact midpoints, the grasp centres
     closing_axis: torch.Tensor  # (A, 3)
     width_m: torch.Tensor  # (A,)
     s_geom: torch.Tensor  # (A,)
@@ -154,10 +155,6 @@ class ScreenedCandidates:
     pregrasp_offset_m: float
     table_top_z_m: float
 
-    @property
-    def centre_world(self) -> torch.Tensor:
-        return self.contacts_world.mean(dim=1)
-
     def clear_of_table(self, rows: torch.Tensor) -> torch.Tensor:
         """(R, K) bool: the hand of candidates ``rows`` stays above the table at the grasp and the
         pre-grasp (fingers and the rest by their own clearances), and the jaws fit the width.
@@ -165,13 +162,11 @@ class ScreenedCandidates:
         Computed on demand: ``plan_batch`` needs it only for the candidates its window reaches.
         """
         planner = self.planner
-        hand = hand_geometry(planner)
-        fingers = hand.vertices(PANDA.finger_links)
-        rest = hand.vertices(tuple(name for name in hand.links if name not in PANDA.finger_links))
+        (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(hand_geometry(planner))
         centre, rotation = self.centre_world[rows], self.rotation_world[rows]
         through_table = table_penetration(
-            centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m
-        ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m)
+            centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m, fingers_cover
+        ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m, rest_cover)
         return ~through_table & (self.width_m[rows] <= jaw_width_limit(planner))[:, None]
 
     def table_and_volume_ok(self, rows: torch.Tensor) -> torch.Tensor:
@@ -181,13 +176,11 @@ class ScreenedCandidates:
         ``plan_batch`` runs it only on candidates that can still enter the kept set, in S_geom order.
         """
         planner = self.planner
-        clear_of_table = self.clear_of_table(rows)
-        occupancy = gripper_occupancy(
+        return gripper_occupancy_within(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows],
-            self.width_m[rows], gripper_geometry(planner), planner.occupancy_chunk_elements, clear_of_table,
+            self.width_m[rows], gripper_geometry(planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
+            planner.occupancy_chunk_elements, self.clear_of_table(rows),
         )
-        total = self.occupancy_total[self.object_index[rows], None]
-        return clear_of_table & (occupancy.total.to(torch.float32) <= planner.occupancy_max_fraction * total)
 
     def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
         """Whether the real hand (its collision hulls) swept along the descent of candidates ``rows``
@@ -246,6 +239,9 @@ def screen_candidates(
         object_index=candidate_object,
         pair_indices=pairs[antipodal] - point_offsets[candidate_object, None],
         contacts_world=contacts,
+        # Once, not per block of candidates: at 500,000 pairs the mean over every candidate cost
+        # more than the blocks' screens.
+        centre_world=contacts.mean(dim=1),
         closing_axis=closing_axis,
         width_m=width,
         s_geom=pair_eval["s_geom"][antipodal],
@@ -269,6 +265,15 @@ def _arm_hulls_of(links: tuple[str, ...]) -> dict[str, torch.Tensor]:
 def _arm_hulls(planner: PlannerConfig) -> dict[str, torch.Tensor]:
     """Hull vertices of the links checked against the table, in their link frames (built once per link set)."""
     return _arm_hulls_of(tuple(planner.arm_table_links))
+
+
+@functools.lru_cache(maxsize=4)
+def _table_check_points(hand: HandGeometry) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
+    """The fingers' and the other links' hull vertices (grasp frame) the table check tests, each
+    with its ``table_cover``: built once per hand, not on every block of candidates."""
+    fingers = hand.vertices(PANDA.finger_links)
+    rest = hand.vertices(tuple(name for name in hand.links if name not in PANDA.finger_links))
+    return (fingers, table_cover(fingers)), (rest, table_cover(rest))
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
