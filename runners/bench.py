@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", default="5000,50000,500000", help="comma-separated sampled pair counts")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--reference-max-pairs", type=int, default=50_000, help="largest pair count the loop reference is run at (once)")
-    parser.add_argument("--ik-targets", type=int, default=2000, help="reachable IK targets (FK of random in-limit joints, above the table)")
+    parser.add_argument("--ik-targets", type=int, default=2000, help="reachable IK targets (FK of random in-limit joints, above the table); 0 skips the IK benchmark")
     parser.add_argument("--ik-unreachable", type=int, default=200, help="IK targets beyond the arm's reach (false-reachable rate)")
     parser.add_argument("--cloud-points", type=int, default=3000)
     parser.add_argument("--objects-dir", default=None)
@@ -71,19 +71,10 @@ def main(argv: list[str] | None = None) -> int:
                 f"({row['candidates_per_s']:.0f} pairs/s) reference={reference} | {stages} | {row['counts_last_repeat']}",
                 flush=True,
             )
-    ik = benchmark_ik(config, settings)
-    print(
-        f"IK: {ik['reachable_targets']} reachable targets (FK of random in-limit joints, above the table), "
-        f"{ik['unreachable_targets']} unreachable (>= {ik['unreachable_min_distance_from_shoulder_m']} m from the shoulder); "
-        f"success = FK within {ik['pos_tolerance_m'] * 1e3:.1f} mm / {ik['rot_tolerance_rad']} rad and inside the limits"
-    )
-    for solver in ik["solvers"]:
-        print(
-            f"IK {solver['solver']:>26}: {solver['targets_per_s']:.0f} targets/s, success {solver['success_rate']:.1%} "
-            f"(claimed {solver['claimed_success_rate']:.1%}), inside limits {solver['inside_limits_rate']:.1%}, "
-            f"false reachable {solver['false_reachable_rate']:.1%}",
-            flush=True,
-        )
+    ik = None
+    if args.ik_targets > 0:
+        ik = benchmark_ik(config, settings)
+        _print_ik(ik)
     print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
     world = None
     if args.world_runs > 0:
@@ -109,6 +100,21 @@ def main(argv: list[str] | None = None) -> int:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2, default=str))
     return 0
+
+
+def _print_ik(ik: dict) -> None:
+    print(
+        f"IK: {ik['reachable_targets']} reachable targets (FK of random in-limit joints, above the table), "
+        f"{ik['unreachable_targets']} unreachable (>= {ik['unreachable_min_distance_from_shoulder_m']} m from the shoulder); "
+        f"success = FK within {ik['pos_tolerance_m'] * 1e3:.1f} mm / {ik['rot_tolerance_rad']} rad and inside the limits"
+    )
+    for solver in ik["solvers"]:
+        print(
+            f"IK {solver['solver']:>26}: {solver['targets_per_s']:.0f} targets/s, success {solver['success_rate']:.1%} "
+            f"(claimed {solver['claimed_success_rate']:.1%}), inside limits {solver['inside_limits_rate']:.1%}, "
+            f"false reachable {solver['false_reachable_rate']:.1%}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":
