@@ -65,6 +65,9 @@ class ExecutedGrasps:
 
 @dataclass(frozen=True)
 class TrialRecord:
+    """One method's result on one (object, task, trial): its identity, what planning found and
+    cost, and what execution did, or why it never got there (``failure_reason``, ``error``)."""
+
     object: str
     category: str
     asymmetric: bool
@@ -102,10 +105,6 @@ class TrialRecord:
             trial=unit.trial, seed=config.scene.seed_base + unit.trial, candidate_seed=candidate_seed(config, unit.trial),
             plan=plan, executed=executed, failure_reason=failure_reason, error=error, traceback=traceback,
         )
-
-    @property
-    def key(self) -> tuple[str, str, str, int]:
-        return (self.object, self.task, self.method, self.trial)
 
     def to_json(self) -> dict[str, Any]:
         """The record as one JSON object of ``trials.jsonl``."""

@@ -160,9 +160,9 @@ class Grasp:
     terms: dict[str, float] = field(default_factory=dict)
 
     @classmethod
-    def from_pose(cls, position_world: Any, quat_xyzw: Any, width_m: float, approach_world: Any, **fields: Any) -> "Grasp":
-        """A grasp given as a pose: centre (3,), orientation xyzw (4,), contact width and approach (3,);
-        ``InvalidGraspError`` names a malformed one."""
+    def from_pose(cls, position_world: Any, quat_xyzw: Any, width_m: float, approach_world: Any, ik_solution: Any = None) -> "Grasp":
+        """A grasp given as a pose: centre (3,), orientation xyzw (4,), contact width and approach
+        (3,), optionally the (7,) arm joints reaching it; ``InvalidGraspError`` names a malformed one."""
         from scipy.spatial.transform import Rotation
 
         position = as_finite_vector(position_world, 3, "position_world")
@@ -173,12 +173,12 @@ class Grasp:
         rotation = Rotation.from_quat(quat).as_matrix()
         half_width = 0.5 * float(width_m) * rotation[:, 1]
         return cls(
-            candidate_id=fields.pop("candidate_id", 0),
+            candidate_id=0,
             contacts_world=torch.tensor(np.stack([position - half_width, position + half_width])),
             rotation_world=torch.tensor(rotation),
             approach=torch.tensor(approach / np.linalg.norm(approach)),
             width_m=float(width_m),
-            **fields,
+            ik_solution=None if ik_solution is None else torch.tensor(as_finite_vector(ik_solution, 7, "ik_solution")),
         )
 
     @property
