@@ -39,20 +39,28 @@ class HandClearance(NamedTuple):
     clearance_m: torch.Tensor
 
 
+def _slab_excess(projection: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """(c, S, d, n) |projection - middle| - half for (c, 1, d, n) projections and (1, S, d, 1) slabs.
+
+    In place on the one temporary: these are the sweep's largest tensors (~1 MB a block), and
+    fresh allocations of that size cost as much as the arithmetic."""
+    return (projection - middle).abs_().sub_(half)
+
+
 def _separation(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
     """(c, n) separation s(p) of points ``relative`` (c, n, 3) from the polytopes, NaN rows -> inf."""
     n_points = relative.shape[1]
     padded = torch.cat((relative, relative.new_full((relative.shape[0], max(0, MIN_GEMM_COLUMNS - n_points), 3), float("nan"))), dim=1)
     # Projections on the k-DOP directions in one GEMM: (u_d^T R^T) (p - centre).
     projection = (axes @ padded.transpose(1, 2))[:, None, :, :n_points]  # (c, 1, D, n)
-    separation = ((projection - middle).abs() - half).amax(dim=2).amin(dim=1)
+    separation = _slab_excess(projection, middle, half).amax(dim=2).amin(dim=1)
     return torch.nan_to_num(separation, nan=float("inf"))
 
 
 def _lower_bound(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
     """(c, n) a lower bound of s(p) from the first three directions only, NaN rows -> inf."""
     projection = (axes[:, :3] @ relative.transpose(1, 2))[:, None]  # (c, 1, 3, n)
-    bound = ((projection - middle[:, :, :3]).abs() - half[:, :, :3]).amax(dim=2).amin(dim=1)
+    bound = _slab_excess(projection, middle[:, :, :3], half[:, :, :3]).amax(dim=2).amin(dim=1)
     return torch.nan_to_num(bound, nan=float("inf")) - BOUND_SLACK_M
 
 
