@@ -68,6 +68,19 @@ def _gather(relative: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     return relative.gather(1, index[:, :, None].expand(-1, -1, 3))
 
 
+def _compacted(relative: torch.Tensor, chosen: torch.Tensor, per_row: torch.Tensor) -> torch.Tensor:
+    """(r, max per_row, 3) each row's ``chosen`` points of ``relative`` (r, n, 3) in index order,
+    then NaN padding; ``per_row``: (r,) ``chosen.sum(dim=1)``.
+
+    Scattered to their places from ``nonzero``'s row-major list rather than ordered by a stable
+    sort of the mask: the sort of every (row, point) flag cost an eighth of the sweep."""
+    row, point = chosen.nonzero(as_tuple=True)
+    slot = torch.arange(row.numel()) - (per_row.cumsum(0) - per_row)[row]
+    compact = relative.new_full((relative.shape[0], int(per_row.max()), 3), float("nan"))
+    compact[row, slot] = relative[row, point]
+    return compact
+
+
 def hand_clearance(
     points: torch.Tensor,
     probe_points: torch.Tensor,
@@ -131,11 +144,8 @@ def hand_clearance(
         axes = directions @ rotation[start + rows].transpose(-1, -2)  # (r, D, 3)
         relative = points[object_index[start + rows]] - centre[start + rows, None, :]  # (r, N, 3)
         candidates = _lower_bound(relative, axes, middle, half) < clearance[start + rows, None]
-        count = int(candidates.sum(dim=1).max())
-        if count:
-            # Each row's candidate points first (a stable sort of the mask), then NaN padding.
-            order = candidates.to(torch.int8).sort(dim=1, descending=True, stable=True).indices[:, :count]
-            rest = torch.where(candidates.gather(1, order)[:, :, None], _gather(relative, order), float("nan"))
-            found = _separation(rest, axes, middle, half).amin(dim=1)
+        per_row = candidates.sum(dim=1)
+        if int(per_row.max()):
+            found = _separation(_compacted(relative, candidates, per_row), axes, middle, half).amin(dim=1)
             clearance[start + rows] = torch.minimum(clearance[start + rows], found)
     return HandClearance(clearance < margin_m, clearance)
