@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 import torch
 
+from .grasp_frames import scene_points_about
+
 # Probe points whose exact separation is evaluated first, nearest by the lower bound: a blocked
 # grasp almost always has one of them under the margin.
 PROBE_POINTS = 16
@@ -131,7 +133,7 @@ def hand_clearance(
         for start in range(0, n_candidates, probe_step):
             stop = min(start + probe_step, n_candidates)
             axes = directions @ rotation[start:stop].transpose(-1, -2)  # (c, D, 3)
-            probe = probe_points[object_index[start:stop]] - centre[start:stop, None, :]  # (c, P, 3)
+            probe = scene_points_about(probe_points, object_index[start:stop], centre[start:stop])  # (c, P, 3)
             nearest = _lower_bound(probe, axes, middle, half).topk(n_probe, dim=1, largest=False).indices
             clearance[start:stop] = _separation(_gather(probe, nearest), axes, middle, half).amin(dim=1)
     for start in range(0, n_candidates, step):
@@ -142,7 +144,7 @@ def hand_clearance(
         if not rows.numel():
             continue
         axes = directions @ rotation[start + rows].transpose(-1, -2)  # (r, D, 3)
-        relative = points[object_index[start + rows]] - centre[start + rows, None, :]  # (r, N, 3)
+        relative = scene_points_about(points, object_index[start + rows], centre[start + rows])  # (r, N, 3)
         candidates = _lower_bound(relative, axes, middle, half) < clearance[start + rows, None]
         per_row = candidates.sum(dim=1)
         if int(per_row.max()):
