@@ -66,3 +66,22 @@ def grasp_rotations(closing_axis: torch.Tensor, approach: torch.Tensor) -> torch
     closing_axis, approach = torch.broadcast_tensors(closing_axis, approach)
     x_axis = torch.linalg.cross(closing_axis, approach, dim=-1)
     return torch.stack((x_axis, closing_axis, approach), dim=-1)
+
+
+def scene_points_about(points: torch.Tensor, object_index: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
+    """(c, N, 3) each candidate's scene points less its grasp centre: ``points[object_index] - centre[:, None]``.
+
+    Args:
+        points: (B, N, 3) points of B scenes (NaN-padded rows stay NaN).
+        object_index: (c,) int64 scene of each candidate.
+        centre: (c, 3) grasp centres.
+
+    Candidates all of one scene (a one-object plan, or a block of scene-sorted candidates) take
+    its points by broadcasting: the same values without the (c, N, 3) gather, which cost a third
+    of the subtraction's time.
+    """
+    if object_index.numel():
+        first, last = object_index.aminmax()
+        if first == last:
+            return points[int(first)] - centre[:, None, :]
+    return points[object_index] - centre[:, None, :]

@@ -23,6 +23,8 @@ from typing import NamedTuple
 
 import torch
 
+from .grasp_frames import scene_points_about
+
 # Float32 rounding of the table check's bounds (a few 1e-8 m at these sizes) is far inside this.
 TABLE_BOUND_SLACK_M = 1e-5
 # How far the volume verdict's turned coordinates may stray from the exhaustive GEMM's: twice
@@ -112,7 +114,7 @@ def gripper_occupancy(
     for start in range(0, counted.numel(), step):
         rows = counted[start : start + step]
         chosen = poses[rows].reshape(-1).nonzero().squeeze(1)  # flat (candidate, approach) in the chunk
-        relative = points[object_index[rows]] - centre[rows, None, :]  # (c, N, 3)
+        relative = scene_points_about(points, object_index[rows], centre[rows])  # (c, N, 3)
         # Grasp-frame coordinates R^T (p - centre) as one batched GEMM with the points along the
         # long output dimension: (c, K*3, 3) @ (c, 3, N) -> (c, K, 3, N). Every approach takes
         # part even where only some are counted: the GEMM's rounding depends on its shape.
@@ -198,7 +200,7 @@ def gripper_occupancy_within(
         stop = max(start + 1, bisect.bisect_right(pose_offset, pose_offset[start] + pose_budget) - 1)
         rows = counted[start:stop]
         first, last = pose_offset[start], pose_offset[stop]
-        relative = points[object_index[rows]] - centre[rows, None, :]  # (c, N, 3)
+        relative = scene_points_about(points, object_index[rows], centre[rows])  # (c, N, 3)
         local = rotation[rows, 0].transpose(-1, -2) @ relative.transpose(1, 2)  # (c, 3, N): x, y, z of approach 0
         # Each box's excess along y (> 0 outside its y extent), shared by every approach.
         abs_y = local[:, 1].abs()

@@ -348,13 +348,16 @@ def check_motions(
     # that way but fail a step or the table, mostly near the shoulder singularity where holding
     # joint 7 swings joints 1 and 3, are followed again with every joint free to move; a waypoint
     # out of reach at the held value was already given that chance inside ``follow``.
+    # The arm at the grasp itself is placed once: a retried motion keeps its grasp joints.
+    grasp_lowest_z = ik.lowest_link_point_z(grasp_joints, _arm_hulls(planner))
     joints, reached_all, motion_ok = _checked_motion(
-        ik, grasp_joints, waypoints[candidates], rotation[candidates], grasp_index, config, hold_joint7=True
+        ik, grasp_joints, grasp_lowest_z, waypoints[candidates], rotation[candidates], grasp_index, config, hold_joint7=True
     )
     retry = (reached_all & ~motion_ok).nonzero().squeeze(1)
     if retry.numel():
         joints[retry], _, motion_ok[retry] = _checked_motion(
-            ik, grasp_joints[retry], waypoints[candidates[retry]], rotation[candidates[retry]], grasp_index, config, hold_joint7=False
+            ik, grasp_joints[retry], grasp_lowest_z[retry], waypoints[candidates[retry]], rotation[candidates[retry]], grasp_index, config,
+            hold_joint7=False,
         )
     rejected_by[candidates[~motion_ok], 1] = 1
     joint_path[candidates[motion_ok]] = joints[motion_ok]
@@ -373,6 +376,7 @@ def check_motions(
 def _checked_motion(
     ik: PandaIK,
     grasp_joints: torch.Tensor,
+    grasp_lowest_z: torch.Tensor,
     waypoints: torch.Tensor,
     rotation: torch.Tensor,
     grasp_index: int,
@@ -380,7 +384,8 @@ def _checked_motion(
     hold_joint7: bool,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(M, W, 7) joints along M motions through (M, W, 3) ``waypoints`` from their grasp solutions
-    (M, 7) at waypoint ``grasp_index``, holding (M, 3, 3) ``rotation``; (M,) bool whether every
+    (M, 7) at waypoint ``grasp_index`` (where the arm's lowest point is (M,) ``grasp_lowest_z``,
+    ``PandaIK.lowest_link_point_z``), holding (M, 3, 3) ``rotation``; (M,) bool whether every
     waypoint is within the IK tolerances; and (M,) bool whether each motion passes all of
     execution's checks: those tolerances, no joint moving more than ``max_waypoint_joint_step_rad``
     between waypoints, and the arm's links clear of the table."""
@@ -391,7 +396,7 @@ def _checked_motion(
     joints = torch.zeros(grasp_joints.shape[0], waypoints.shape[1], 7)
     joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
     steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
-    arm_lowest_z = torch.minimum(path.lowest_link_z_m.amin(dim=1), ik.lowest_link_point_z(grasp_joints, hulls))
+    arm_lowest_z = torch.minimum(path.lowest_link_z_m.amin(dim=1), grasp_lowest_z)
     reached_all = (path.position_error_m < ik.robot.ik_position_tolerance_m).all(dim=1) & (
         path.rotation_error_rad < ik.robot.ik_rotation_tolerance_rad
     ).all(dim=1)

@@ -7,7 +7,7 @@ from planner_clouds import box_surface
 from sagp_batched.config import Config
 from sagp_batched.planner import gripper_geometry, hand_geometry
 from sagp_batched_kernels.antipodal import antipodal_pairs
-from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
+from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations, scene_points_about
 from sagp_batched_kernels.gripper_volume import gripper_occupancy, table_penetration
 from sagp_batched_kernels.sampling import sample_pair_indices
 
@@ -150,3 +150,15 @@ def test_occupancy_ignores_nan_padding_and_matches_across_chunks():
     assert torch.equal(whole, chunked)
     assert whole.max() > 0
 
+
+
+def test_scene_points_about_equals_the_gather_for_one_scene_several_and_none():
+    generator = torch.Generator().manual_seed(5)
+    points = torch.randn(3, 20, 3, generator=generator)
+    points[1, 15:] = float("nan")  # padding rows stay NaN
+    centre = torch.randn(7, 3, generator=generator)
+    for object_index in (torch.full((7,), 1), torch.tensor([0, 0, 1, 1, 2, 2, 2]), torch.zeros(0, dtype=torch.int64)):
+        rows = centre[: object_index.numel()]
+        found, gathered = scene_points_about(points, object_index, rows), points[object_index] - rows[:, None, :]
+        assert torch.equal(found.isnan(), gathered.isnan())
+        assert torch.equal(found.nan_to_num(nan=7.0), gathered.nan_to_num(nan=7.0))
