@@ -172,7 +172,6 @@ def gripper_occupancy_within(
         (C, K) bool: ``poses & (gripper_occupancy(...).total.to(float32) <= limit[:, None])``.
     """
     n_candidates, n_approaches = rotation.shape[:2]
-    n_points = points.shape[1]
     finger_z_max = geometry.fingertip_offset_m
     finger_z_min = finger_z_max - geometry.finger_length_m
     palm_z_min = finger_z_min - geometry.palm_depth_m
@@ -193,7 +192,7 @@ def gripper_occupancy_within(
     pose_candidate = torch.arange(counted.numel()).repeat_interleave(poses_per_row)  # (R,) position in counted of each pose's candidate
     pose_cos, pose_sin = turn_cos[pose_row, pose_slot, None], turn_sin[pose_row, pose_slot, None]
     maybe, surely = torch.empty(pose_row.numel()), torch.empty(pose_row.numel())
-    pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, n_points))
+    pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
     start = 0
     while start < counted.numel():
         # Blocks of whole candidates holding about pose_budget poses (at least one candidate).
@@ -208,26 +207,46 @@ def gripper_occupancy_within(
         local[:, 1] = (abs_y - (finger_y_min + finger_y_max) / 2).abs_().sub_((finger_y_max - finger_y_min) / 2)
         per_point = torch.cat((local, abs_y.sub_(geometry.palm_span_m / 2)[:, None]), dim=1)  # (c, 4, N)
         x0, finger_y, z0, palm_y = per_point.index_select(0, pose_candidate[first:last] - start).unbind(dim=1)  # (p, N) each
-        cos, sin = pose_cos[first:last], pose_sin[first:last]
-        abs_x = (x0 * cos).sub_(z0 * sin).abs_()
-        z = (z0 * cos).add_(x0 * sin)
-        # Excess over each box (> 0 outside, <= 0 inside), then over the gripper.
-        finger = torch.maximum(abs_x - geometry.finger_width_m / 2, (z - finger_z_mid).abs_().sub_(finger_z_half))
-        finger = torch.maximum(finger, finger_y, out=finger)
-        palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2), z.sub_(palm_z_mid).abs_().sub_(palm_z_half), out=abs_x)
-        excess = torch.minimum(finger, torch.maximum(palm, palm_y, out=palm), out=finger)
-        # A point inside by more than the slack is inside one box alone (they meet only at one
-        # face); a point within the slack of a face may be inside, or inside both boxes at their
-        # common face, so it may count once more: bounds inside +- uncertain.
-        inside = (excess <= VOLUME_SLACK_M).sum(dim=1)
-        uncertain = (excess.abs_() <= VOLUME_SLACK_M).sum(dim=1)
-        maybe[first:last], surely[first:last] = inside + uncertain, inside - uncertain
+        maybe[first:last], surely[first:last] = _turned_count_bounds(
+            x0, finger_y, z0, palm_y, pose_cos[first:last], pose_sin[first:last], geometry,
+            (finger_z_mid, finger_z_half), (palm_z_mid, palm_z_half),
+        )
         start = stop
     pose_limit, ok = limit[pose_row], turns_ok[pose_row]
     within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     within[pose_row, pose_slot] = ok & (maybe <= pose_limit)
     undecided[pose_row, pose_slot] = ~ok | ((maybe > pose_limit) & (surely <= pose_limit))
+    return _counted_where_undecided(within, undecided, points, object_index, centre, rotation, width_m, geometry, limit, chunk_elements)
+
+
+def _turned_count_bounds(
+    x0: torch.Tensor, finger_y: torch.Tensor, z0: torch.Tensor, palm_y: torch.Tensor, cos: torch.Tensor, sin: torch.Tensor,
+    geometry: GripperGeometry, finger_z: tuple[float, float], palm_z: tuple[float, float],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Upper and lower bounds (p,) of each pose's gripper point count, from approach 0's x, z (p, N)
+    turned by the pose's (cos, sin) (p, 1) and the boxes' y excesses (p, N); ``finger_z`` and
+    ``palm_z`` are each box's (middle, half height) along z."""
+    abs_x = (x0 * cos).sub_(z0 * sin).abs_()
+    z = (z0 * cos).add_(x0 * sin)
+    # Excess over each box (> 0 outside, <= 0 inside), then over the gripper.
+    finger = torch.maximum(abs_x - geometry.finger_width_m / 2, (z - finger_z[0]).abs_().sub_(finger_z[1]))
+    finger = torch.maximum(finger, finger_y, out=finger)
+    palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2), z.sub_(palm_z[0]).abs_().sub_(palm_z[1]), out=abs_x)
+    excess = torch.minimum(finger, torch.maximum(palm, palm_y, out=palm), out=finger)
+    # A point inside by more than the slack is inside one box alone (they meet only at one
+    # face); a point within the slack of a face may be inside, or inside both boxes at their
+    # common face, so it may count once more: bounds inside +- uncertain.
+    inside = (excess <= VOLUME_SLACK_M).sum(dim=1)
+    uncertain = (excess.abs_() <= VOLUME_SLACK_M).sum(dim=1)
+    return inside + uncertain, inside - uncertain
+
+
+def _counted_where_undecided(
+    within: torch.Tensor, undecided: torch.Tensor, points: torch.Tensor, object_index: torch.Tensor, centre: torch.Tensor,
+    rotation: torch.Tensor, width_m: torch.Tensor, geometry: GripperGeometry, limit: torch.Tensor, chunk_elements: int,
+) -> torch.Tensor:
+    """``within`` (C, K) with the ``undecided`` poses decided by ``gripper_occupancy``'s exhaustive count."""
     exhaustive = undecided.any(dim=1).nonzero().squeeze(1)
     if exhaustive.numel():
         mine = undecided[exhaustive]

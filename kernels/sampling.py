@@ -73,21 +73,8 @@ def sample_guided_pair_indices(
         (P, 2) int64 tensor of indices ``(i, j)`` into ``points``, ``i != j``. Pairs are drawn with
         replacement, so a pair may appear more than once.
     """
-    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
-        raise ValueError(f"points and normals must both be (N, 3), got {tuple(points.shape)} and {tuple(normals.shape)}")
-    if not points.is_floating_point() or not normals.is_floating_point():
-        raise ValueError(f"points and normals must be floating point, got {points.dtype} and {normals.dtype}")
+    _check_guided_inputs(points, normals, n_pairs, n_proposals, min_width_m, max_width_m, chunk_elements)
     n_points = points.shape[0]
-    if n_points < 2:
-        raise ValueError(f"need at least 2 points to sample pairs, got n_points={n_points}")
-    if n_pairs < 0:
-        raise ValueError(f"n_pairs must be >= 0, got {n_pairs}")
-    if n_proposals < 1:
-        raise ValueError(f"n_proposals must be >= 1, got {n_proposals}")
-    if not 0.0 <= min_width_m <= max_width_m:
-        raise ValueError(f"need 0 <= min_width_m <= max_width_m, got {min_width_m} and {max_width_m}")
-    if chunk_elements < 1:
-        raise ValueError(f"chunk_elements must be >= 1, got {chunk_elements}")
     first = torch.randint(0, n_points, (n_pairs,), generator=generator)
     second = torch.empty_like(first)
     chunk_pairs = max(1, chunk_elements // n_proposals)
@@ -96,7 +83,6 @@ def sample_guided_pair_indices(
     # back to the system between chunks) than the arithmetic on them. Every value is as before.
     block_pairs = max(1, min(chunk_pairs, n_pairs, SCORE_BLOCK_ELEMENTS // n_proposals))
     work = _ScoreWork(block_pairs, n_proposals, points.dtype)
-    tiny = torch.finfo(points.dtype).tiny
     for start in range(0, n_pairs, chunk_pairs):
         chunk_anchor = first[start : start + chunk_pairs]
         # Same skip trick as sample_pair_indices: distinct from the anchor without rejection.
@@ -105,25 +91,52 @@ def sample_guided_pair_indices(
         for block in range(0, chunk_anchor.shape[0], block_pairs):
             anchor = chunk_anchor[block : block + block_pairs]
             proposal = chunk_proposal[block : block + block_pairs]
-            gathered, offset, width, cos_i, cos_j, term, out_of_reach, beyond = work.cut(anchor.shape[0])
-            # index_select of the flattened proposals gives the same rows as indexing with the (C, K)
-            # tensor, and measured 3-5x faster on 2-core CPUs, where these gathers dominated sampling.
-            flat = proposal.reshape(-1)
-            torch.sub(torch.index_select(points, 0, flat, out=gathered).view(offset.shape), points[anchor][:, None, :], out=offset)
-            torch.linalg.vector_norm(offset, dim=-1, out=width)
-            # The clamped widths borrow cos_i's tensor until the cosines are taken.
-            axis = offset.div_(torch.clamp_min(width, tiny, out=cos_i).unsqueeze(-1))
-            # The contact cosines as antipodal_pairs' (n * axis).sum(-1), whose sum over three
-            # terms runs (x + y) + z: the same values from component products, without its
-            # broadcast reduction (a quarter of the sampler's time).
-            _dot(torch.index_select(normals, 0, flat, out=gathered).view(offset.shape), axis, cos_j, term)
-            _dot(normals[anchor][:, None, :], axis, cos_i, term).neg_()
-            torch.lt(width, min_width_m, out=out_of_reach).logical_or_(torch.gt(width, max_width_m, out=beyond))
-            quality = torch.minimum(cos_i, cos_j, out=cos_i).masked_fill_(out_of_reach, -torch.inf)
-            # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
-            best = quality.argmax(dim=1, keepdim=True)
-            second[start + block : start + block + anchor.shape[0]] = proposal.gather(1, best).squeeze(1)
+            best = _best_proposals(points, normals, anchor, proposal, work, min_width_m, max_width_m)
+            second[start + block : start + block + anchor.shape[0]] = best
     return torch.stack((first, second), dim=1)
+
+
+def _check_guided_inputs(
+    points: torch.Tensor, normals: torch.Tensor, n_pairs: int, n_proposals: int, min_width_m: float, max_width_m: float, chunk_elements: int
+) -> None:
+    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
+        raise ValueError(f"points and normals must both be (N, 3), got {tuple(points.shape)} and {tuple(normals.shape)}")
+    if not points.is_floating_point() or not normals.is_floating_point():
+        raise ValueError(f"points and normals must be floating point, got {points.dtype} and {normals.dtype}")
+    if points.shape[0] < 2:
+        raise ValueError(f"need at least 2 points to sample pairs, got n_points={points.shape[0]}")
+    if n_pairs < 0:
+        raise ValueError(f"n_pairs must be >= 0, got {n_pairs}")
+    if n_proposals < 1:
+        raise ValueError(f"n_proposals must be >= 1, got {n_proposals}")
+    if not 0.0 <= min_width_m <= max_width_m:
+        raise ValueError(f"need 0 <= min_width_m <= max_width_m, got {min_width_m} and {max_width_m}")
+    if chunk_elements < 1:
+        raise ValueError(f"chunk_elements must be >= 1, got {chunk_elements}")
+
+
+def _best_proposals(
+    points: torch.Tensor, normals: torch.Tensor, anchor: torch.Tensor, proposal: torch.Tensor, work: "_ScoreWork",
+    min_width_m: float, max_width_m: float,
+) -> torch.Tensor:
+    """(B,) the proposal (B, K) of best antipodal quality for each anchor (B,), scored in ``work``."""
+    gathered, offset, width, cos_i, cos_j, term, out_of_reach, beyond = work.cut(anchor.shape[0])
+    # index_select of the flattened proposals gives the same rows as indexing with the (C, K)
+    # tensor, and measured 3-5x faster on 2-core CPUs, where these gathers dominated sampling.
+    flat = proposal.reshape(-1)
+    torch.sub(torch.index_select(points, 0, flat, out=gathered).view(offset.shape), points[anchor][:, None, :], out=offset)
+    torch.linalg.vector_norm(offset, dim=-1, out=width)
+    # The clamped widths borrow cos_i's tensor until the cosines are taken.
+    axis = offset.div_(torch.clamp_min(width, torch.finfo(points.dtype).tiny, out=cos_i).unsqueeze(-1))
+    # The contact cosines as antipodal_pairs' (n * axis).sum(-1), whose sum over three
+    # terms runs (x + y) + z: the same values from component products, without its
+    # broadcast reduction (a quarter of the sampler's time).
+    _dot(torch.index_select(normals, 0, flat, out=gathered).view(offset.shape), axis, cos_j, term)
+    _dot(normals[anchor][:, None, :], axis, cos_i, term).neg_()
+    torch.lt(width, min_width_m, out=out_of_reach).logical_or_(torch.gt(width, max_width_m, out=beyond))
+    quality = torch.minimum(cos_i, cos_j, out=cos_i).masked_fill_(out_of_reach, -torch.inf)
+    # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
+    return proposal.gather(1, quality.argmax(dim=1, keepdim=True)).squeeze(1)
 
 
 class _ScoreWork:
