@@ -4,7 +4,6 @@ import math
 
 import numpy as np
 import pybullet
-import pytest
 import torch
 
 from planner_clouds import box_surface, cylinder_surface, make_cloud
