@@ -61,7 +61,8 @@ def _rank_vlm_direct(inputs: RankingInputs) -> GraspCandidates:
     geometric = _scored(inputs, GEOMETRY_ONLY_WEIGHTS)
     shortlist = vlm_direct_rank(inputs.cloud, geometric, inputs.model_client(), inputs.config, inputs.task, inputs.object_name)
     # The model's order of the shortlist, then every other candidate in geometric order.
-    rest = [index for index in range(len(geometric)) if index not in set(shortlist.order)]
+    shortlisted = set(shortlist.order)
+    rest = [index for index in range(len(geometric)) if index not in shortlisted]
     return geometric.select(torch.tensor(shortlist.order + rest, dtype=torch.int64))
 
 

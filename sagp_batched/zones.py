@@ -115,13 +115,6 @@ class ZoneDecomposition:
         valid = torch.ones(1, self.n_points, dtype=torch.bool)
         return zone_kernels.nearest_point_index(positions.unsqueeze(0), self.points_world.unsqueeze(0), valid)[0]
 
-    def candidate_memberships(self, positions_world: torch.Tensor) -> torch.Tensor:
-        """(C, Z) bool: the zones of each position's nearest cloud point (all False on an empty cloud)."""
-        positions = _checked_positions(positions_world, "positions_world")
-        if self.n_points == 0:
-            return torch.zeros(positions.shape[0], len(self.zone_names), dtype=torch.bool)
-        return self.memberships[self.nearest_points(positions)]
-
     def candidate_zones(self, positions_world: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Zones of each position's nearest cloud point: ((C,) int64 primary zone, UNZONED on an
         empty cloud; (C, Z) bool zones it is rated by: the primary zone, where a protrusion wins

@@ -127,7 +127,7 @@ def test_a_handle_point_in_the_top_third_is_rated_as_the_handle_not_as_the_rim()
     zones, config = mug_zones(), Config()
     upper_handle = [0.05 + 0.038 * math.cos(math.pi / 6), 0.0, 0.04 + 0.038 * math.sin(math.pi / 6)]  # outer surface
     batch = candidates([upper_handle, RIM], [SIDEWAYS, DOWN], [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], s_geom=[0.6, 0.9])
-    members = zones.candidate_memberships(batch.position_world)[0]
+    members = zones.memberships[zones.nearest_points(batch.position_world)][0]
     assert members[zones.zone_names.index("protrusion_1")] and members[zones.zone_names.index("top")], "premise: handle point in the top third"
     handle_grasp = zones.zone_candidates(batch)[0]
     assert handle_grasp.zones[0] == "protrusion_1" and "top" not in handle_grasp.zones

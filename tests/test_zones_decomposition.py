@@ -91,7 +91,7 @@ def test_candidate_zone_is_its_midpoints_nearest_point_and_protrusion_wins():
     near_base = torch.tensor([[0.5 - 0.04, 0.0, TABLE_Z + 0.002]])
     zone, _ = zones.candidate_zones(torch.cat([on_handle, on_rim, near_base]))
     assert [zones.zone_names[i] for i in zone.tolist()] == ["protrusion_1", "top", "bottom"]
-    members = zones.candidate_memberships(on_handle)[0]
+    members = zones.memberships[zones.nearest_points(on_handle)][0]
     assert members[zones.zone_names.index("protrusion_1")] and members[ZONE_INDEX["middle"]], "the handle point keeps its third"
 
 
