@@ -18,7 +18,8 @@ from sagp_batched.benchmark import BenchmarkSettings, mesh_cloud
 from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS
 from sagp_batched.robot import PANDA
-from sagp_batched.planner import ScreenedCandidates, _ScreenVerdicts, gripper_geometry, hand_geometry, plan_batch, screen_candidates
+from sagp_batched import planner
+from sagp_batched.planner import ScreenedCandidates, _MotionVerdicts, _ScreenVerdicts, gripper_geometry, hand_geometry, plan_batch, screen_candidates
 from sagp_batched_kernels.gripper_volume import table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance
 
@@ -114,6 +115,35 @@ def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window
         assert torch.equal(got.hand_clearance_m, expected.hand_clearance_m)
     assert sum(result.counts["rejected_hand"] for result in fast) > 0 and all(len(result) > 0 for result in fast)
 
+
+
+def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_pending_grasps_returns(ycb_clouds, monkeypatch):
+    """``plan_batch`` checking later approaches and candidates past the window ahead, against the
+    same planner checking, each round, exactly the pending grasps without a result."""
+    clouds = [ycb_clouds["003_cracker_box"], ycb_clouds["005_tomato_soup_can"], ycb_clouds["mug beside the can"]]
+    seeds = [5, 6, 7]
+    config = CONFIG.override("planner", n_pairs=3000, max_candidates=60)
+    batches = []
+    check_motions = planner.check_motions
+    monkeypatch.setattr(planner, "check_motions", lambda *args, **kwargs: batches.append(args[1].numel()) or check_motions(*args, **kwargs))
+    ahead = plan_batch(clouds, config, seeds)
+    ahead_batches, batches[:] = list(batches), []
+
+    def pending_only(self, pending, slots, in_window, search, screens, check):
+        missing = ~self.ready[pending, slots]
+        if missing.any():
+            self.store(pending[missing], slots[missing], check(pending[missing], slots[missing]))
+
+    monkeypatch.setattr(_MotionVerdicts, "ensure", pending_only)
+    reference = plan_batch(clouds, config, seeds)
+    for got, expected in zip(ahead, reference):
+        assert got.counts == expected.counts
+        assert torch.equal(got.contacts_world, expected.contacts_world)
+        assert torch.equal(got.approach, expected.approach)
+        assert torch.equal(got.joint_path, expected.joint_path)
+        assert torch.equal(got.s_reach, expected.s_reach)
+    assert sum(result.counts["rejected_grasp_ik"] + result.counts["rejected_motion"] for result in ahead) > 0
+    assert len(ahead_batches) < len(batches)
 
 def dense_gripper_points(screened: ScreenedCandidates, rows: torch.Tensor) -> torch.Tensor:
     """(R, K) points inside the finger slabs plus points inside the palm, every point and approach."""
