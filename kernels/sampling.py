@@ -12,6 +12,10 @@ import torch
 # (pair, proposal) combinations the guided sampler scores at once, in ~10 work tensors of up to
 # 1.5 MB made once per call: at 500,000 pairs 20 % faster than scoring whole chunks in fresh ones.
 SCORE_BLOCK_ELEMENTS = 131_072
+# The guided sampler reads proposals' qualities from a table of every (anchor, proposal) pair of
+# the cloud when that table is smaller than the proposals drawn, up to this many entries (64 MB):
+# at 500,000 pairs of 64 proposals a 3,000-point cloud's 9M entries replace 32M proposals scored.
+QUALITY_TABLE_MAX_ENTRIES = 16_777_216
 
 
 def sample_pair_indices(n_points: int, n_pairs: int, generator: torch.Generator) -> torch.Tensor:
@@ -81,19 +85,43 @@ def sample_guided_pair_indices(
     # Proposals are drawn a chunk at a time and scored a block at a time into work tensors made
     # once: fresh multi-megabyte temporaries cost more in page faults (the allocator hands them
     # back to the system between chunks) than the arithmetic on them. Every value is as before.
+    table = None
+    if n_points * (n_points - 1) < min(n_pairs * n_proposals, QUALITY_TABLE_MAX_ENTRIES + 1):
+        table = _proposal_quality_table(points, normals, min_width_m, max_width_m).view(-1)
     block_pairs = max(1, min(chunk_pairs, n_pairs, SCORE_BLOCK_ELEMENTS // n_proposals))
-    work = _ScoreWork(block_pairs, n_proposals, points.dtype)
+    work = _ScoreWork(block_pairs, n_proposals, points.dtype) if table is None else None
     for start in range(0, n_pairs, chunk_pairs):
         chunk_anchor = first[start : start + chunk_pairs]
         # Same skip trick as sample_pair_indices: distinct from the anchor without rejection.
         chunk_proposal = torch.randint(0, n_points - 1, (chunk_anchor.shape[0], n_proposals), generator=generator)
+        if table is not None:
+            quality = table.index_select(0, (chunk_proposal + chunk_anchor[:, None] * (n_points - 1)).view(-1))
+            best = chunk_proposal.gather(1, quality.view(chunk_proposal.shape).argmax(dim=1, keepdim=True)).squeeze(1)
+            second[start : start + chunk_anchor.shape[0]] = best + (best >= chunk_anchor)
+            continue
         chunk_proposal += chunk_proposal >= chunk_anchor[:, None]
         for block in range(0, chunk_anchor.shape[0], block_pairs):
             anchor = chunk_anchor[block : block + block_pairs]
             proposal = chunk_proposal[block : block + block_pairs]
-            best = _best_proposals(points, normals, anchor, proposal, work, min_width_m, max_width_m)
-            second[start + block : start + block + anchor.shape[0]] = best
+            quality = _proposal_quality(points, normals, anchor, proposal, work, min_width_m, max_width_m)
+            # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
+            second[start + block : start + block + anchor.shape[0]] = proposal.gather(1, quality.argmax(dim=1, keepdim=True)).squeeze(1)
     return torch.stack((first, second), dim=1)
+
+
+def _proposal_quality_table(points: torch.Tensor, normals: torch.Tensor, min_width_m: float, max_width_m: float) -> torch.Tensor:
+    """(N, N - 1) ``_proposal_quality`` of every anchor (row) with every proposal as drawn (column
+    j is point j + (j >= anchor), the sampler's skip), by the same elementwise arithmetic: each
+    entry is bit for bit the value scoring that proposal gives."""
+    n_points = points.shape[0]
+    rows_per_block = max(1, SCORE_BLOCK_ELEMENTS // n_points)
+    work = _ScoreWork(rows_per_block, n_points, points.dtype)
+    table = torch.empty(n_points, n_points, dtype=points.dtype)
+    for start in range(0, n_points, rows_per_block):
+        anchor = torch.arange(start, min(start + rows_per_block, n_points))
+        table[start : start + anchor.shape[0]] = _proposal_quality(points, normals, anchor, None, work, min_width_m, max_width_m)
+    # Each row without its diagonal entry, in order: the skip's columns.
+    return table.view(-1)[1:].view(n_points - 1, n_points + 1)[:, :-1].reshape(n_points, n_points - 1)
 
 
 def _check_guided_inputs(
@@ -115,28 +143,32 @@ def _check_guided_inputs(
         raise ValueError(f"chunk_elements must be >= 1, got {chunk_elements}")
 
 
-def _best_proposals(
+def _proposal_quality(
     points: torch.Tensor, normals: torch.Tensor, anchor: torch.Tensor, proposal: torch.Tensor, work: "_ScoreWork",
     min_width_m: float, max_width_m: float,
 ) -> torch.Tensor:
-    """(B,) the proposal (B, K) of best antipodal quality for each anchor (B,), scored in ``work``."""
+    """(B, K) antipodal quality of proposals (B, K) for anchors (B,), -inf out of reach, scored in ``work``
+    (the returned tensor is one of its work tensors). ``proposal`` None proposes every point, in
+    order (K = N), taken by broadcasting instead of gathers."""
     gathered, offset, width, cos_i, cos_j, term, out_of_reach, beyond = work.cut(anchor.shape[0])
-    # index_select of the flattened proposals gives the same rows as indexing with the (C, K)
-    # tensor, and measured 3-5x faster on 2-core CPUs, where these gathers dominated sampling.
-    flat = proposal.reshape(-1)
-    torch.sub(torch.index_select(points, 0, flat, out=gathered).view(offset.shape), points[anchor][:, None, :], out=offset)
+    flat = None if proposal is None else proposal.reshape(-1)
+
+    def proposed(values: torch.Tensor) -> torch.Tensor:
+        # index_select of the flattened proposals gives the same rows as indexing with the (C, K)
+        # tensor, and measured 3-5x faster on 2-core CPUs, where these gathers dominated sampling.
+        return values[None] if flat is None else torch.index_select(values, 0, flat, out=gathered).view(offset.shape)
+
+    torch.sub(proposed(points), points[anchor][:, None, :], out=offset)
     torch.linalg.vector_norm(offset, dim=-1, out=width)
     # The clamped widths borrow cos_i's tensor until the cosines are taken.
     axis = offset.div_(torch.clamp_min(width, torch.finfo(points.dtype).tiny, out=cos_i).unsqueeze(-1))
     # The contact cosines as antipodal_pairs' (n * axis).sum(-1), whose sum over three
     # terms runs (x + y) + z: the same values from component products, without its
     # broadcast reduction (a quarter of the sampler's time).
-    _dot(torch.index_select(normals, 0, flat, out=gathered).view(offset.shape), axis, cos_j, term)
+    _dot(proposed(normals), axis, cos_j, term)
     _dot(normals[anchor][:, None, :], axis, cos_i, term).neg_()
     torch.lt(width, min_width_m, out=out_of_reach).logical_or_(torch.gt(width, max_width_m, out=beyond))
-    quality = torch.minimum(cos_i, cos_j, out=cos_i).masked_fill_(out_of_reach, -torch.inf)
-    # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
-    return proposal.gather(1, quality.argmax(dim=1, keepdim=True)).squeeze(1)
+    return torch.minimum(cos_i, cos_j, out=cos_i).masked_fill_(out_of_reach, -torch.inf)
 
 
 class _ScoreWork:

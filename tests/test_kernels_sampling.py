@@ -109,3 +109,25 @@ def test_bad_inputs_raise_named_errors(change, message):
     arguments.update(change)
     with pytest.raises(ValueError, match=message):
         sample_guided_pair_indices(**arguments)
+
+
+@pytest.mark.parametrize("spread_m", [None, 100.0])
+def test_proposals_read_from_the_quality_table_give_the_pairs_scoring_each_proposal_gives(monkeypatch, spread_m):
+    # A grid box's points tie in quality often (argmax must break ties alike); points spread over
+    # 100 m leave every proposal out of reach (the fallback to the first proposal).
+    points, normals = _tensors(*box_surface((0.05, 0.06, 0.1), (0.0, 0.0, 0.0)))
+    keep = torch.randperm(len(points), generator=torch.Generator().manual_seed(1))[:400]
+    points, normals = points[keep], normals[keep]
+    if spread_m is not None:
+        points = torch.rand(len(points), 3, generator=torch.Generator().manual_seed(0)) * spread_m
+    n_pairs = 3000  # 3,000 x 64 proposals > 400 x 399 table entries: the table is used
+    assert len(points) * (len(points) - 1) < n_pairs * PLANNER.pair_proposals
+    generator = torch.Generator().manual_seed(4)
+    from_table = sample_guided_pair_indices(points, normals, n_pairs, PLANNER.pair_proposals, PLANNER.min_width_m, PLANNER.max_width_m, generator, 5000)
+    table_state = torch.rand(4, generator=generator)
+    monkeypatch.setattr("sagp_batched_kernels.sampling.QUALITY_TABLE_MAX_ENTRIES", 0)
+    generator = torch.Generator().manual_seed(4)
+    scored = sample_guided_pair_indices(points, normals, n_pairs, PLANNER.pair_proposals, PLANNER.min_width_m, PLANNER.max_width_m, generator, 5000)
+    assert torch.equal(from_table, scored)
+    assert torch.equal(table_state, torch.rand(4, generator=generator))
+    assert (from_table[:, 0] != from_table[:, 1]).all()
