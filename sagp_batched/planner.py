@@ -148,8 +148,11 @@ class ScreenedCandidates:
     closing_axis: torch.Tensor  # (A, 3)
     width_m: torch.Tensor  # (A,)
     s_geom: torch.Tensor  # (A,)
-    approach: torch.Tensor  # (A, K, 3)
-    rotation_world: torch.Tensor  # (A, K, 3, 3)
+    # (A, K, 3) approaches and (A, K, 3, 3) grasp frames, written for a candidate the first time
+    # ``frames`` is asked for it (unwritten rows are uninitialised memory, never read)
+    approach_buffer: torch.Tensor
+    rotation_buffer: torch.Tensor
+    framed: torch.Tensor  # (A,) bool: the candidate's rows of the buffers are written
     occupancy_points: torch.Tensor  # (B, M, 3) per-cloud occupancy subsets (object then obstacles), NaN-padded
     occupancy_total: torch.Tensor  # (B,) object points of each subset: the occupancy fractions' denominator
     hand_check_points: torch.Tensor  # (B, H, 3) per-cloud points for the swept-hand check, NaN-padded
@@ -157,6 +160,40 @@ class ScreenedCandidates:
     planner: PlannerConfig
     pregrasp_offset_m: float
     table_top_z_m: float
+
+    @property
+    def n_candidates(self) -> int:
+        return self.width_m.shape[0]
+
+    def frames(self, rows: torch.Tensor, slots: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Approach directions (R, K, 3), in prior order, and grasp frames (R, K, 3, 3) of candidates
+        ``rows``; with ``slots`` (R,), only those approaches: (R, 3) and (R, 3, 3).
+
+        Computed the first time a candidate is asked for: at 500,000 pairs a plan reaches a few
+        hundred of a soup can's 416,000 candidates, and framing every one took ~0.3 s and 160 MB. A
+        candidate's frames do not depend on which others are framed with it.
+        """
+        new = rows[~self.framed[rows]]
+        if new.numel():
+            new = new.unique()  # a candidate may be asked for once per approach
+            closing_axis = self.closing_axis[new]
+            approach = approach_directions(closing_axis, self.planner.n_approaches, WORLD_DOWN)
+            self.approach_buffer[new] = approach
+            self.rotation_buffer[new] = grasp_rotations(closing_axis[:, None, :], approach)
+            self.framed[new] = True
+        if slots is None:
+            return self.approach_buffer[rows], self.rotation_buffer[rows]
+        return self.approach_buffer[rows, slots], self.rotation_buffer[rows, slots]
+
+    @property
+    def approach(self) -> torch.Tensor:
+        """(A, K, 3) every candidate's approaches (framing all of them; for references and tests)."""
+        return self.frames(torch.arange(self.n_candidates))[0]
+
+    @property
+    def rotation_world(self) -> torch.Tensor:
+        """(A, K, 3, 3) every candidate's grasp frames (framing all of them; for references and tests)."""
+        return self.frames(torch.arange(self.n_candidates))[1]
 
     def clear_of_table(self, rows: torch.Tensor) -> torch.Tensor:
         """(R, K) bool: the hand of candidates ``rows`` stays above the table at the grasp and the
@@ -166,7 +203,7 @@ class ScreenedCandidates:
         """
         planner = self.planner
         (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(hand_geometry(planner))
-        centre, rotation = self.centre_world[rows], self.rotation_world[rows]
+        centre, rotation = self.centre_world[rows], self.frames(rows)[1]
         through_table = table_penetration(
             centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m, fingers_cover
         ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m, rest_cover)
@@ -180,7 +217,7 @@ class ScreenedCandidates:
         """
         planner = self.planner
         return gripper_occupancy_within(
-            self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows],
+            self.occupancy_points, self.object_index[rows], self.centre_world[rows], self.frames(rows)[1],
             self.width_m[rows], gripper_geometry(planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
             planner.occupancy_chunk_elements, self.clear_of_table(rows),
         )
@@ -192,7 +229,7 @@ class ScreenedCandidates:
         most blocked grasps (a mug's) strike one of its points."""
         low, high = hand_geometry(self.planner).swept((0.0, 0.0, -self.pregrasp_offset_m))
         return hand_clearance(
-            self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.rotation_world[rows, slots],
+            self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.frames(rows, slots)[1],
             DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
         )
 
@@ -200,7 +237,7 @@ class ScreenedCandidates:
     def usable(self) -> torch.Tensor:
         """(A, K) bool: the published screen (table, 12 % volume) on every candidate, eagerly (for
         references and benchmarks); ``plan_batch`` adds the swept hand and the motion."""
-        return self.table_and_volume_ok(torch.arange(self.width_m.shape[0]))
+        return self.table_and_volume_ok(torch.arange(self.n_candidates))
 
 
 def screen_candidates(
@@ -235,8 +272,7 @@ def screen_candidates(
     now = time.perf_counter()
     stage_time["antipodal"], clock = now - clock, now
 
-    approach = approach_directions(closing_axis, planner.n_approaches, WORLD_DOWN)  # (A, K, 3), prior order
-    rotation = grasp_rotations(closing_axis[:, None, :], approach)  # (A, K, 3, 3)
+    n_candidates = antipodal.numel()
     stage_time["frames_volume"] = time.perf_counter() - clock
     return ScreenedCandidates(
         object_index=candidate_object,
@@ -248,8 +284,9 @@ def screen_candidates(
         closing_axis=closing_axis,
         width_m=width,
         s_geom=pair_eval["s_geom"][antipodal],
-        approach=approach,
-        rotation_world=rotation,
+        approach_buffer=torch.empty(n_candidates, planner.n_approaches, 3),
+        rotation_buffer=torch.empty(n_candidates, planner.n_approaches, 3, 3),
+        framed=torch.zeros(n_candidates, dtype=torch.bool),
         occupancy_points=_padded([s.occupancy_points for s in sampled]),
         occupancy_total=torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32),
         hand_check_points=_padded([s.hand_check_points for s in sampled]),
@@ -306,14 +343,16 @@ class MotionCheck:
 
 
 def check_motions(
-    screened: "ScreenedCandidates",
-    rows: torch.Tensor,
-    slots: torch.Tensor,
+    centre: torch.Tensor,
+    approach: torch.Tensor,
+    rotation: torch.Tensor,
     ik: PandaIK,
     config: Config,
     stage_time: dict[str, float] | None = None,
 ) -> MotionCheck:
-    """The reachability checks execution's motion has to pass, the second on the survivors of the first.
+    """The reachability checks execution's motion has to pass for R grasps at (R, 3) ``centre``
+    with (R, 3) ``approach`` directions and (R, 3, 3) grasp frames ``rotation`` (world frame):
+    the second check on the survivors of the first.
 
     1. The grasp pose is reachable (IK within tolerance and S_reach over its floor): execution
        sends the requested pose, so the reached orientation must match it.
@@ -328,10 +367,7 @@ def check_motions(
     stage_time = {"ik": 0.0, "motion": 0.0} if stage_time is None else stage_time
     clock = time.perf_counter()
     planner, execution = config.planner, config.execution
-    n_rows = rows.numel()
-    rotation = screened.rotation_world[rows, slots]
-    approach = screened.approach[rows, slots]
-    centre = screened.centre_world[rows]
+    n_rows = centre.shape[0]
     waypoints = motion_waypoints(centre, approach, execution)
     grasp_index = grasp_waypoint_index(execution)
     joint_path = torch.zeros(n_rows, waypoints.shape[1], 7)
@@ -421,7 +457,7 @@ class _ScreenVerdicts:
 
     def __init__(self, screened: ScreenedCandidates):
         self.screened = screened
-        n_candidates, n_approaches = screened.rotation_world.shape[:2]
+        n_candidates, n_approaches = screened.n_candidates, screened.planner.n_approaches
         self.ready = torch.zeros(n_candidates, dtype=torch.bool)
         self.usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)  # table, volume and hand clear
         self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
@@ -484,10 +520,11 @@ class _MotionVerdicts:
     def __init__(self, n_candidates: int, n_approaches: int, n_waypoints: int):
         self.ready = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
         self.feasible = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-        self.rejected_by = torch.zeros(n_candidates, n_approaches, len(MotionCheck.STAGES), dtype=torch.int64)
-        self.s_reach = torch.zeros(n_candidates, n_approaches)
-        self.path_index = torch.full((n_candidates, n_approaches), -1)  # row of ``paths`` holding a feasible grasp's joints
-        self.paths = torch.zeros(0, n_waypoints, 7)
+        self.grasp_ik_rejected = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)  # else, if infeasible, the motion
+        # Joint paths and IK margins of the feasible grasps only (a few hundred), and where each is.
+        self.kept_index = torch.full((n_candidates, n_approaches), -1, dtype=torch.int32)
+        self.kept_paths = torch.zeros(0, n_waypoints, 7)
+        self.kept_s_reach = torch.zeros(0)
         self.ik_targets = 0
 
     def exhausted_share(self, search: "_CandidateSearch", candidate_object: torch.Tensor, n_objects: int) -> torch.Tensor:
@@ -551,22 +588,24 @@ class _MotionVerdicts:
         return past
 
     def store(self, rows: torch.Tensor, slots: torch.Tensor, motion: MotionCheck) -> None:
+        feasible = motion.feasible
         self.ready[rows, slots] = True
-        self.feasible[rows, slots] = motion.feasible
-        self.rejected_by[rows, slots] = motion.rejected_by
-        self.s_reach[rows, slots] = motion.s_reach
-        self.path_index[rows[motion.feasible], slots[motion.feasible]] = torch.arange(int(motion.feasible.sum())) + self.paths.shape[0]
-        self.paths = torch.cat((self.paths, motion.joint_path[motion.feasible]))
+        self.feasible[rows, slots] = feasible
+        self.grasp_ik_rejected[rows, slots] = motion.rejected_by[:, 0].bool()
+        self.kept_index[rows[feasible], slots[feasible]] = torch.arange(int(feasible.sum()), dtype=torch.int32) + self.kept_paths.shape[0]
+        self.kept_paths = torch.cat((self.kept_paths, motion.joint_path[feasible]))
+        self.kept_s_reach = torch.cat((self.kept_s_reach, motion.s_reach[feasible]))
         self.ik_targets += motion.ik_targets
 
-    def result(self, rows: torch.Tensor, slots: torch.Tensor) -> MotionCheck:
-        """The stored ``MotionCheck`` of (``rows``, ``slots``) grasps, all checked."""
-        feasible = self.feasible[rows, slots]
-        joint_path = torch.zeros(rows.numel(), *self.paths.shape[1:])
-        joint_path[feasible] = self.paths[self.path_index[rows[feasible], slots[feasible]]]
-        return MotionCheck(
-            feasible=feasible, joint_path=joint_path, s_reach=self.s_reach[rows, slots], rejected_by=self.rejected_by[rows, slots], ik_targets=0
-        )
+    def verdicts(self, rows: torch.Tensor, slots: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(R,) bool feasible and (R, 2) int64 ``MotionCheck.rejected_by`` of (``rows``, ``slots``) grasps, all checked."""
+        feasible, grasp_ik = self.feasible[rows, slots], self.grasp_ik_rejected[rows, slots]
+        return feasible, torch.stack((grasp_ik, ~feasible & ~grasp_ik), dim=1).to(torch.int64)
+
+    def kept(self, rows: torch.Tensor, slots: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(R, W, 7) joint paths and (R,) IK margins of (``rows``, ``slots``) grasps, all feasible."""
+        index = self.kept_index[rows, slots].to(torch.int64)
+        return self.kept_paths[index], self.kept_s_reach[index]
 
 
 @dataclass
@@ -583,13 +622,11 @@ class _CandidateSearch:
     cursor: torch.Tensor  # (A,) approach to try next (K: none)
     screened: torch.Tensor  # (A,) bool: the screens' verdicts are applied
     status: torch.Tensor  # (A,) UNDECIDED / FEASIBLE / EXHAUSTED
-    joint_path: torch.Tensor  # (A, W, 7) planned joints of feasible candidates
-    s_reach: torch.Tensor  # (A,)
     clearance_m: torch.Tensor  # (A, K) swept hand's clearance where computed
     rejected: torch.Tensor  # (A, 3) int64 rejections per candidate: hand, grasp IK, motion
 
     @classmethod
-    def start(cls, n_candidates: int, n_approaches: int, n_waypoints: int) -> "_CandidateSearch":
+    def start(cls, n_candidates: int, n_approaches: int) -> "_CandidateSearch":
         # Candidates without a table-clear approach are found, and exhausted, when screened.
         return cls(
             usable=torch.zeros(n_candidates, n_approaches, dtype=torch.bool),
@@ -597,8 +634,6 @@ class _CandidateSearch:
             cursor=torch.full((n_candidates,), n_approaches),
             screened=torch.zeros(n_candidates, dtype=torch.bool),
             status=torch.full((n_candidates,), UNDECIDED),
-            joint_path=torch.zeros(n_candidates, n_waypoints, 7),
-            s_reach=torch.zeros(n_candidates),
             clearance_m=torch.full((n_candidates, n_approaches), float("inf")),
             rejected=torch.zeros(n_candidates, 3, dtype=torch.int64),
         )
@@ -615,14 +650,12 @@ class _CandidateSearch:
         self.cursor[rows] = self.next_usable[rows, 0]
         self.status[rows] = torch.where(self.cursor[rows] < n_approaches, UNDECIDED, EXHAUSTED)
 
-    def apply_motions(self, rows: torch.Tensor, slots: torch.Tensor, motion: MotionCheck) -> None:
-        self.rejected[rows, 1:] += motion.rejected_by
-        done = rows[motion.feasible]
-        self.status[done] = FEASIBLE
-        self.joint_path[done] = motion.joint_path[motion.feasible]
-        self.s_reach[done] = motion.s_reach[motion.feasible]
-        retry = rows[~motion.feasible]
-        self.cursor[retry] = self.next_usable[retry, slots[~motion.feasible] + 1]
+    def apply_motions(self, rows: torch.Tensor, slots: torch.Tensor, feasible: torch.Tensor, rejected_by: torch.Tensor) -> None:
+        """The motion checks' (R,) ``feasible`` and (R, 2) ``rejected_by`` of (``rows``, ``slots``) grasps."""
+        self.rejected[rows, 1:] += rejected_by
+        self.status[rows[feasible]] = FEASIBLE
+        retry = rows[~feasible]
+        self.cursor[retry] = self.next_usable[retry, slots[~feasible] + 1]
         self.status[retry] = torch.where(self.cursor[retry] < self.usable.shape[1], UNDECIDED, EXHAUSTED)
 
 
@@ -654,7 +687,7 @@ def _window_with_verdicts(
 
 
 def _planned_candidates(
-    screened: ScreenedCandidates, search: _CandidateSearch, n_objects: int, config: Config
+    screened: ScreenedCandidates, search: _CandidateSearch, motions: _MotionVerdicts, n_objects: int, config: Config
 ) -> list[GraspCandidates]:
     """One ``GraspCandidates`` per object: its first ``max_candidates`` feasible candidates, with counts."""
     planner = config.planner
@@ -668,6 +701,8 @@ def _planned_candidates(
     for index in range(n_objects):
         mine = (keep & (candidate_object == index)).nonzero().squeeze(1)
         slot = final_slot[mine]
+        approach, rotation = screened.frames(mine, slot)
+        joint_path, s_reach = motions.kept(mine, slot)
         zeros = torch.zeros(mine.numel())
         results.append(
             GraspCandidates(
@@ -675,11 +710,11 @@ def _planned_candidates(
                 closing_axis=screened.closing_axis[mine],
                 width_m=screened.width_m[mine],
                 s_geom=screened.s_geom[mine],
-                approach=screened.approach[mine, slot],
-                rotation_world=screened.rotation_world[mine, slot],
-                s_reach=search.s_reach[mine],
-                ik_solution=search.joint_path[mine, grasp_waypoint_index(config.execution)],
-                joint_path=search.joint_path[mine],
+                approach=approach,
+                rotation_world=rotation,
+                s_reach=s_reach,
+                ik_solution=joint_path[:, grasp_waypoint_index(config.execution)],
+                joint_path=joint_path,
                 hand_clearance_m=search.clearance_m[mine, slot],
                 zone=torch.full((mine.numel(),), -1, dtype=torch.int64),
                 s_afford=zeros.clone(),
@@ -737,16 +772,16 @@ def plan_batch(
         return []
     stage_time: dict[str, float] = {}
     screened = screen_candidates(clouds, config, seeds, stage_time)
-    n_candidates, n_approaches = screened.rotation_world.shape[:2]
-    n_waypoints = motion_waypoints(screened.centre_world[:0], screened.approach[:0, 0], config.execution).shape[1]
-    search = _CandidateSearch.start(n_candidates, n_approaches, n_waypoints)
+    n_candidates, n_approaches = screened.n_candidates, planner.n_approaches
+    n_waypoints = motion_waypoints(torch.zeros(0, 3), torch.zeros(0, 3), config.execution).shape[1]
+    search = _CandidateSearch.start(n_candidates, n_approaches)
     verdicts = _ScreenVerdicts(screened)
     motions = _MotionVerdicts(n_candidates, n_approaches, n_waypoints)
     ik = panda_ik(config)
     motion_time = {"ik": 0.0, "motion": 0.0}
 
     def check(rows: torch.Tensor, slots: torch.Tensor) -> MotionCheck:
-        return check_motions(screened, rows, slots, ik, config, motion_time)
+        return check_motions(screened.centre_world[rows], *screened.frames(rows, slots), ik, config, motion_time)
 
     while True:
         in_window = _window_with_verdicts(search, verdicts, screened.object_index, len(clouds), planner.max_candidates)
@@ -759,14 +794,14 @@ def plan_batch(
             break
         slots = search.cursor[pending]
         motions.ensure(pending, slots, in_window, search, verdicts, check)
-        search.apply_motions(pending, slots, motions.result(pending, slots))
+        search.apply_motions(pending, slots, *motions.verdicts(pending, slots))
     stage_time["frames_volume"] += verdicts.volume_s
     stage_time["hand_sweep"] = verdicts.hand_s
     stage_time.update(motion_time)
     if timings is not None:
         timings.update(stage_time)
         timings["ik_targets"] = motions.ik_targets
-    return _planned_candidates(screened, search, len(clouds), config)
+    return _planned_candidates(screened, search, motions, len(clouds), config)
 
 
 def plan(cloud: PerceivedCloud, config: Config, seed: int | None = None, timings: dict[str, float] | None = None) -> GraspCandidates:

@@ -141,24 +141,20 @@ def test_k_dop_clearance_is_a_lower_bound_of_the_distance_to_each_hull():
 def test_a_grasp_whose_pregrasp_is_out_of_reach_is_rejected_though_the_grasp_pose_is_reachable():
     """Reached from beyond the object (approach tilted 30 deg toward the robot) at 65 cm, the hand
     can close on the grasp, but the pre-grasp 10 cm back along the approach lies outside the arm's reach."""
-    from types import SimpleNamespace
-
     from sagp_batched.planner import check_motions, panda_ik
 
     tilt = math.radians(30.0)
     approach = torch.tensor([[-math.sin(tilt), 0.0, -math.cos(tilt)]])
     rotation = grasp_rotations(torch.tensor([[[0.0, 1.0, 0.0]]]), approach[:, None, :])
     centre = torch.tensor([[0.6, 0.0, 0.7]])
-    screened = SimpleNamespace(centre_world=centre, approach=approach[:, None, :], rotation_world=rotation)
     ik = panda_ik(CONFIG)
     assert ik.solve(centre, rotation[:, 0]).success.item()
-    motion = check_motions(screened, torch.tensor([0]), torch.tensor([0]), ik, CONFIG)
+    motion = check_motions(centre, approach, rotation[:, 0], ik, CONFIG)
     assert not motion.feasible.item()
     assert motion.rejected_by.tolist() == [[0, 1]]  # passed the grasp-pose IK, failed the motion
     # The same grasp approached straight down has a reachable motion.
     down = grasp_rotations(torch.tensor([[[0.0, 1.0, 0.0]]]), DOWN.view(1, 1, 3))
-    screened_down = SimpleNamespace(centre_world=centre, approach=DOWN.view(1, 1, 3), rotation_world=down)
-    motion_down = check_motions(screened_down, torch.tensor([0]), torch.tensor([0]), ik, CONFIG)
+    motion_down = check_motions(centre, DOWN.view(1, 3), down[:, 0], ik, CONFIG)
     assert motion_down.feasible.item()
     # Its joint path reaches every waypoint through pytorch-kinematics' forward kinematics.
     from sagp_batched.motion import motion_waypoints

@@ -125,7 +125,7 @@ def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_p
     config = CONFIG.override("planner", n_pairs=3000, max_candidates=60)
     batches = []
     check_motions = planner.check_motions
-    monkeypatch.setattr(planner, "check_motions", lambda *args, **kwargs: batches.append(args[1].numel()) or check_motions(*args, **kwargs))
+    monkeypatch.setattr(planner, "check_motions", lambda *args, **kwargs: batches.append(args[0].shape[0]) or check_motions(*args, **kwargs))
     ahead = plan_batch(clouds, config, seeds)
     ahead_batches, batches[:] = list(batches), []
 
