@@ -264,7 +264,8 @@ def screen_candidates(
     antipodal = pair_eval["antipodal"].nonzero().squeeze(1)
     # Rank by S_geom within each object; stable sorts keep sampling order among ties.
     antipodal = antipodal[torch.sort(pair_eval["s_geom"][antipodal], descending=True, stable=True).indices]
-    antipodal = antipodal[torch.sort(pair_object[antipodal], stable=True).indices]
+    if n_objects > 1:  # one object's candidates are already grouped (a 35 ms sort at 500,000 pairs)
+        antipodal = antipodal[torch.sort(pair_object[antipodal], stable=True).indices]
     candidate_object = pair_object[antipodal]
     closing_axis = pair_eval["closing_axis"][antipodal]
     width = pair_eval["width_m"][antipodal]
