@@ -58,8 +58,8 @@ def _least_excess(projection: torch.Tensor, middle: torch.Tensor, half: torch.Te
 
     Directions and polytopes lead: their reductions then run along whole (c, n) planes, several
     times faster than over a short middle dimension. In place on the one temporary: these are the
-    sweep's largest tensors (~1 MB a block), and fresh allocations of that size cost as much as
-    the arithmetic."""
+    sweep's largest tensors (MBs a block), and fresh allocations of that size cost as much as the
+    arithmetic."""
     excess = (projection - middle).abs_().sub_(half).amax(dim=1).amin(dim=0)
     return torch.nan_to_num(excess, nan=float("inf"))
 
@@ -95,7 +95,7 @@ def _nearest(bound: torch.Tensor, k: int) -> torch.Tensor:
     """(c, k) indices of each row's k least ``bound`` values (c, n), the set ``topk`` picks, in index order.
 
     Where the k-th least value is strictly under the next one the set is the values at or under
-    it, found from numpy's partition (SIMD selection; ``topk``'s per-row nth_element was an eighth
+    it, found from numpy's partition (SIMD selection; ``topk``'s per-row nth_element was a seventh
     of the sweep); rows with ties there keep ``topk``'s own choice."""
     kth = torch.from_numpy(np.partition(bound.numpy(), k - 1, axis=1)[:, k - 1])
     chosen = bound <= kth[:, None]
