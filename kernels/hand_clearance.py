@@ -12,12 +12,15 @@ the gripper is its smallest separation from any of them.
 
 The same maximum over only the first three directions is a lower bound of s(p) at a quarter of
 the cost. It picks the points likely to strike a gripper first and rules out points that cannot
-change the answer, so s(p) is evaluated on a few dozen of a scene's ~1,000 points.
+change the answer, so s(p) is evaluated on a few dozen of a scene's ~1,000 points. Over all the
+points it is taken from world coordinates, u . p - u . centre, so that only the few points
+evaluated exactly are moved to the grasp centre.
 """
 from __future__ import annotations
 
 from typing import NamedTuple
 
+import numpy as np
 import torch
 
 from .grasp_frames import scene_points_about
@@ -25,13 +28,21 @@ from .grasp_frames import scene_points_about
 # Probe points whose exact separation is evaluated first, nearest by the lower bound: a blocked
 # grasp almost always has one of them under the margin.
 PROBE_POINTS = 16
-# The lower bound's float32 rounding (~1e-8 m at gripper sizes) is far inside this slack.
+# The lower bound's float32 rounding on points about the grasp centre (~1e-8 m at gripper sizes)
+# is far inside this slack.
 BOUND_SLACK_M = 1e-6
+# The point pass bounds from world coordinates, a_d . p - (a_d . c + m_d), where rounding scales
+# with the coordinates' magnitude L rather than the gripper's: each of the two computations (that
+# and the exact separation's from fl(p - c)) is within 40 float32 unit roundoffs of L of the real
+# slab excess (three-term products of unit axes and coordinates up to 2 L, and the subtractions
+# after them), so 64 machine epsilons of L more slack (128 unit roundoffs, ~8e-6 m at 1 m) keep
+# the bound under every exact separation it rules out.
+RAW_ROUNDING_EPS = 64 * torch.finfo(torch.float32).eps
 # MKL's batched GEMM rounds like the exhaustive product only from 12 columns up.
 MIN_GEMM_COLUMNS = 16
 # (candidate, polytope, axis, probe) elements of the probes' bound computed at once: blocks of
-# ~1 MB temporaries, measured 6-8 % faster over a plan's checks than the point pass's blocks.
-PROBE_BLOCK_ELEMENTS = 262_144
+# ~2 MB temporaries, measured 5-9 % faster over a plan's checks than blocks of 1 MB or 4 MB.
+PROBE_BLOCK_ELEMENTS = 524_288
 
 
 class HandClearance(NamedTuple):
@@ -41,46 +52,82 @@ class HandClearance(NamedTuple):
     clearance_m: torch.Tensor
 
 
-def _slab_excess(projection: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
-    """(c, S, d, n) |projection - middle| - half for (c, 1, d, n) projections and (1, S, d, 1) slabs.
+def _least_excess(projection: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """(c, n) the largest slab excess |projection - middle| - half over directions, least over
+    polytopes, NaN -> inf, for (d, c, n) projections and (S, d, c or 1, 1) slabs.
 
-    In place on the one temporary: these are the sweep's largest tensors (~1 MB a block), and
-    fresh allocations of that size cost as much as the arithmetic."""
-    return (projection - middle).abs_().sub_(half)
+    Directions and polytopes lead: their reductions then run along whole (c, n) planes, several
+    times faster than over a short middle dimension. In place on the one temporary: these are the
+    sweep's largest tensors (MBs a block), and fresh allocations of that size cost as much as the
+    arithmetic."""
+    excess = (projection - middle).abs_().sub_(half).amax(dim=1).amin(dim=0)
+    return torch.nan_to_num(excess, nan=float("inf"))
 
 
 def _separation(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
     """(c, n) separation s(p) of points ``relative`` (c, n, 3) from the polytopes, NaN rows -> inf."""
     n_points = relative.shape[1]
-    padded = torch.cat((relative, relative.new_full((relative.shape[0], max(0, MIN_GEMM_COLUMNS - n_points), 3), float("nan"))), dim=1)
+    if n_points < MIN_GEMM_COLUMNS:
+        relative = torch.cat((relative, relative.new_full((relative.shape[0], MIN_GEMM_COLUMNS - n_points, 3), float("nan"))), dim=1)
     # Projections on the k-DOP directions in one GEMM: (u_d^T R^T) (p - centre).
-    projection = (axes @ padded.transpose(1, 2))[:, None, :, :n_points]  # (c, 1, D, n)
-    separation = _slab_excess(projection, middle, half).amax(dim=2).amin(dim=1)
-    return torch.nan_to_num(separation, nan=float("inf"))
+    projection = (axes @ relative.transpose(1, 2))[:, :, :n_points].transpose(0, 1).contiguous()  # (D, c, n)
+    return _least_excess(projection, middle, half)
 
 
-def _lower_bound(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
-    """(c, n) a lower bound of s(p) from the first three directions only, NaN rows -> inf."""
-    projection = (axes[:, :3] @ relative.transpose(1, 2))[:, None]  # (c, 1, 3, n)
-    bound = _slab_excess(projection, middle[:, :, :3], half[:, :, :3]).amax(dim=2).amin(dim=1)
-    return torch.nan_to_num(bound, nan=float("inf")) - BOUND_SLACK_M
+def _lower_bound(projection: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, slack_m: float) -> torch.Tensor:
+    """(c, n) a lower bound of s(p) from the first three directions' (3, c, n) projections and
+    (S, 3, c or 1, 1) slab middles, less ``slack_m``; NaN rows -> inf."""
+    return _least_excess(projection, middle, half) - slack_m
+
+
+def _scene_projection(points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor) -> torch.Tensor:
+    """(d, r, N) projections of each row's scene points ``points[scene]`` (world frame) on its ``axes`` (r, d, 3).
+
+    Rows all of one scene (candidates are scene-sorted, so almost every block) take one GEMM
+    against that scene's points: no (r, N, 3) gather, and no batch of (d, 3) x (3, N) products."""
+    first, last = scene.aminmax()
+    if first == last:
+        return (axes.transpose(0, 1).reshape(-1, 3) @ points[int(first)].T).view(axes.shape[1], axes.shape[0], -1)
+    return (axes @ points[scene].transpose(1, 2)).transpose(0, 1)
+
+
+def _nearest(bound: torch.Tensor, k: int) -> torch.Tensor:
+    """(c, k) indices of each row's k least ``bound`` values (c, n), the set ``topk`` picks, in index order.
+
+    Where the k-th least value is strictly under the next one the set is the values at or under
+    it, found from numpy's partition (SIMD selection; ``topk``'s per-row nth_element was a seventh
+    of the sweep); rows with ties there keep ``topk``'s own choice."""
+    kth = torch.from_numpy(np.partition(bound.numpy(), k - 1, axis=1)[:, k - 1])
+    chosen = bound <= kth[:, None]
+    tied = (chosen.sum(dim=1) != k).nonzero().squeeze(1)
+    if tied.numel():
+        chosen[tied] = False
+        chosen[tied[:, None], bound[tied].topk(k, dim=1, largest=False, sorted=False).indices] = True
+    return chosen.nonzero()[:, 1].view(-1, k)
 
 
 def _gather(relative: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
     return relative.gather(1, index[:, :, None].expand(-1, -1, 3))
 
 
-def _compacted(relative: torch.Tensor, chosen: torch.Tensor, per_row: torch.Tensor) -> torch.Tensor:
-    """(r, max per_row, 3) each row's ``chosen`` points of ``relative`` (r, n, 3) in index order,
-    then NaN padding; ``per_row``: (r,) ``chosen.sum(dim=1)``.
+def _compacted(points: torch.Tensor, scene: torch.Tensor, centre: torch.Tensor, chosen: torch.Tensor, per_row: torch.Tensor) -> torch.Tensor:
+    """(r, max per_row, 3) each row's ``chosen`` (r, N) points of its scene ``points[scene]`` less its
+    ``centre``, in index order, then NaN padding; ``per_row``: (r,) ``chosen.sum(dim=1)``.
 
-    Scattered to their places from ``nonzero``'s row-major list rather than ordered by a stable
-    sort of the mask: the sort of every (row, point) flag cost an eighth of the sweep."""
+    Only the chosen points are moved to the grasp centre: the same float32 subtraction as
+    ``scene_points_about``'s, so the same bits. Scattered to their places from ``nonzero``'s
+    row-major list rather than ordered by a stable sort of the mask: the sort of every
+    (row, point) flag cost an eighth of the sweep."""
     row, point = chosen.nonzero(as_tuple=True)
     slot = torch.arange(row.numel()) - (per_row.cumsum(0) - per_row)[row]
-    compact = relative.new_full((relative.shape[0], int(per_row.max()), 3), float("nan"))
-    compact[row, slot] = relative[row, point]
+    compact = points.new_full((chosen.shape[0], int(per_row.max()), 3), float("nan"))
+    compact[row, slot] = points[scene[row], point] - centre[row]
     return compact
+
+
+def _coordinate_scale(*tensors: torch.Tensor) -> float:
+    """The largest coordinate magnitude in ``tensors``, NaN padding ignored."""
+    return max((float(t.nan_to_num().abs().amax()) for t in tensors if t.numel()), default=0.0)
 
 
 def hand_clearance(
@@ -122,8 +169,9 @@ def hand_clearance(
     if low.shape != high.shape or low.shape[1] != directions.shape[0] or directions.shape[0] < 3:
         raise ValueError(f"low and high must be (S, D) with D = {directions.shape[0]} >= 3, got {tuple(low.shape)} and {tuple(high.shape)}")
     n_candidates, n_points = centre.shape[0], points.shape[1]
-    middle = ((low + high) / 2)[None, :, :, None]  # (1, S, D, 1)
-    half = ((high - low) / 2)[None, :, :, None]
+    middle = ((low + high) / 2)[:, :, None, None]  # (S, D, 1, 1)
+    half = ((high - low) / 2)[:, :, None, None]
+    axes = directions @ rotation.transpose(-1, -2)  # (C, D, 3): u_d^T R^T
     clearance = torch.full((n_candidates,), float("inf"))
     n_probe = min(PROBE_POINTS, probe_points.shape[1])
     step = max(1, chunk_elements // max(1, low.numel() * n_points))
@@ -131,23 +179,27 @@ def hand_clearance(
         # The probes of every candidate first, in blocks sized by the probes' own bound tensor.
         probe_step = max(1, min(chunk_elements, PROBE_BLOCK_ELEMENTS) // max(1, low.shape[0] * 3 * probe_points.shape[1]))
         for start in range(0, n_candidates, probe_step):
-            stop = min(start + probe_step, n_candidates)
-            axes = directions @ rotation[start:stop].transpose(-1, -2)  # (c, D, 3)
-            probe = scene_points_about(probe_points, object_index[start:stop], centre[start:stop])  # (c, P, 3)
-            nearest = _lower_bound(probe, axes, middle, half).topk(n_probe, dim=1, largest=False).indices
-            clearance[start:stop] = _separation(_gather(probe, nearest), axes, middle, half).amin(dim=1)
-    for start in range(0, n_candidates, step):
-        stop = min(start + step, n_candidates)
-        # The rest only where the probes left the gripper clear; there only points whose bound is
-        # under the probes' clearance can block it or lower that clearance.
-        rows = (clearance[start:stop] >= margin_m).nonzero().squeeze(1)
-        if not rows.numel():
-            continue
-        axes = directions @ rotation[start + rows].transpose(-1, -2)  # (r, D, 3)
-        relative = scene_points_about(points, object_index[start + rows], centre[start + rows])  # (r, N, 3)
-        candidates = _lower_bound(relative, axes, middle, half) < clearance[start + rows, None]
+            block = slice(start, min(start + probe_step, n_candidates))
+            # About the grasp centre, not from world coordinates: the probes' bound picks those
+            # evaluated, and with them a blocked grasp's clearance, which then does not depend on
+            # where in the world the scene is.
+            probe = scene_points_about(probe_points, object_index[block], centre[block])  # (c, P, 3)
+            projection = (axes[block, :3] @ probe.transpose(1, 2)).transpose(0, 1).contiguous()  # (3, c, P)
+            nearest = _nearest(_lower_bound(projection, middle[:, :3], half[:, :3], BOUND_SLACK_M), n_probe)
+            clearance[block] = _separation(_gather(probe, nearest), axes[block], middle, half).amin(dim=1)
+    slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
+    # The rest only where the probes left the gripper clear, in blocks of those candidates; there
+    # only points whose bound is under the probes' clearance can block it or lower that clearance.
+    open_rows = (clearance >= margin_m).nonzero().squeeze(1)
+    for start in range(0, open_rows.numel(), step):
+        rows = open_rows[start:start + step]
+        scene, row_axes = object_index[rows], axes[rows]
+        # a_d . (p - c) - m_d as a_d . p - (a_d . c + m_d): the points stay in the world frame.
+        projection = _scene_projection(points, scene, row_axes[:, :3])  # (3, r, N)
+        offset = (row_axes[:, :3] @ centre[rows, :, None]).view(-1, 3).T[:, :, None] + middle[:, :3]  # (S, 3, r, 1)
+        candidates = _lower_bound(projection, offset, half[:, :3], slack_m) < clearance[rows, None]
         per_row = candidates.sum(dim=1)
         if int(per_row.max()):
-            found = _separation(_compacted(relative, candidates, per_row), axes, middle, half).amin(dim=1)
-            clearance[start + rows] = torch.minimum(clearance[start + rows], found)
+            found = _separation(_compacted(points, scene, centre[rows], candidates, per_row), row_axes, middle, half).amin(dim=1)
+            clearance[rows] = torch.minimum(clearance[rows], found)
     return HandClearance(clearance < margin_m, clearance)
