@@ -461,6 +461,9 @@ class _ScreenVerdicts:
         n_candidates, n_approaches = screened.n_candidates, screened.planner.n_approaches
         self.ready = torch.zeros(n_candidates, dtype=torch.bool)
         self.usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)  # table, volume and hand clear
+        # (A,) some approach usable: kept as verdicts come, since the window asks every round and
+        # reducing (A, K) each time cost ~0.1 s a plan at 500,000 pairs
+        self.any_usable = torch.zeros(n_candidates, dtype=torch.bool)
         self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
         self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
         self.volume_s = self.hand_s = 0.0
@@ -472,7 +475,7 @@ class _ScreenVerdicts:
         pairs lie on the rim and body, where the hand hits) and the early rate would overshoot."""
         n_objects = missing.shape[0]
         computed = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, self.ready.to(torch.int64))
-        survived = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, (self.ready & self.usable.any(dim=1)).to(torch.int64))
+        survived = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, (self.ready & self.any_usable).to(torch.int64))
         rate_based = (missing * self.LOOKAHEAD_MARGIN * computed.clamp_min(1) / survived.clamp_min(1)).ceil().to(torch.int64)
         return torch.minimum(rate_based, missing + computed // 2).clamp_min(missing)
 
@@ -487,6 +490,7 @@ class _ScreenVerdicts:
         self.clearance_m[rows[candidate], slots] = swept.clearance_m
         self.hand_blocked[rows[candidate[swept.blocked]], slots[swept.blocked]] = True
         self.usable[rows[candidate[swept.blocked]], slots[swept.blocked]] = False
+        self.any_usable[rows] = self.usable[rows].any(dim=1)
         self.ready[rows] = True
         self.hand_s += time.perf_counter() - hand_clock
 
@@ -528,9 +532,10 @@ class _MotionVerdicts:
         self.kept_s_reach = torch.zeros(0)
         self.ik_targets = 0
 
-    def exhausted_share(self, search: "_CandidateSearch", candidate_object: torch.Tensor, n_objects: int) -> torch.Tensor:
+    def exhausted_share(self, search: "_CandidateSearch", screens: _ScreenVerdicts, n_objects: int) -> torch.Tensor:
         """(B,) per object, the share of decided candidates that had a usable approach and still ran out."""
-        decided = search.screened & search.usable.any(dim=1) & (search.status != UNDECIDED)
+        candidate_object = screens.screened.object_index
+        decided = search.screened & screens.any_usable & (search.status != UNDECIDED)
         count = torch.zeros(n_objects, dtype=torch.float32)
         exhausted = count.index_add(0, candidate_object, (decided & (search.status == EXHAUSTED)).to(torch.float32))
         decided_count = count.index_add(0, candidate_object, decided.to(torch.float32))
@@ -556,7 +561,7 @@ class _MotionVerdicts:
         if small:
             ahead[rows] = search.usable[rows] & (torch.arange(n_approaches) >= slots[missing, None])
         per_object = torch.zeros(n_objects).index_add_(0, candidate_object[rows], torch.ones(rows.numel()))
-        extra = (self.LOOKAHEAD_MARGIN * per_object * self.exhausted_share(search, candidate_object, n_objects)).ceil().to(torch.int64)
+        extra = (self.LOOKAHEAD_MARGIN * per_object * self.exhausted_share(search, screens, n_objects)).ceil().to(torch.int64)
         if small:
             spare = max(0, self.SMALL_ROUND_CHECKS - int(ahead.sum())) / int((per_object > 0).sum())
             extra = torch.where(per_object > 0, extra.clamp_min(math.ceil(spare)), extra)
@@ -578,14 +583,14 @@ class _MotionVerdicts:
         candidate_object = screens.screened.object_index
         n_objects = wanted.shape[0]
         beyond = ~in_window & (search.status == UNDECIDED)
-        past = beyond & screens.ready & screens.usable.any(dim=1)
+        past = beyond & screens.ready & screens.any_usable
         shortfall = (wanted - torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, past.to(torch.int64))).clamp_min(0)
         unknown = beyond & ~screens.ready
         if (shortfall > 0).any() and unknown.any():
             block = screens.block_sizes(shortfall, candidate_object)
             rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, n_objects)
             screens.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
-            past = beyond & screens.ready & screens.usable.any(dim=1)
+            past = beyond & screens.ready & screens.any_usable
         return past
 
     def store(self, rows: torch.Tensor, slots: torch.Tensor, motion: MotionCheck) -> None:
@@ -676,7 +681,7 @@ def _window_with_verdicts(
     while True:
         waiting = (search.status == UNDECIDED) & ~search.screened
         unknown = waiting & ~verdicts.ready
-        alive = torch.where(waiting & verdicts.ready, verdicts.usable.any(dim=1), search.status != EXHAUSTED)
+        alive = torch.where(waiting & verdicts.ready, verdicts.any_usable, search.status != EXHAUSTED)
         in_window = _segment_exclusive_cumsum(alive.to(torch.int64), candidate_object, n_objects) < max_candidates
         missing = unknown & in_window
         if not missing.any():
