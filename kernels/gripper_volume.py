@@ -29,9 +29,8 @@ from .grasp_frames import scene_points_about
 # Float32 rounding of the table check's bounds (a few 1e-8 m at these sizes) is far inside this.
 TABLE_BOUND_SLACK_M = 1e-5
 # How far the volume verdict's coordinates may stray from the exhaustive GEMM's: twice the most
-# that their rounding (a quarter of it, for grasp centres within ~2 m of the origin) and the
-# approaches' allowed deviation from one closing axis (another quarter) move them; see
-# ``gripper_occupancy_within``.
+# that their rounding moves them (for grasp centres within ~4.8 m, L1, of the origin; see
+# ``gripper_occupancy_within``).
 VOLUME_SLACK_M = 2e-5
 # (pose, point) pairs the volume verdict takes at once: ~256 kB temporaries. At 5,000 pairs
 # smaller blocks measured faster (cache), at 500,000 larger ones (fewer Python rounds).
@@ -154,18 +153,16 @@ def gripper_occupancy_within(
     """Whether each pose's gripper holds at most ``limit`` points: ``gripper_occupancy``'s verdict
     at a fraction of its cost, identical for every pose.
 
-    Why it is cheaper: a candidate's K approaches share its closing axis (grasp y), so approach
-    0's y row gives every point's y, which decides the y extents of all K poses at once, and each
-    counted pose's x and z come from its own frame's rows applied to the scene's raw points as
-    three broadcast multiply-adds, without the exhaustive check's (candidate, point, 3) offsets,
-    its GEMM over every approach and its gather of the counted poses. Those coordinates differ
-    from the exhaustive GEMM's by rounding and by the approaches' allowed deviation from one
-    closing axis (each << ``VOLUME_SLACK_M``), so a pose's count is bounded: points inside a box
-    by more than the slack count, points outside every box by more than it do not, and only
-    points within it of a face (rare, but common on a grid aligned with the gripper) are
-    uncertain. Poses whose bounds straddle ``limit``, and candidates whose approaches do not
-    share one closing axis or whose centre is too far from the origin for the rounding bound,
-    are counted by ``gripper_occupancy`` itself.
+    Why it is cheaper: each counted pose's grasp-frame coordinates come from its own frame's
+    rows applied to the scene's raw points, a . p - a . c, as three broadcast multiply-adds per
+    axis, without the exhaustive check's (candidate, point, 3) offsets p - c, its GEMM over every
+    approach and its gather of the counted poses. They differ from the exhaustive GEMM's by
+    rounding (<< ``VOLUME_SLACK_M`` for grasp centres within a few metres of the origin), so a
+    pose's count is bounded: points inside a box by more than the slack count, points outside
+    every box by more than it do not, and only points within it of a face (rare, but common on a
+    grid aligned with the gripper) are uncertain. Poses whose bounds straddle ``limit``, and
+    those whose centre is too far out for the rounding bound, are counted by
+    ``gripper_occupancy`` itself.
 
     Args:
         points, object_index, centre, rotation, width_m, geometry, chunk_elements: as for
@@ -181,57 +178,41 @@ def gripper_occupancy_within(
     finger_z_min = finger_z_max - geometry.finger_length_m
     palm_z_min = finger_z_min - geometry.palm_depth_m
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
-    finger_z_mid = (finger_z_min + finger_z_max) / 2
     # A point within the slack of a box has grasp-frame |local|_1 below reach_l1, so its world
     # offset from the centre has |p - c|_1 <= sqrt(3) |p - c|_2 <= sqrt(3) reach_l1 = near_l1.
     reach_l1 = max(geometry.palm_width_m / 2 + geometry.palm_span_m / 2, geometry.finger_width_m / 2 + finger_y_max) + max(
         abs(palm_z_min), abs(finger_z_max)
-    ) + VOLUME_SLACK_M
+    ) + 3 * VOLUME_SLACK_M
     near_l1 = math.sqrt(3.0) * reach_l1
-    # A closing axis entry off by e moves y by at most e |p - c|_1: a quarter of the slack at most.
-    max_deviation = VOLUME_SLACK_M / (4.0 * near_l1)
     # A coordinate is a . p - a . c here and a . (p - c) in the exhaustive GEMM: four-term sums
     # that, with the finger slabs' middle folded into z, round by at most 8 u (|p|_1 + |c|_1 +
-    # near_l1) each (u = 2^-24), and |p|_1 <= |c|_1 + near_l1 near a box, so they differ by at
-    # most 32 u (|c|_1 + near_l1): a quarter of the slack for centres within this L1 reach.
-    centre_reach_l1 = VOLUME_SLACK_M / (4.0 * 32.0 * 2.0**-24) - near_l1
-    ok = _closing_axis_shared(rotation, max_deviation) & (centre.abs().sum(dim=1) <= centre_reach_l1)
-    # Poses in candidate order, so each block of candidates owns a run of them.
+    # near_l1) each (u = 2^-24). Near a box |p|_1 <= |c|_1 + near_l1, so they differ by at most
+    # 32 u (|c|_1 + near_l1): half the slack for centres within this L1 reach. Farther points
+    # round by more, but lie outside every box by far more.
+    centre_reach_l1 = VOLUME_SLACK_M / (2.0 * 32.0 * 2.0**-24) - near_l1
     pose_row, pose_slot = poses.nonzero(as_tuple=True)
-    counted, poses_per_row = torch.unique_consecutive(pose_row, return_counts=True)
-    pose_offset = torch.cat((poses_per_row.new_zeros(1), poses_per_row.cumsum(0))).tolist()
-    pose_candidate = torch.arange(counted.numel()).repeat_interleave(poses_per_row)  # (R,) position in counted of each pose's candidate
-    # Each pose's grasp x and z axes (R, 2, 3) and offsets -axis . centre (R, 2, 1), z measured
-    # from the finger box's middle; each counted candidate's closing axis (c, 3) and offset (c, 1).
-    across = rotation[pose_row, pose_slot][..., 0::2].transpose(1, 2)
-    across_offset = -(across @ centre[pose_row, :, None])
-    across_offset[:, 1] -= finger_z_mid
-    closing = rotation[counted, 0, :, 1]
-    closing_offset = -(closing * centre[counted]).sum(dim=1, keepdim=True)
+    # Each pose's grasp axes as rows (R, 3, 3) and offsets -axis . centre (R, 3, 1), z measured
+    # from the finger slabs' middle, and its finger slabs' middle and half extent along |y| (R, 1).
+    axes = rotation[pose_row, pose_slot].transpose(1, 2)
+    offset = -(axes @ centre[pose_row, :, None])
+    offset[:, 2] -= (finger_z_min + finger_z_max) / 2
+    finger_y_min = width_m[pose_row, None] / 2 + geometry.contact_clearance_m
+    finger_y_mid, finger_y_half = (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2
     scene_columns = points.permute(2, 0, 1).contiguous()  # (3, B, N): each coordinate's rows
-    scene = object_index[counted]
-    scene_changes = torch.cat((scene.new_zeros(1), (scene[1:] != scene[:-1]).cumsum(0))).tolist()
+    scene = object_index[pose_row]
+    scene_starts = ((scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1).tolist()  # poses that begin another scene's run
     maybe, surely = torch.empty(pose_row.numel()), torch.empty(pose_row.numel())
     pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
-    start = 0
-    while start < counted.numel():
-        # Blocks of whole candidates holding about pose_budget poses (at least one candidate).
-        stop = max(start + 1, bisect.bisect_right(pose_offset, pose_offset[start] + pose_budget) - 1)
-        first, last = pose_offset[start], pose_offset[stop]
-        block_candidate = pose_candidate[first:last] - start
-        if scene_changes[start] == scene_changes[stop - 1]:
-            # One scene (the common case): its points broadcast over candidates and poses.
-            candidate_points = pose_points = scene_columns[:, int(scene[start]), None, None]  # (3, 1, 1, N)
+    for first in range(0, pose_row.numel(), pose_budget):
+        last = min(first + pose_budget, pose_row.numel())
+        if bisect.bisect_right(scene_starts, first) == bisect.bisect_left(scene_starts, last):
+            # One scene (the common case): its points broadcast over the poses.
+            columns = scene_columns[:, int(scene[first]), None, None]  # (3, 1, 1, N)
         else:
-            candidate_points = scene_columns[:, scene[start:stop], None]  # (3, c, 1, N)
-            pose_points = candidate_points[:, block_candidate]  # (3, p, 1, N)
-        y = _coordinates(closing[start:stop, None], closing_offset[start:stop, None], candidate_points)[:, 0]  # (c, N)
-        x, z = _coordinates(across[first:last], across_offset[first:last], pose_points).unbind(dim=1)  # (p, N) each
-        finger_y_min = (width_m[counted[start:stop]] / 2 + geometry.contact_clearance_m)[:, None]
-        finger_y, palm_y = _closing_excess(y, finger_y_min, geometry).index_select(0, block_candidate).unbind(dim=1)
-        maybe[first:last], surely[first:last] = _count_bounds(x, z, finger_y, palm_y, geometry)
-        start = stop
-    pose_limit, pose_ok = limit[pose_row], ok[pose_row]
+            columns = scene_columns[:, scene[first:last], None]  # (3, p, 1, N)
+        x, y, z = _coordinates(axes[first:last], offset[first:last], columns).unbind(dim=1)  # (p, N) each
+        maybe[first:last], surely[first:last] = _count_bounds(x, y, z, finger_y_mid[first:last], finger_y_half[first:last], geometry)
+    pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= centre_reach_l1
     within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     within[pose_row, pose_slot] = pose_ok & (maybe <= pose_limit)
@@ -240,43 +221,33 @@ def gripper_occupancy_within(
 
 
 def _coordinates(axes: torch.Tensor, offset: torch.Tensor, columns: torch.Tensor) -> torch.Tensor:
-    """(r, a, N) coordinates of points along (r, a, 3) world ``axes``, plus (r, a, 1) ``offset``;
-    ``columns`` (3, r or 1, 1, N) holds the points' world x, y and z rows."""
+    """(p, 3, N) coordinates of points along (p, 3, 3) world ``axes`` (rows), plus (p, 3, 1)
+    ``offset``; ``columns`` (3, p or 1, 1, N) holds the points' world x, y and z rows."""
     # An out-of-place addcmul broadcasting three ways is several times slower than these.
     coordinates = torch.mul(axes[..., 0:1], columns[0])
     return coordinates.addcmul_(axes[..., 1:2], columns[1]).addcmul_(axes[..., 2:3], columns[2]).add_(offset)
 
 
-def _closing_excess(y: torch.Tensor, finger_y_min: torch.Tensor, geometry: GripperGeometry) -> torch.Tensor:
-    """(c, 2, N) each point's excess (> 0 outside) over the finger slabs' and the palm's y extents,
-    from its grasp-frame ``y`` (c, N, overwritten) and each candidate's (c, 1) ``finger_y_min``."""
-    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
-    abs_y = y.abs_()
-    excess = torch.empty(y.shape[0], 2, y.shape[1])
-    torch.sub(abs_y, (finger_y_min + finger_y_max) / 2, out=excess[:, 0]).abs_().sub_((finger_y_max - finger_y_min) / 2)
-    torch.sub(abs_y, geometry.palm_span_m / 2, out=excess[:, 1])
-    return excess
-
-
 def _count_bounds(
-    x: torch.Tensor, z: torch.Tensor, finger_y: torch.Tensor, palm_y: torch.Tensor, geometry: GripperGeometry
+    x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, finger_y_mid: torch.Tensor, finger_y_half: torch.Tensor, geometry: GripperGeometry
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Upper and lower bounds (p,) float32 of each pose's gripper point count, from the points'
-    grasp-frame x and z (p, N; z measured from the finger slabs' middle; both overwritten) and
-    their excesses over the boxes' y extents (p, N)."""
+    grasp-frame x, y and z (p, N; z measured from the finger slabs' middle; all overwritten) and
+    each pose's finger slabs' middle and half extent along |y| (p, 1)."""
     # Excess over each box (> 0 outside, <= 0 inside), then over the gripper.
-    abs_x = x.abs_()
+    abs_x, abs_y = x.abs_(), y.abs_()
+    finger = torch.sub(abs_y, finger_y_mid).abs_().sub_(finger_y_half)
+    finger = torch.maximum(finger, abs_x - geometry.finger_width_m / 2, out=finger)
     palm_z = torch.add(z, (geometry.finger_length_m + geometry.palm_depth_m) / 2).abs_().sub_(geometry.palm_depth_m / 2)
-    finger = torch.maximum(abs_x - geometry.finger_width_m / 2, z.abs_().sub_(geometry.finger_length_m / 2))
-    finger = torch.maximum(finger, finger_y, out=finger)
-    palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2), palm_z, out=palm_z)
-    excess = torch.minimum(finger, torch.maximum(palm, palm_y, out=palm), out=finger)
+    finger = torch.maximum(finger, z.abs_().sub_(geometry.finger_length_m / 2), out=finger)
+    palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2), abs_y.sub_(geometry.palm_span_m / 2), out=abs_x)
+    excess = torch.minimum(finger, torch.maximum(palm, palm_z, out=palm), out=finger)
     # A point inside by more than the slack is inside one box alone (they meet only at one
     # face); a point within the slack of a face may be inside, or inside both boxes at their
     # common face, so it may count once more: bounds inside +- uncertain, where inside counts
     # excess <= slack and uncertain |excess| <= slack, i.e. inside less those below -slack.
     # Comparing in place into float32 0/1 and summing is several times faster than through bool.
-    inside = palm.copy_(excess).le_(VOLUME_SLACK_M).sum(dim=1)
+    inside = palm_z.copy_(excess).le_(VOLUME_SLACK_M).sum(dim=1)
     surely = excess.lt_(-VOLUME_SLACK_M).sum(dim=1)
     return 2 * inside - surely, surely
 
@@ -294,13 +265,6 @@ def _counted_where_undecided(
         )
         within[exhaustive] = torch.where(mine, occupancy.total.to(torch.float32) <= limit[exhaustive, None], within[exhaustive])
     return within
-
-
-def _closing_axis_shared(rotation: torch.Tensor, max_deviation: float) -> torch.Tensor:
-    """(c,) bool: every approach's closing axis (grasp y) is approach 0's within ``max_deviation``
-    per entry (``rotation``: (c, K, 3, 3) grasp frames)."""
-    closing = rotation[..., 1]  # (c, K, 3)
-    return (closing - closing[:, :1]).abs().amax(dim=(1, 2)) <= max_deviation
 
 
 def table_penetration(

@@ -37,7 +37,7 @@ def _limits_at_the_counts(counts, seed):
 
 # The far box's grasp centres are beyond the reach where the verdict's rounding bound holds, so
 # they are counted exhaustively.
-@pytest.mark.parametrize(("spacing_m", "box_centre_m"), [(0.004, (0.0, 0.0, 0.0)), (0.0025, (0.0, 0.0, 0.0)), (0.004, (3.0, -1.5, 0.5))])
+@pytest.mark.parametrize(("spacing_m", "box_centre_m"), [(0.004, (0.0, 0.0, 0.0)), (0.0025, (0.0, 0.0, 0.0)), (0.004, (4.0, -2.0, 1.0))])
 def test_verdicts_equal_counting_on_a_grid_box_whose_points_lie_on_the_gripper_faces(spacing_m, box_centre_m):
     points, normals = (torch.as_tensor(array, dtype=torch.float32) for array in box_surface((0.05, 0.06, 0.1), box_centre_m, spacing_m))
     centre, rotation, width = _grasps(points, normals, seed=0)
@@ -61,7 +61,7 @@ def test_verdicts_equal_counting_across_padded_scenes_and_frames_without_one_clo
     scenes[0, : len(box)] = box
     scenes[1, : len(blob)] = blob
     centre, rotation, width = _grasps(box, box_normals, seed=3)
-    # Every third candidate's frames are scrambled (no closing axis shared by its approaches): counted exhaustively.
+    # Every third candidate's frames are scrambled: its approaches are not turns about one closing axis.
     scrambled = torch.arange(len(centre)) % 3 == 0
     rotation = rotation.clone()
     rotation[scrambled] = rotation[scrambled].roll(1, dims=-1)
