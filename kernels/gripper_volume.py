@@ -32,9 +32,10 @@ TABLE_BOUND_SLACK_M = 1e-5
 # that their rounding moves them (for grasp centres within ~4.8 m, L1, of the origin; see
 # ``gripper_occupancy_within``).
 VOLUME_SLACK_M = 2e-5
-# (pose, point) pairs the volume verdict takes at once: ~256 kB temporaries. At 5,000 pairs
-# smaller blocks measured faster (cache), at 500,000 larger ones (fewer Python rounds).
-VOLUME_BLOCK_ELEMENTS = 65_536
+# (pose, point) pairs the volume verdict takes at once, in ~5 MB of buffers it reuses: measured
+# at 5,000 and at 500,000 pairs, blocks of 32k to 256k pairs took ever less time (fewer Python
+# rounds), the plans' chunk_elements capping them here.
+VOLUME_BLOCK_ELEMENTS = 262_144
 # Points that bound a pose's lowest hand point for the table check: 32 of the hand's 204 hull
 # vertices cover every vertex within 2.5 cm, leaving ~10 % of a cloud's poses to check on all.
 TABLE_COVER_POINTS = 32
@@ -176,20 +177,7 @@ def gripper_occupancy_within(
     n_candidates, n_approaches = rotation.shape[:2]
     finger_z_max = geometry.fingertip_offset_m
     finger_z_min = finger_z_max - geometry.finger_length_m
-    palm_z_min = finger_z_min - geometry.palm_depth_m
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
-    # A point within the slack of a box has grasp-frame |local|_1 below reach_l1, so its world
-    # offset from the centre has |p - c|_1 <= sqrt(3) |p - c|_2 <= sqrt(3) reach_l1 = near_l1.
-    reach_l1 = max(geometry.palm_width_m / 2 + geometry.palm_span_m / 2, geometry.finger_width_m / 2 + finger_y_max) + max(
-        abs(palm_z_min), abs(finger_z_max)
-    ) + 3 * VOLUME_SLACK_M
-    near_l1 = math.sqrt(3.0) * reach_l1
-    # A coordinate is a . p - a . c here and a . (p - c) in the exhaustive GEMM: four-term sums
-    # that, with the finger slabs' middle folded into z, round by at most 8 u (|p|_1 + |c|_1 +
-    # near_l1) each (u = 2^-24). Near a box |p|_1 <= |c|_1 + near_l1, so they differ by at most
-    # 32 u (|c|_1 + near_l1): half the slack for centres within this L1 reach. Farther points
-    # round by more, but lie outside every box by far more.
-    centre_reach_l1 = VOLUME_SLACK_M / (2.0 * 32.0 * 2.0**-24) - near_l1
     pose_row, pose_slot = poses.nonzero(as_tuple=True)
     # Each pose's grasp axes as rows (R, 3, 3) and offsets -axis . centre (R, 3, 1), z measured
     # from the finger slabs' middle, and its finger slabs' middle and half extent along |y| (R, 1).
@@ -203,6 +191,9 @@ def gripper_occupancy_within(
     scene_starts = ((scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1).tolist()  # poses that begin another scene's run
     maybe, surely = torch.empty(pose_row.numel()), torch.empty(pose_row.numel())
     pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
+    # Every block reuses these: fresh temporaries of this size cost page faults on each block.
+    block_rows = min(pose_budget, pose_row.numel())
+    coordinates, scratch = torch.empty(block_rows, 3, points.shape[1]), torch.empty(2, block_rows, points.shape[1])
     for first in range(0, pose_row.numel(), pose_budget):
         last = min(first + pose_budget, pose_row.numel())
         if bisect.bisect_right(scene_starts, first) == bisect.bisect_left(scene_starts, last):
@@ -210,9 +201,9 @@ def gripper_occupancy_within(
             columns = scene_columns[:, int(scene[first]), None, None]  # (3, 1, 1, N)
         else:
             columns = scene_columns[:, scene[first:last], None]  # (3, p, 1, N)
-        x, y, z = _coordinates(axes[first:last], offset[first:last], columns).unbind(dim=1)  # (p, N) each
-        maybe[first:last], surely[first:last] = _count_bounds(x, y, z, finger_y_mid[first:last], finger_y_half[first:last], geometry)
-    pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= centre_reach_l1
+        block = _coordinates(axes[first:last], offset[first:last], columns, coordinates[: last - first])
+        maybe[first:last], surely[first:last] = _count_bounds(block, finger_y_mid[first:last], finger_y_half[first:last], geometry, scratch[:, : last - first])
+    pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= _centre_reach_l1(geometry)
     within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     within[pose_row, pose_slot] = pose_ok & (maybe <= pose_limit)
@@ -220,26 +211,48 @@ def gripper_occupancy_within(
     return _counted_where_undecided(within, undecided, points, object_index, centre, rotation, width_m, geometry, limit, chunk_elements)
 
 
-def _coordinates(axes: torch.Tensor, offset: torch.Tensor, columns: torch.Tensor) -> torch.Tensor:
-    """(p, 3, N) coordinates of points along (p, 3, 3) world ``axes`` (rows), plus (p, 3, 1)
-    ``offset``; ``columns`` (3, p or 1, 1, N) holds the points' world x, y and z rows."""
+def _centre_reach_l1(geometry: GripperGeometry) -> float:
+    """How far (L1, metres) from the world origin a grasp centre may lie for the volume verdict's
+    coordinates to stay within half of ``VOLUME_SLACK_M`` of the exhaustive GEMM's."""
+    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
+    finger_z_min = geometry.fingertip_offset_m - geometry.finger_length_m
+    # A point within the slack of a box has grasp-frame |local|_1 below reach_l1, so its world
+    # offset from the centre has |p - c|_1 <= sqrt(3) |p - c|_2 <= sqrt(3) reach_l1 = near_l1.
+    reach_l1 = max(geometry.palm_width_m / 2 + geometry.palm_span_m / 2, geometry.finger_width_m / 2 + finger_y_max) + max(
+        abs(finger_z_min - geometry.palm_depth_m), abs(geometry.fingertip_offset_m)
+    ) + 3 * VOLUME_SLACK_M
+    near_l1 = math.sqrt(3.0) * reach_l1
+    # A coordinate is a . p - a . c here and a . (p - c) in the exhaustive GEMM: four-term sums
+    # that, with the finger slabs' middle folded into z, round by at most 8 u (|p|_1 + |c|_1 +
+    # near_l1) each (u = 2^-24). Near a box |p|_1 <= |c|_1 + near_l1, so they differ by at most
+    # 32 u (|c|_1 + near_l1): half the slack for centres within this L1 reach. Farther points
+    # round by more, but lie outside every box by far more.
+    return VOLUME_SLACK_M / (2.0 * 32.0 * 2.0**-24) - near_l1
+
+
+def _coordinates(axes: torch.Tensor, offset: torch.Tensor, columns: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """``out`` (p, 3, N) set to the coordinates of points along (p, 3, 3) world ``axes`` (rows),
+    plus (p, 3, 1) ``offset``; ``columns`` (3, p or 1, 1, N) holds the points' world x, y and z rows."""
     # An out-of-place addcmul broadcasting three ways is several times slower than these.
-    coordinates = torch.mul(axes[..., 0:1], columns[0])
-    return coordinates.addcmul_(axes[..., 1:2], columns[1]).addcmul_(axes[..., 2:3], columns[2]).add_(offset)
+    torch.mul(axes[..., 0:1], columns[0], out=out)
+    return out.addcmul_(axes[..., 1:2], columns[1]).addcmul_(axes[..., 2:3], columns[2]).add_(offset)
 
 
 def _count_bounds(
-    x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, finger_y_mid: torch.Tensor, finger_y_half: torch.Tensor, geometry: GripperGeometry
+    coordinates: torch.Tensor, finger_y_mid: torch.Tensor, finger_y_half: torch.Tensor, geometry: GripperGeometry, scratch: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Upper and lower bounds (p,) float32 of each pose's gripper point count, from the points'
-    grasp-frame x, y and z (p, N; z measured from the finger slabs' middle; all overwritten) and
-    each pose's finger slabs' middle and half extent along |y| (p, 1)."""
+    grasp-frame x, y and z (``coordinates`` (p, 3, N), z measured from the finger slabs' middle)
+    and each pose's finger slabs' middle and half extent along |y| (p, 1); ``coordinates`` and
+    ``scratch`` (2, p, N) are overwritten."""
     # Excess over each box (> 0 outside, <= 0 inside), then over the gripper.
-    abs_x, abs_y = x.abs_(), y.abs_()
-    finger = torch.sub(abs_y, finger_y_mid).abs_().sub_(finger_y_half)
-    finger = torch.maximum(finger, abs_x - geometry.finger_width_m / 2, out=finger)
-    palm_z = torch.add(z, (geometry.finger_length_m + geometry.palm_depth_m) / 2).abs_().sub_(geometry.palm_depth_m / 2)
-    finger = torch.maximum(finger, z.abs_().sub_(geometry.finger_length_m / 2), out=finger)
+    abs_x, abs_y, z = coordinates.unbind(dim=1)
+    finger, palm_z = scratch
+    coordinates[:, :2].abs_()
+    torch.sub(abs_y, finger_y_mid, out=finger).abs_().sub_(finger_y_half)
+    torch.maximum(finger, torch.sub(abs_x, geometry.finger_width_m / 2, out=palm_z), out=finger)
+    torch.add(z, (geometry.finger_length_m + geometry.palm_depth_m) / 2, out=palm_z).abs_().sub_(geometry.palm_depth_m / 2)
+    torch.maximum(finger, z.abs_().sub_(geometry.finger_length_m / 2), out=finger)
     palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2), abs_y.sub_(geometry.palm_span_m / 2), out=abs_x)
     excess = torch.minimum(finger, torch.maximum(palm, palm_z, out=palm), out=finger)
     # A point inside by more than the slack is inside one box alone (they meet only at one
