@@ -19,6 +19,7 @@ The table check (``table_penetration``) takes any set of gripper points in the g
 from __future__ import annotations
 
 import bisect
+import math
 from typing import NamedTuple
 
 import torch
@@ -27,13 +28,14 @@ from .grasp_frames import scene_points_about
 
 # Float32 rounding of the table check's bounds (a few 1e-8 m at these sizes) is far inside this.
 TABLE_BOUND_SLACK_M = 1e-5
-# How far the volume verdict's turned coordinates may stray from the exhaustive GEMM's: twice
-# the most that their rounding (~1e-7 m within the gripper's reach) and the approaches' allowed
-# deviation from exact turns about one closing axis (see ``gripper_occupancy_within``) move them.
+# How far the volume verdict's coordinates may stray from the exhaustive GEMM's: twice the most
+# that their rounding moves them (for grasp centres within ~4.8 m, L1, of the origin; see
+# ``gripper_occupancy_within``).
 VOLUME_SLACK_M = 2e-5
-# (pose, point) pairs the volume verdict takes at once: ~256 kB temporaries. At 5,000 pairs
-# smaller blocks measured faster (cache), at 500,000 larger ones (fewer Python rounds).
-VOLUME_BLOCK_ELEMENTS = 65_536
+# (pose, point) pairs the volume verdict takes at once, in ~5 MB of buffers it reuses: measured
+# at 5,000 and at 500,000 pairs, blocks of 32k to 256k pairs took ever less time (fewer Python
+# rounds), the plans' chunk_elements capping them here.
+VOLUME_BLOCK_ELEMENTS = 262_144
 # Points that bound a pose's lowest hand point for the table check: 32 of the hand's 204 hull
 # vertices cover every vertex within 2.5 cm, leaving ~10 % of a cloud's poses to check on all.
 TABLE_COVER_POINTS = 32
@@ -152,15 +154,16 @@ def gripper_occupancy_within(
     """Whether each pose's gripper holds at most ``limit`` points: ``gripper_occupancy``'s verdict
     at a fraction of its cost, identical for every pose.
 
-    Why it is cheaper: a candidate's K approaches are turns about its closing axis (grasp y), so
-    one small GEMM in approach 0's frame gives every point's y, which decides the y extents of
-    all K poses at once, and each counted pose's x and z follow from approach 0's by a 2-D turn,
-    without the exhaustive check's GEMM over every approach and its gather of the counted poses.
-    Those coordinates differ from the exhaustive GEMM's by rounding (<< ``VOLUME_SLACK_M``), so
-    a pose's count is bounded: points inside a box by more than the slack count, points outside
+    Why it is cheaper: each counted pose's grasp-frame coordinates come from its own frame's
+    rows applied to the scene's raw points, a . p - a . c, as three broadcast multiply-adds per
+    axis, without the exhaustive check's (candidate, point, 3) offsets p - c, its GEMM over every
+    approach and its gather of the counted poses. They differ from the exhaustive GEMM's by
+    rounding (<< ``VOLUME_SLACK_M`` for grasp centres within a few metres of the origin), so a
+    pose's count is bounded: points inside a box by more than the slack count, points outside
     every box by more than it do not, and only points within it of a face (rare, but common on a
     grid aligned with the gripper) are uncertain. Poses whose bounds straddle ``limit``, and
-    candidates whose approaches are not such turns, are counted by ``gripper_occupancy`` itself.
+    those whose centre is too far out for the rounding bound, are counted by
+    ``gripper_occupancy`` itself.
 
     Args:
         points, object_index, centre, rotation, width_m, geometry, chunk_elements: as for
@@ -174,72 +177,92 @@ def gripper_occupancy_within(
     n_candidates, n_approaches = rotation.shape[:2]
     finger_z_max = geometry.fingertip_offset_m
     finger_z_min = finger_z_max - geometry.finger_length_m
-    palm_z_min = finger_z_min - geometry.palm_depth_m
     finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
-    finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
-    palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
-    # A frame entry off by e moves a coordinate of a point p by at most e |p|_1, and a point near
-    # a box has |p|_1 below this reach: frames within the deviation keep coordinates within a quarter of the slack.
-    reach_l1 = max(geometry.palm_width_m / 2 + geometry.palm_span_m / 2, geometry.finger_width_m / 2 + finger_y_max) + max(
-        abs(palm_z_min), abs(finger_z_max)
-    ) + VOLUME_SLACK_M
-    max_deviation = VOLUME_SLACK_M / (4.0 * reach_l1)
-    turn_cos, turn_sin, turns_ok = _turns_about_y(rotation, max_deviation)
-    # Poses in candidate order, so each block of candidates owns a run of them.
     pose_row, pose_slot = poses.nonzero(as_tuple=True)
-    counted, poses_per_row = torch.unique_consecutive(pose_row, return_counts=True)
-    pose_offset = torch.cat((poses_per_row.new_zeros(1), poses_per_row.cumsum(0))).tolist()
-    pose_candidate = torch.arange(counted.numel()).repeat_interleave(poses_per_row)  # (R,) position in counted of each pose's candidate
-    pose_cos, pose_sin = turn_cos[pose_row, pose_slot, None], turn_sin[pose_row, pose_slot, None]
+    # Each pose's grasp axes as rows (R, 3, 3) and offsets -axis . centre (R, 3, 1), z measured
+    # from the finger slabs' middle, and its finger slabs' middle and half extent along |y| (R, 1).
+    axes = rotation[pose_row, pose_slot].transpose(1, 2)
+    offset = -(axes @ centre[pose_row, :, None])
+    offset[:, 2] -= (finger_z_min + finger_z_max) / 2
+    finger_y_min = width_m[pose_row, None] / 2 + geometry.contact_clearance_m
+    finger_y_mid, finger_y_half = (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2
+    scene_columns = points.permute(2, 0, 1).contiguous()  # (3, B, N): each coordinate's rows
+    scene = object_index[pose_row]
+    scene_starts = ((scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1).tolist()  # poses that begin another scene's run
     maybe, surely = torch.empty(pose_row.numel()), torch.empty(pose_row.numel())
     pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
-    start = 0
-    while start < counted.numel():
-        # Blocks of whole candidates holding about pose_budget poses (at least one candidate).
-        stop = max(start + 1, bisect.bisect_right(pose_offset, pose_offset[start] + pose_budget) - 1)
-        rows = counted[start:stop]
-        first, last = pose_offset[start], pose_offset[stop]
-        relative = scene_points_about(points, object_index[rows], centre[rows])  # (c, N, 3)
-        local = rotation[rows, 0].transpose(-1, -2) @ relative.transpose(1, 2)  # (c, 3, N): x, y, z of approach 0
-        # Each box's excess along y (> 0 outside its y extent), shared by every approach.
-        abs_y = local[:, 1].abs()
-        finger_y_min = (width_m[rows] / 2 + geometry.contact_clearance_m)[:, None]
-        local[:, 1] = (abs_y - (finger_y_min + finger_y_max) / 2).abs_().sub_((finger_y_max - finger_y_min) / 2)
-        per_point = torch.cat((local, abs_y.sub_(geometry.palm_span_m / 2)[:, None]), dim=1)  # (c, 4, N)
-        x0, finger_y, z0, palm_y = per_point.index_select(0, pose_candidate[first:last] - start).unbind(dim=1)  # (p, N) each
-        maybe[first:last], surely[first:last] = _turned_count_bounds(
-            x0, finger_y, z0, palm_y, pose_cos[first:last], pose_sin[first:last], geometry,
-            (finger_z_mid, finger_z_half), (palm_z_mid, palm_z_half),
-        )
-        start = stop
-    pose_limit, ok = limit[pose_row], turns_ok[pose_row]
+    # Every block reuses these: fresh temporaries of this size cost page faults on each block.
+    block_rows = min(pose_budget, pose_row.numel())
+    coordinates, scratch = torch.empty(block_rows, 3, points.shape[1]), torch.empty(2, block_rows, points.shape[1])
+    for first in range(0, pose_row.numel(), pose_budget):
+        last = min(first + pose_budget, pose_row.numel())
+        if bisect.bisect_right(scene_starts, first) == bisect.bisect_left(scene_starts, last):
+            # One scene (the common case): its points broadcast over the poses.
+            columns = scene_columns[:, int(scene[first]), None, None]  # (3, 1, 1, N)
+        else:
+            columns = scene_columns[:, scene[first:last], None]  # (3, p, 1, N)
+        block = _coordinates(axes[first:last], offset[first:last], columns, coordinates[: last - first])
+        maybe[first:last], surely[first:last] = _count_bounds(block, finger_y_mid[first:last], finger_y_half[first:last], geometry, scratch[:, : last - first])
+    pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= _centre_reach_l1(geometry)
     within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-    within[pose_row, pose_slot] = ok & (maybe <= pose_limit)
-    undecided[pose_row, pose_slot] = ~ok | ((maybe > pose_limit) & (surely <= pose_limit))
+    within[pose_row, pose_slot] = pose_ok & (maybe <= pose_limit)
+    undecided[pose_row, pose_slot] = ~pose_ok | ((maybe > pose_limit) & (surely <= pose_limit))
     return _counted_where_undecided(within, undecided, points, object_index, centre, rotation, width_m, geometry, limit, chunk_elements)
 
 
-def _turned_count_bounds(
-    x0: torch.Tensor, finger_y: torch.Tensor, z0: torch.Tensor, palm_y: torch.Tensor, cos: torch.Tensor, sin: torch.Tensor,
-    geometry: GripperGeometry, finger_z: tuple[float, float], palm_z: tuple[float, float],
+def _centre_reach_l1(geometry: GripperGeometry) -> float:
+    """How far (L1, metres) from the world origin a grasp centre may lie for the volume verdict's
+    coordinates to stay within half of ``VOLUME_SLACK_M`` of the exhaustive GEMM's."""
+    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
+    finger_z_min = geometry.fingertip_offset_m - geometry.finger_length_m
+    # A point within the slack of a box has grasp-frame |local|_1 below reach_l1, so its world
+    # offset from the centre has |p - c|_1 <= sqrt(3) |p - c|_2 <= sqrt(3) reach_l1 = near_l1.
+    reach_l1 = max(geometry.palm_width_m / 2 + geometry.palm_span_m / 2, geometry.finger_width_m / 2 + finger_y_max) + max(
+        abs(finger_z_min - geometry.palm_depth_m), abs(geometry.fingertip_offset_m)
+    ) + 3 * VOLUME_SLACK_M
+    near_l1 = math.sqrt(3.0) * reach_l1
+    # A coordinate is a . p - a . c here and a . (p - c) in the exhaustive GEMM: four-term sums
+    # that, with the finger slabs' middle folded into z, round by at most 8 u (|p|_1 + |c|_1 +
+    # near_l1) each (u = 2^-24). Near a box |p|_1 <= |c|_1 + near_l1, so they differ by at most
+    # 32 u (|c|_1 + near_l1): half the slack for centres within this L1 reach. Farther points
+    # round by more, but lie outside every box by far more.
+    return VOLUME_SLACK_M / (2.0 * 32.0 * 2.0**-24) - near_l1
+
+
+def _coordinates(axes: torch.Tensor, offset: torch.Tensor, columns: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """``out`` (p, 3, N) set to the coordinates of points along (p, 3, 3) world ``axes`` (rows),
+    plus (p, 3, 1) ``offset``; ``columns`` (3, p or 1, 1, N) holds the points' world x, y and z rows."""
+    # An out-of-place addcmul broadcasting three ways is several times slower than these.
+    torch.mul(axes[..., 0:1], columns[0], out=out)
+    return out.addcmul_(axes[..., 1:2], columns[1]).addcmul_(axes[..., 2:3], columns[2]).add_(offset)
+
+
+def _count_bounds(
+    coordinates: torch.Tensor, finger_y_mid: torch.Tensor, finger_y_half: torch.Tensor, geometry: GripperGeometry, scratch: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Upper and lower bounds (p,) of each pose's gripper point count, from approach 0's x, z (p, N)
-    turned by the pose's (cos, sin) (p, 1) and the boxes' y excesses (p, N); ``finger_z`` and
-    ``palm_z`` are each box's (middle, half height) along z."""
-    abs_x = (x0 * cos).sub_(z0 * sin).abs_()
-    z = (z0 * cos).add_(x0 * sin)
+    """Upper and lower bounds (p,) float32 of each pose's gripper point count, from the points'
+    grasp-frame x, y and z (``coordinates`` (p, 3, N), z measured from the finger slabs' middle)
+    and each pose's finger slabs' middle and half extent along |y| (p, 1); ``coordinates`` and
+    ``scratch`` (2, p, N) are overwritten."""
     # Excess over each box (> 0 outside, <= 0 inside), then over the gripper.
-    finger = torch.maximum(abs_x - geometry.finger_width_m / 2, (z - finger_z[0]).abs_().sub_(finger_z[1]))
-    finger = torch.maximum(finger, finger_y, out=finger)
-    palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2), z.sub_(palm_z[0]).abs_().sub_(palm_z[1]), out=abs_x)
-    excess = torch.minimum(finger, torch.maximum(palm, palm_y, out=palm), out=finger)
+    abs_x, abs_y, z = coordinates.unbind(dim=1)
+    finger, palm_z = scratch
+    coordinates[:, :2].abs_()
+    torch.sub(abs_y, finger_y_mid, out=finger).abs_().sub_(finger_y_half)
+    torch.maximum(finger, torch.sub(abs_x, geometry.finger_width_m / 2, out=palm_z), out=finger)
+    torch.add(z, (geometry.finger_length_m + geometry.palm_depth_m) / 2, out=palm_z).abs_().sub_(geometry.palm_depth_m / 2)
+    torch.maximum(finger, z.abs_().sub_(geometry.finger_length_m / 2), out=finger)
+    palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2), abs_y.sub_(geometry.palm_span_m / 2), out=abs_x)
+    excess = torch.minimum(finger, torch.maximum(palm, palm_z, out=palm), out=finger)
     # A point inside by more than the slack is inside one box alone (they meet only at one
     # face); a point within the slack of a face may be inside, or inside both boxes at their
-    # common face, so it may count once more: bounds inside +- uncertain.
-    inside = (excess <= VOLUME_SLACK_M).sum(dim=1)
-    uncertain = (excess.abs_() <= VOLUME_SLACK_M).sum(dim=1)
-    return inside + uncertain, inside - uncertain
+    # common face, so it may count once more: bounds inside +- uncertain, where inside counts
+    # excess <= slack and uncertain |excess| <= slack, i.e. inside less those below -slack.
+    # Comparing in place into float32 0/1 and summing is several times faster than through bool.
+    inside = palm_z.copy_(excess).le_(VOLUME_SLACK_M).sum(dim=1)
+    surely = excess.lt_(-VOLUME_SLACK_M).sum(dim=1)
+    return 2 * inside - surely, surely
 
 
 def _counted_where_undecided(
@@ -255,24 +278,6 @@ def _counted_where_undecided(
         )
         within[exhaustive] = torch.where(mine, occupancy.total.to(torch.float32) <= limit[exhaustive, None], within[exhaustive])
     return within
-
-
-def _turns_about_y(rotation: torch.Tensor, max_deviation: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Cosine and sine (c, K) of each approach's turn from approach 0 about its grasp y axis, and
-    (c,) bool: every approach frame is that turn of approach 0's within ``max_deviation`` per
-    entry (``rotation``: (c, K, 3, 3) grasp frames)."""
-    first = rotation[:, :1]  # (c, 1, 3, 3)
-    x_first, approach_first = first[..., 0], first[..., 2]
-    approach = rotation[..., 2]  # (c, K, 3)
-    cos, sin = (approach * approach_first).sum(-1), (approach * x_first).sum(-1)
-    norm = torch.sqrt(cos.square() + sin.square())
-    cos, sin = cos / norm, sin / norm
-    turned = torch.stack(
-        (cos[..., None] * x_first - sin[..., None] * approach_first, first[..., 1].expand_as(approach), cos[..., None] * approach_first + sin[..., None] * x_first),
-        dim=-1,
-    )
-    deviation = (rotation - turned).abs().amax(dim=(1, 2, 3))
-    return cos, sin, deviation <= max_deviation
 
 
 def table_penetration(

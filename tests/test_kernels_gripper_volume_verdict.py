@@ -1,6 +1,6 @@
 """The gripper-volume verdict decides every pose exactly as counting with ``gripper_occupancy`` does,
-including points lying exactly on the gripper's faces, NaN padding and frames that are not turns
-about one closing axis."""
+including points lying exactly on the gripper's faces, NaN padding, candidates of several scenes in
+one block, approaches that do not share one closing axis and grasp centres far from the origin."""
 import math
 
 import pytest
@@ -35,9 +35,11 @@ def _limits_at_the_counts(counts, seed):
     return counts[torch.arange(counts.shape[0]), slot].to(torch.float32) + offset
 
 
-@pytest.mark.parametrize("spacing_m", [0.004, 0.0025])
-def test_verdicts_equal_counting_on_a_grid_box_whose_points_lie_on_the_gripper_faces(spacing_m):
-    points, normals = (torch.as_tensor(array, dtype=torch.float32) for array in box_surface((0.05, 0.06, 0.1), (0.0, 0.0, 0.0), spacing_m))
+# The far box's grasp centres are beyond the reach where the verdict's rounding bound holds, so
+# they are counted exhaustively.
+@pytest.mark.parametrize(("spacing_m", "box_centre_m"), [(0.004, (0.0, 0.0, 0.0)), (0.0025, (0.0, 0.0, 0.0)), (0.004, (4.0, -2.0, 1.0))])
+def test_verdicts_equal_counting_on_a_grid_box_whose_points_lie_on_the_gripper_faces(spacing_m, box_centre_m):
+    points, normals = (torch.as_tensor(array, dtype=torch.float32) for array in box_surface((0.05, 0.06, 0.1), box_centre_m, spacing_m))
     centre, rotation, width = _grasps(points, normals, seed=0)
     geometry = gripper_geometry(PLANNER)
     index = torch.zeros(len(centre), dtype=torch.int64)
@@ -51,7 +53,7 @@ def test_verdicts_equal_counting_on_a_grid_box_whose_points_lie_on_the_gripper_f
         assert got.any() and (poses & ~got).any()
 
 
-def test_verdicts_equal_counting_across_padded_scenes_and_frames_that_are_not_turns():
+def test_verdicts_equal_counting_across_padded_scenes_and_frames_without_one_closing_axis():
     generator = torch.Generator().manual_seed(2)
     box, box_normals = (torch.as_tensor(array, dtype=torch.float32) for array in box_surface((0.04, 0.07, 0.12), (0.5, 0.1, 0.7)))
     blob = torch.randn(700, 3, generator=generator) * 0.03 + torch.tensor([0.5, 0.1, 0.7])
@@ -59,7 +61,7 @@ def test_verdicts_equal_counting_across_padded_scenes_and_frames_that_are_not_tu
     scenes[0, : len(box)] = box
     scenes[1, : len(blob)] = blob
     centre, rotation, width = _grasps(box, box_normals, seed=3)
-    # Every third candidate's frames are scrambled (not turns about one axis): counted exhaustively.
+    # Every third candidate's frames are scrambled: its approaches are not turns about one closing axis.
     scrambled = torch.arange(len(centre)) % 3 == 0
     rotation = rotation.clone()
     rotation[scrambled] = rotation[scrambled].roll(1, dims=-1)
