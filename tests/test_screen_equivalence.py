@@ -105,16 +105,16 @@ def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window
     fast = plan_batch(clouds, config, seeds)
     monkeypatch.setattr(_ScreenVerdicts, "block_sizes", lambda self, missing, object_index: missing)
     monkeypatch.setattr(ScreenedCandidates, "hand_clearance", dense_hand_clearance)
-    reference = plan_batch(clouds, config, seeds)
-    for got, expected in zip(fast, reference):
-        assert got.counts == expected.counts
-        assert torch.equal(got.contacts_world, expected.contacts_world)
-        assert torch.equal(got.s_geom, expected.s_geom)
-        assert torch.equal(got.approach, expected.approach)
-        assert torch.equal(got.joint_path, expected.joint_path)
-        assert torch.equal(got.hand_clearance_m, expected.hand_clearance_m)
+    assert_same_plans(fast, plan_batch(clouds, config, seeds))
     assert sum(result.counts["rejected_hand"] for result in fast) > 0 and all(len(result) > 0 for result in fast)
 
+
+def assert_same_plans(got: list, expected: list) -> None:
+    """The same candidates, frames, joint paths, margins, clearances and counts, bit for bit."""
+    for plan, reference in zip(got, expected, strict=True):
+        assert plan.counts == reference.counts
+        for field in ("contacts_world", "s_geom", "approach", "rotation_world", "joint_path", "s_reach", "hand_clearance_m"):
+            assert torch.equal(getattr(plan, field), getattr(reference, field)), field
 
 
 def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_pending_grasps_returns(ycb_clouds, monkeypatch):
@@ -135,15 +135,10 @@ def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_p
             self.store(pending[missing], slots[missing], check(pending[missing], slots[missing]))
 
     monkeypatch.setattr(_MotionVerdicts, "ensure", pending_only)
-    reference = plan_batch(clouds, config, seeds)
-    for got, expected in zip(ahead, reference):
-        assert got.counts == expected.counts
-        assert torch.equal(got.contacts_world, expected.contacts_world)
-        assert torch.equal(got.approach, expected.approach)
-        assert torch.equal(got.joint_path, expected.joint_path)
-        assert torch.equal(got.s_reach, expected.s_reach)
+    assert_same_plans(ahead, plan_batch(clouds, config, seeds))
     assert sum(result.counts["rejected_grasp_ik"] + result.counts["rejected_motion"] for result in ahead) > 0
     assert len(ahead_batches) < len(batches)
+
 
 def dense_gripper_points(screened: ScreenedCandidates, rows: torch.Tensor) -> torch.Tensor:
     """(R, K) points inside the finger slabs plus points inside the palm, every point and approach."""
