@@ -182,7 +182,9 @@ class PandaIK:
         lowest = None
         for name, vertices in hulls.items():
             height_row = link_poses[self.frames.names.index(name), 2]  # (4, M): the z row of the link's transform
-            heights = (height_row[:3].T @ vertices.T + height_row[3:].T).amin(dim=1)
+            # The link's height is added to the lowest vertex only, not to all V: rounding is
+            # monotonic, so the minimum of the sums is the sum with the minimum, bit for bit.
+            heights = (height_row[:3].T @ vertices.T).amin(dim=1) + height_row[3]
             lowest = heights if lowest is None else torch.minimum(lowest, heights)
         return lowest + self.base_xyz_world[2]
 
@@ -411,6 +413,10 @@ def _errors_of_pose(pose: torch.Tensor, positions_base: torch.Tensor, rotations:
     return position_error, rotation_error
 
 
+# (4, 3) signs of m00, m11 and m22 in the four squared quaternion components of a rotation matrix.
+_QUATERNION_DIAGONAL_SIGNS = torch.tensor([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]])
+
+
 def _rotation_error_vector(target: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
     """(M, 3) rotation vector (axis x angle, base frame) turning ``current`` into ``target``, both (M, 3, 3).
 
@@ -421,8 +427,11 @@ def _rotation_error_vector(target: torch.Tensor, current: torch.Tensor) -> torch
     its function itself for the other rows.
     """
     matrix = target @ current.transpose(1, 2)
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = matrix.reshape(-1, 9).unbind(dim=1)
-    q_abs = torch.stack((1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22), dim=-1).clamp(min=0.0).sqrt()
+    _, m01, m02, m10, _, m12, m20, m21, _ = matrix.reshape(-1, 9).unbind(dim=1)
+    # pk's 1 +- m00 +- m11 +- m22 for all four components in one pass (each (M, 4), signed per
+    # component): x - y is x + (-y) exactly.
+    signed00, signed11, signed22 = (matrix.diagonal(dim1=1, dim2=2)[:, None, :] * _QUATERNION_DIAGONAL_SIGNS).unbind(dim=2)
+    q_abs = (1.0 + signed00 + signed11 + signed22).clamp(min=0.0).sqrt()
     quaternion = torch.stack((q_abs[:, 0] ** 2, m21 - m12, m02 - m20, m10 - m01), dim=-1) / (2.0 * q_abs[:, :1].clamp(min=0.1))
     vector = pk.quaternion_to_axis_angle(quaternion)
     others = (q_abs.argmax(dim=-1) != 0).nonzero().squeeze(1)
