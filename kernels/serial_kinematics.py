@@ -67,7 +67,7 @@ def serial_chain_frames(joints: torch.Tensor, chain: SerialChain) -> torch.Tenso
     """
     n_frames, n_configs = chain.translation.shape[0], joints.shape[0]
     fixed, by_cos, by_sin = chain.rotation_terms.to(joints.dtype).unbind(0)
-    angles = joints.T[chain.joint_of_frame].view(n_frames, 1, 1, n_configs)
+    angles = joints.T[chain.joint_of_frame].reshape(n_frames, 1, 1, n_configs)
     # Every frame's transform from its parent's as (F, 3, 4, B).
     local = torch.cat(
         (
