@@ -20,7 +20,7 @@ import pytorch_kinematics as pk
 import torch
 
 from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form, wrist_in_reach
-from sagp_batched_kernels.serial_kinematics import SerialChain, geometric_jacobian, serial_chain, serial_chain_poses
+from sagp_batched_kernels.serial_kinematics import SerialChain, geometric_jacobian, serial_chain, serial_chain_frames
 
 from .config import Config, PlannerConfig, SceneConfig
 from .hand import quiet_urdf
@@ -68,7 +68,7 @@ def link_moved_by(chain: pk.SerialChain, joint_name: str) -> str:
 
 @dataclass(frozen=True)
 class ChainFrames:
-    """A serial chain's frames as ``serial_chain_poses`` takes them, read from a pytorch-kinematics chain."""
+    """A serial chain's frames as ``serial_chain_frames`` takes them, read from a pytorch-kinematics chain."""
 
     names: tuple[str, ...]  # every frame, base first, fixed ones included
     chain: SerialChain
@@ -81,7 +81,7 @@ class ChainFrames:
         joint_names = chain.get_joint_parameter_names()
         frames = [chain.find_frame(name) for name in names]
         if any(frame.joint.joint_type not in ("fixed", "revolute") for frame in frames):
-            raise ValueError("serial_chain_poses models fixed and revolute joints only")
+            raise ValueError("serial_chain_frames models fixed and revolute joints only")
         offsets = []
         for frame in frames:
             offset = torch.eye(4, dtype=chain.dtype)
@@ -96,8 +96,9 @@ class ChainFrames:
         return cls(names=names, chain=serial_chain(torch.stack(offsets), joint_of_frame, axes), joint_frames=joint_frames, axes=axes)
 
     def poses(self, joints: torch.Tensor) -> torch.Tensor:
-        """(F, M, 4, 4) every frame's pose in the chain's base frame at (M, J) ``joints``."""
-        return serial_chain_poses(joints, self.chain)
+        """(F, 3, 4, M) every frame's pose in the chain's base frame at (M, J) ``joints``, as rows
+        of M values (``serial_chain_frames``)."""
+        return serial_chain_frames(joints, self.chain)
 
     def jacobian(self, poses: torch.Tensor) -> torch.Tensor:
         """(M, 6, J) geometric Jacobian of the last frame from ``poses`` (``self.poses``)."""
@@ -177,11 +178,13 @@ class PandaIK:
         return self._lowest_hull_z(self.frames.poses(joints.to(torch.float32)), hulls)
 
     def _lowest_hull_z(self, link_poses: torch.Tensor, hulls: dict[str, torch.Tensor]) -> torch.Tensor:
-        """(M,) lowest world height (m) of the ``hulls`` vertices placed by (F, M, 4, 4) frame poses (``ChainFrames.poses``, base frame)."""
+        """(M,) lowest world height (m) of the ``hulls`` vertices placed by (F, 3, 4, M) frame poses (``ChainFrames.poses``, base frame)."""
         lowest = None
         for name, vertices in hulls.items():
-            matrix = link_poses[self.frames.names.index(name)]  # (M, 4, 4), base frame
-            heights = (matrix[:, 2, :3] @ vertices.T + matrix[:, 2, 3:]).amin(dim=1)
+            height_row = link_poses[self.frames.names.index(name), 2]  # (4, M): the z row of the link's transform
+            # The link's height is added to the lowest vertex only, not to all V: rounding is
+            # monotonic, so the minimum of the sums is the sum with the minimum, bit for bit.
+            heights = (height_row[:3].T @ vertices.T).amin(dim=1) + height_row[3]
             lowest = heights if lowest is None else torch.minimum(lowest, heights)
         return lowest + self.base_xyz_world[2]
 
@@ -321,7 +324,7 @@ class PandaIK:
         for _ in range(iterations):
             poses = self.frames.poses(joints)
             jacobian, pose = self.frames.jacobian(poses), poses[-1]
-            error = torch.cat((positions_base - pose[:, :3, 3], _rotation_error_vector(rotations, pose[:, :3, :3])), dim=1)
+            error = torch.cat((positions_base - pose[:, 3].T, _rotation_error_vector(rotations, pose[:, :3].permute(2, 0, 1))), dim=1)
             step = jacobian.transpose(1, 2) @ torch.linalg.solve(jacobian @ jacobian.transpose(1, 2) + damping, error.unsqueeze(-1))
             joints = torch.minimum(torch.maximum(joints + step.squeeze(-1), self.lower), self.upper)
         return joints
@@ -403,11 +406,15 @@ def panda_ik(config: Config) -> PandaIK:
 
 
 def _errors_of_pose(pose: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(M,) position (m) and rotation (rad) error of (M, 4, 4) reached poses against (M, 3) positions
-    and (M, 3, 3) orientations, all in the base frame."""
-    position_error = (positions_base - pose[:, :3, 3]).norm(dim=1)
-    rotation_error = _rotation_error_vector(rotations, pose[:, :3, :3]).norm(dim=1)
+    """(M,) position (m) and rotation (rad) error of (3, 4, M) reached poses (a frame of
+    ``ChainFrames.poses``) against (M, 3) positions and (M, 3, 3) orientations, all in the base frame."""
+    position_error = (positions_base - pose[:, 3].T).norm(dim=1)
+    rotation_error = _rotation_error_vector(rotations, pose[:, :3].permute(2, 0, 1)).norm(dim=1)
     return position_error, rotation_error
+
+
+# (4, 3) signs of m00, m11 and m22 in the four squared quaternion components of a rotation matrix.
+_QUATERNION_DIAGONAL_SIGNS = torch.tensor([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]])
 
 
 def _rotation_error_vector(target: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
@@ -420,8 +427,11 @@ def _rotation_error_vector(target: torch.Tensor, current: torch.Tensor) -> torch
     its function itself for the other rows.
     """
     matrix = target @ current.transpose(1, 2)
-    m00, m01, m02, m10, m11, m12, m20, m21, m22 = matrix.reshape(-1, 9).unbind(dim=1)
-    q_abs = torch.stack((1.0 + m00 + m11 + m22, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22), dim=-1).clamp(min=0.0).sqrt()
+    _, m01, m02, m10, _, m12, m20, m21, _ = matrix.reshape(-1, 9).unbind(dim=1)
+    # pk's 1 +- m00 +- m11 +- m22 for all four components in one pass (each (M, 4), signed per
+    # component): x - y is x + (-y) exactly.
+    signed00, signed11, signed22 = (matrix.diagonal(dim1=1, dim2=2)[:, None, :] * _QUATERNION_DIAGONAL_SIGNS).unbind(dim=2)
+    q_abs = (1.0 + signed00 + signed11 + signed22).clamp(min=0.0).sqrt()
     quaternion = torch.stack((q_abs[:, 0] ** 2, m21 - m12, m02 - m20, m10 - m01), dim=-1) / (2.0 * q_abs[:, :1].clamp(min=0.1))
     vector = pk.quaternion_to_axis_angle(quaternion)
     others = (q_abs.argmax(dim=-1) != 0).nonzero().squeeze(1)

@@ -18,10 +18,17 @@ def _random_joints(chain, count, seed, dtype=torch.float32):
     return lower + (upper - lower) * torch.rand(count, N_ARM_JOINTS, generator=torch.Generator().manual_seed(seed), dtype=dtype)
 
 
+def _matrices(frames):
+    """(F, B, 4, 4) homogeneous transforms of (F, 3, 4, B) ``ChainFrames.poses`` rows."""
+    bottom = torch.zeros(frames.shape[0], 1, 4, frames.shape[3], dtype=frames.dtype)
+    bottom[:, :, 3] = 1.0
+    return torch.cat((frames, bottom), dim=1).permute(0, 3, 1, 2)
+
+
 def test_every_frame_pose_matches_pytorch_kinematics_to_a_micrometre_in_float32(chain):
     joints = _random_joints(chain, 5000, seed=0)
     frames = ChainFrames.of(chain)
-    poses = frames.poses(joints)
+    poses = _matrices(frames.poses(joints))
     expected = chain.forward_kinematics(joints, end_only=False)
     assert frames.names[-1] == chain.get_frame_names(exclude_fixed=False)[-1]
     for index, name in enumerate(frames.names):
@@ -33,7 +40,7 @@ def test_poses_and_jacobian_match_pytorch_kinematics_to_rounding_in_float64(chai
     joints = _random_joints(chain64, 2000, seed=1, dtype=torch.float64)
     frames = ChainFrames.of(chain64)
     poses = frames.poses(joints)
-    assert torch.allclose(poses, chain64.forward_kinematics_tensor(joints), rtol=0.0, atol=1e-12)
+    assert torch.allclose(_matrices(poses), chain64.forward_kinematics_tensor(joints), rtol=0.0, atol=1e-12)
     assert torch.allclose(frames.jacobian(poses), chain64.jacobian(joints), rtol=0.0, atol=1e-12)
 
 
@@ -56,3 +63,14 @@ def test_forward_kinematics_of_a_motion_check_batch_is_faster_than_pytorch_kinem
         return min(durations)
 
     assert best_of(frames.poses) < best_of(chain.forward_kinematics_tensor)
+
+
+def test_a_configuration_gets_the_same_frames_and_jacobian_in_any_batch(chain):
+    # The planner solves a grasp in batches of 1 to thousands: its answer must not depend on them.
+    joints = _random_joints(chain, 3000, seed=4)
+    frames = ChainFrames.of(chain)
+    poses = frames.poses(joints)
+    jacobian = frames.jacobian(poses)
+    for rows in (slice(0, 1), slice(7, 12), slice(100, 160)):
+        assert torch.equal(frames.poses(joints[rows]), poses[..., rows])
+        assert torch.equal(frames.jacobian(frames.poses(joints[rows])), jacobian[rows])
