@@ -23,7 +23,6 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from .grasp_frames import scene_points_about
 
 # Probe points whose exact separation is evaluated first, nearest by the lower bound: a blocked
 # grasp almost always has one of them under the margin.
@@ -48,7 +47,8 @@ PROBE_BLOCK_ELEMENTS = 524_288
 class HandClearance(NamedTuple):
     blocked: torch.Tensor  # (C,) bool: some point's separation from the gripper is under the margin
     # (C,) float32 smallest separation of any point where not blocked (inf without points); where
-    # blocked, the smallest among the points evaluated, an upper bound of it.
+    # blocked, the smallest among the points evaluated (which ones is a heuristic's choice), an
+    # upper bound of it under the margin.
     clearance_m: torch.Tensor
 
 
@@ -104,10 +104,6 @@ def _nearest(bound: torch.Tensor, k: int) -> torch.Tensor:
         chosen[tied] = False
         chosen[tied[:, None], bound[tied].topk(k, dim=1, largest=False, sorted=False).indices] = True
     return chosen.nonzero()[:, 1].view(-1, k)
-
-
-def _gather(relative: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    return relative.gather(1, index[:, :, None].expand(-1, -1, 3))
 
 
 def _compacted(points: torch.Tensor, scene: torch.Tensor, centre: torch.Tensor, chosen: torch.Tensor, per_row: torch.Tensor) -> torch.Tensor:
@@ -180,13 +176,14 @@ def hand_clearance(
         probe_step = max(1, min(chunk_elements, PROBE_BLOCK_ELEMENTS) // max(1, low.shape[0] * 3 * probe_points.shape[1]))
         for start in range(0, n_candidates, probe_step):
             block = slice(start, min(start + probe_step, n_candidates))
-            # About the grasp centre, not from world coordinates: the probes' bound picks those
-            # evaluated, and with them a blocked grasp's clearance, which then does not depend on
-            # where in the world the scene is.
-            probe = scene_points_about(probe_points, object_index[block], centre[block])  # (c, P, 3)
-            projection = (axes[block, :3] @ probe.transpose(1, 2)).transpose(0, 1).contiguous()  # (3, c, P)
-            nearest = _nearest(_lower_bound(projection, middle[:, :3], half[:, :3], BOUND_SLACK_M), n_probe)
-            clearance[block] = _separation(_gather(probe, nearest), axes[block], middle, half).amin(dim=1)
+            scene, block_axes = object_index[block], axes[block, :3]
+            # From world coordinates like the point pass: the bound only picks which probes are
+            # evaluated, and each evaluated probe's separation is exact whichever are picked.
+            projection = _scene_projection(probe_points, scene, block_axes)  # (3, c, P)
+            offset = (block_axes @ centre[block, :, None]).view(-1, 3).T[:, :, None] + middle[:, :3]  # (S, 3, c, 1)
+            nearest = _nearest(_least_excess(projection, offset, half[:, :3]), n_probe)
+            probe = probe_points[scene[:, None], nearest] - centre[block, None, :]  # (c, k, 3)
+            clearance[block] = _separation(probe, axes[block], middle, half).amin(dim=1)
     slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
     # The rest only where the probes left the gripper clear, in blocks of those candidates; there
     # only points whose bound is under the probes' clearance can block it or lower that clearance.
