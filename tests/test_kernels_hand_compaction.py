@@ -5,7 +5,7 @@ from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS
 from sagp_batched.planner import hand_geometry
 from sagp_batched_kernels.grasp_frames import scene_points_about
-from sagp_batched_kernels.hand_clearance import _compacted, _nearest, hand_clearance
+from sagp_batched_kernels.hand_clearance import _compacted, _least_per_run, hand_clearance
 
 CONFIG = Config()
 
@@ -27,17 +27,10 @@ def test_compacted_keeps_each_rows_chosen_points_about_its_centre_in_index_order
         assert compact[row, len(kept):].isnan().all()
 
 
-def test_nearest_picks_the_set_topk_picks_with_and_without_ties_at_the_kth_value():
-    generator = torch.Generator().manual_seed(5)
-    bound = torch.randn(50, 40, generator=generator)
-    bound[:10] = bound[:10].round(decimals=1)  # many ties, some at the k-th value
-    bound[10:15, 30:] = float("inf")  # padding of a smaller scene
-    bound[15, :] = float("inf")
-    for k in (1, 8, 16):
-        expected = torch.zeros_like(bound, dtype=torch.bool).scatter_(1, bound.topk(k, dim=1, largest=False).indices, True)
-        nearest = _nearest(bound, k)
-        assert nearest.shape == (50, k)
-        assert torch.equal(torch.zeros_like(expected).scatter_(1, nearest, True), expected)
+def test_least_per_run_picks_each_runs_first_least_column():
+    bound = torch.tensor([[3.0, 1.0, 2.0, 5.0, 5.0, 4.0], [float("inf")] * 3 + [0.0, -1.0, -1.0]])
+    assert torch.equal(_least_per_run(bound, 2), torch.tensor([[1, 5], [0, 4]]))
+    assert torch.equal(_least_per_run(bound, 3), torch.tensor([[1, 2, 5], [0, 3, 4]]))
 
 
 def _dense_separation(points, object_index, centre, rotation, directions, low, high):
