@@ -1,10 +1,11 @@
+import pytest
 import torch
 
 from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS
 from sagp_batched.planner import hand_geometry
 from sagp_batched_kernels.grasp_frames import scene_points_about
-from sagp_batched_kernels.hand_clearance import _compacted, _nearest, hand_clearance
+from sagp_batched_kernels.hand_clearance import _compacted, _least_per_run, hand_clearance
 
 CONFIG = Config()
 
@@ -26,47 +27,66 @@ def test_compacted_keeps_each_rows_chosen_points_about_its_centre_in_index_order
         assert compact[row, len(kept):].isnan().all()
 
 
-def test_nearest_picks_the_set_topk_picks_with_and_without_ties_at_the_kth_value():
-    generator = torch.Generator().manual_seed(5)
-    bound = torch.randn(50, 40, generator=generator)
-    bound[:10] = bound[:10].round(decimals=1)  # many ties, some at the k-th value
-    bound[10:15, 30:] = float("inf")  # padding of a smaller scene
-    bound[15, :] = float("inf")
-    for k in (1, 8, 16):
-        expected = torch.zeros_like(bound, dtype=torch.bool).scatter_(1, bound.topk(k, dim=1, largest=False).indices, True)
-        nearest = _nearest(bound, k)
-        assert nearest.shape == (50, k)
-        assert torch.equal(torch.zeros_like(expected).scatter_(1, nearest, True), expected)
+def test_least_per_run_picks_each_runs_first_least_column():
+    bound = torch.tensor([[3.0, 1.0, 2.0, 5.0, 5.0, 4.0], [float("inf")] * 3 + [0.0, -1.0, -1.0]])
+    assert torch.equal(_least_per_run(bound, 2), torch.tensor([[1, 5], [0, 4]]))
+    assert torch.equal(_least_per_run(bound, 3), torch.tensor([[1, 2, 5], [0, 3, 4]]))
 
 
-def _dense_clearance(points, object_index, centre, rotation, directions, low, high):
-    """Every point's separation: the definition the culled kernel reproduces where not blocked."""
+def _dense_separation(points, object_index, centre, rotation, directions, low, high):
+    """(C, N) every point's separation: the definition the culled kernel reproduces."""
     relative = points[object_index] - centre[:, None, :]
     projection = ((directions @ rotation.transpose(-1, -2)) @ relative.transpose(1, 2))[:, None]
     excess = ((projection - ((low + high) / 2)[None, :, :, None]).abs() - ((high - low) / 2)[None, :, :, None]).amax(dim=2).amin(dim=1)
-    return torch.nan_to_num(excess, nan=float("inf")).amin(dim=1)
+    return torch.nan_to_num(excess, nan=float("inf"))
 
 
-def test_blocks_mixing_scenes_give_what_one_scene_blocks_and_every_point_give():
-    """Two scenes a metre out from the origin (world coordinates, where the point pass bounds),
-    candidates interleaved so that every block mixes them, against each scene on its own."""
-    generator = torch.Generator().manual_seed(7)
+def _assert_meets_the_contract(swept, separation, margin_m):
+    """``blocked`` exactly where some point is under the margin; an unblocked row's clearance the
+    least separation, a blocked row's the separation of some point under the margin."""
+    dense = separation.amin(dim=1)
+    assert torch.equal(swept.blocked, dense < margin_m)
+    assert torch.equal(swept.clearance_m[~swept.blocked], dense[~swept.blocked])
+    blocked = swept.clearance_m[swept.blocked]
+    assert (blocked < margin_m).all()
+    assert (separation[swept.blocked] == blocked[:, None]).any(dim=1).all()
+    assert swept.blocked.any() and not swept.blocked.all()
+
+
+def _two_scenes(generator):
+    """Two scenes a metre out from the origin (world coordinates, where the bounds are taken), the
+    second smaller, and 400 candidates near their points, interleaved so every block mixes them."""
     points = torch.randn(2, 300, 3, generator=generator) * 0.05 + torch.tensor([[[0.6, 0.0, 0.7]], [[0.4, 0.3, 0.8]]])
-    points[1, 250:] = float("nan")  # the second scene is smaller
-    probes = points[:, ::10]
+    points[1, 250:] = float("nan")
     object_index = torch.arange(400) % 2
     centre = points[object_index, torch.randint(0, 250, (400,), generator=generator)] + torch.randn(400, 3, generator=generator) * 0.03
     rotation = torch.linalg.qr(torch.randn(400, 3, 3, generator=generator)).Q
+    return points, object_index, centre, rotation
+
+
+def test_blocks_mixing_scenes_give_what_one_scene_blocks_and_every_point_give():
+    """Candidates of two scenes interleaved in every block, against each scene on its own: the same
+    verdicts and unblocked clearances (a blocked row's only has to be some blocking point's)."""
+    points, object_index, centre, rotation = _two_scenes(torch.Generator().manual_seed(7))
+    probes = points[:, ::10]
     low, high = hand_geometry(CONFIG.planner).swept((0.0, 0.0, -CONFIG.execution.pregrasp_offset_m))
     directions = DOP_DIRECTIONS
     arguments = (directions, low, high, 0.003, 20 * low.numel() * 300)
     mixed = hand_clearance(points, probes, object_index, centre, rotation, *arguments)
+    separation = _dense_separation(points, object_index, centre, rotation, directions, low, high)
     for index in (0, 1):
         alone = hand_clearance(points[index:index + 1], probes[index:index + 1], torch.zeros(200, dtype=torch.int64),
                                centre[index::2], rotation[index::2], *arguments)
-        assert torch.equal(mixed.blocked[index::2], alone.blocked)
-        assert torch.equal(mixed.clearance_m[index::2], alone.clearance_m)
-    dense = _dense_clearance(points, object_index, centre, rotation, directions, low, high)
-    assert torch.equal(mixed.blocked, dense < 0.003)
-    assert torch.equal(mixed.clearance_m[~mixed.blocked], dense[~mixed.blocked])
-    assert mixed.blocked.any() and not mixed.blocked.all()
+        _assert_meets_the_contract(alone, separation[index::2], 0.003)
+    _assert_meets_the_contract(mixed, separation, 0.003)
+
+
+@pytest.mark.parametrize("probe_stride", [1, 7, 300])
+def test_any_probe_subset_gives_the_exact_verdicts_and_unblocked_clearances(probe_stride):
+    """The probes only find blocking points early: every point's, a coarse subset's or a single
+    point's probes all leave ``blocked`` and the unblocked clearances exact."""
+    points, object_index, centre, rotation = _two_scenes(torch.Generator().manual_seed(11))
+    low, high = hand_geometry(CONFIG.planner).swept((0.0, 0.0, -CONFIG.execution.pregrasp_offset_m))
+    swept = hand_clearance(points, points[:, ::probe_stride], object_index, centre, rotation, DOP_DIRECTIONS, low, high, 0.003,
+                           20 * low.numel() * 300)
+    _assert_meets_the_contract(swept, _dense_separation(points, object_index, centre, rotation, DOP_DIRECTIONS, low, high), 0.003)
