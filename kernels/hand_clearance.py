@@ -22,7 +22,6 @@ from typing import NamedTuple
 
 import torch
 
-
 # Runs of consecutive probe points (a coarse voxel subset, so roughly regions of the scene) whose
 # least-bound probe has its exact separation evaluated first: a blocked grasp almost always has
 # one of them under the margin. Four such probes were measured faster over a plan's checks than
