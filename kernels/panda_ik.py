@@ -57,7 +57,9 @@ class PandaArmGeometry(NamedTuple):
 class PandaIKSolutions(NamedTuple):
     """All closed-form solutions for N targets, K q7 samples and ``N_BRANCHES`` branches."""
 
-    joints: torch.Tensor  # (N, K, 8, 7) arm joints, radians (meaningless where not valid)
+    # (N, K, 8, 7) arm joints, radians (meaningless where not valid), a view of a (7, N, K, 8)
+    # tensor: each joint's values are contiguous.
+    joints: torch.Tensor
     valid: torch.Tensor  # (N, K, 8) bool: a real solution with every joint inside the limits
 
 
@@ -149,12 +151,15 @@ def panda_ik_closed_form(
     valid = q1_inside & q2_inside & q3_inside & arm_ok[..., None] & q7_inside[..., None, None, None]
 
     shape = q1.shape
+    # Stacked joint-major: seven contiguous copies, where stacking along a last axis of 7
+    # writes every value with a stride of 7 (several times slower).
     joints = torch.stack(
         (q1, q2, q3, q4[..., None, None].expand(shape), q5[..., None].expand(shape), q6[..., None].expand(shape),
          q7[..., None, None, None].expand(shape)),
-        dim=-1,
     )
-    return PandaIKSolutions(joints=joints.reshape(n_targets, n_q7, N_BRANCHES, 7), valid=valid.reshape(n_targets, n_q7, N_BRANCHES))
+    return PandaIKSolutions(
+        joints=joints.reshape(7, n_targets, n_q7, N_BRANCHES).permute(1, 2, 3, 0), valid=valid.reshape(n_targets, n_q7, N_BRANCHES)
+    )
 
 
 def wrist_in_reach(rotation_link7: torch.Tensor, position_link7: torch.Tensor, geometry: PandaArmGeometry) -> torch.Tensor:
