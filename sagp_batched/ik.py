@@ -72,7 +72,7 @@ class ChainFrames:
 
     names: tuple[str, ...]  # every frame, base first, fixed ones included
     chain: SerialChain
-    joint_frames: tuple[int, ...]  # the frame each joint turns
+    joint_frames: torch.Tensor  # (J,) int64: the frame each joint turns
     axes: torch.Tensor  # (J, 3) joint axes in their frames
 
     @classmethod
@@ -93,7 +93,9 @@ class ChainFrames:
         joint_frames = tuple(moving.index(name) for name in joint_names)
         axes = torch.stack([frames[index].joint.axis for index in joint_frames])
         joint_of_frame = tuple(-1 if name is None else joint_names.index(name) for name in moving)
-        return cls(names=names, chain=serial_chain(torch.stack(offsets), joint_of_frame, axes), joint_frames=joint_frames, axes=axes)
+        return cls(
+            names=names, chain=serial_chain(torch.stack(offsets), joint_of_frame, axes), joint_frames=torch.tensor(joint_frames), axes=axes
+        )
 
     def poses(self, joints: torch.Tensor) -> torch.Tensor:
         """(F, 3, 4, M) every frame's pose in the chain's base frame at (M, J) ``joints``, as rows
