@@ -224,6 +224,7 @@ def _shoulder_angles(
     q2_magnitude = torch.acos(r22.clamp(-1.0, 1.0))
     q1_up, q3_up = torch.atan2(r12, r02), torch.atan2(r21, -r20)
     # sin q2 = 0 leaves only q1 + q3 (R03 = Rz(q1 + q3); q2 = pi lies outside the Panda's limits).
+    q1_down, q3_down = _wrap(q1_up + math.pi), _wrap(q3_up + math.pi)
     aligned = torch.sin(q2_magnitude) < 1e-6  # beyond it atan2 of the O(1e-16) entries is noise
     if aligned.any():
         x, y, z = cos5 * cos4, -sin5 * cos4, -sin4  # Rz(-q5) Ry(q4) e_x
@@ -232,8 +233,9 @@ def _shoulder_angles(
         r10 = x * x6[..., 1, None, None] + y * y6[..., 1, None, None] + z * z6[..., 1, None, None]
         half_sum = 0.5 * torch.atan2(r10, r00)
         q1_up, q3_up = torch.where(aligned, half_sum, q1_up), torch.where(aligned, half_sum, q3_up)
-    shoulder_down = aligned[..., None] & torch.tensor([False, True], device=aligned.device)  # the "down" branch repeats the aligned solution
-    q1 = torch.where(shoulder_down, q1_up[..., None], _wrap(torch.stack((q1_up, q1_up + math.pi), dim=-1)))
-    q3 = torch.where(shoulder_down, q3_up[..., None], _wrap(torch.stack((q3_up, q3_up + math.pi), dim=-1)))
-    q2 = torch.stack((q2_magnitude, -q2_magnitude), dim=-1)  # (N, K, 2, 2, 2)
+        # The "down" branch repeats the aligned solution.
+        q1_down, q3_down = torch.where(aligned, q1_up, q1_down), torch.where(aligned, q3_up, q3_down)
+    q1 = torch.stack((_wrap(q1_up), q1_down), dim=-1)  # (N, K, 2, 2, 2)
+    q3 = torch.stack((_wrap(q3_up), q3_down), dim=-1)
+    q2 = torch.stack((q2_magnitude, -q2_magnitude), dim=-1)
     return q1, q2, q3
