@@ -57,7 +57,9 @@ class PandaArmGeometry(NamedTuple):
 class PandaIKSolutions(NamedTuple):
     """All closed-form solutions for N targets, K q7 samples and ``N_BRANCHES`` branches."""
 
-    joints: torch.Tensor  # (N, K, 8, 7) arm joints, radians (meaningless where not valid)
+    # (N, K, 8, 7) arm joints, radians (meaningless where not valid), a view of a (7, N, K, 8)
+    # tensor: each joint's values are contiguous.
+    joints: torch.Tensor
     valid: torch.Tensor  # (N, K, 8) bool: a real solution with every joint inside the limits
 
 
@@ -67,8 +69,15 @@ def _wrap(angle: torch.Tensor) -> torch.Tensor:
 
 
 def _into_limits(angle: torch.Tensor, lower: float, upper: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """``angle`` (radians in [-pi, pi), any shape) shifted by 2 pi where that brings it inside
-    [lower, upper], and a same-shape bool mask of angles inside the limits."""
+    """``angle`` (radians in [-pi, pi], any shape) shifted by 2 pi where that brings it inside
+    [lower, upper], and a same-shape bool mask of angles inside the limits.
+
+    Only limits reaching beyond +-pi (joint 6's) can take in a shifted angle: for any others
+    ``angle`` is returned as it is, the shift would leave every angle it moves outside, where
+    its value is of no use (four of every six operations, over the closed form's largest tensors).
+    """
+    if -math.pi < lower and upper < math.pi:
+        return angle, (angle >= lower) & (angle <= upper)
     two_pi = 2.0 * math.pi
     shifted = torch.where(angle < lower, angle + two_pi, torch.where(angle > upper, angle - two_pi, angle))
     return shifted, (shifted >= lower) & (shifted <= upper)
@@ -149,12 +158,15 @@ def panda_ik_closed_form(
     valid = q1_inside & q2_inside & q3_inside & arm_ok[..., None] & q7_inside[..., None, None, None]
 
     shape = q1.shape
+    # Stacked joint-major: seven contiguous copies, where stacking along a last axis of 7
+    # writes every value with a stride of 7 (several times slower).
     joints = torch.stack(
         (q1, q2, q3, q4[..., None, None].expand(shape), q5[..., None].expand(shape), q6[..., None].expand(shape),
          q7[..., None, None, None].expand(shape)),
-        dim=-1,
     )
-    return PandaIKSolutions(joints=joints.reshape(n_targets, n_q7, N_BRANCHES, 7), valid=valid.reshape(n_targets, n_q7, N_BRANCHES))
+    return PandaIKSolutions(
+        joints=joints.reshape(7, n_targets, n_q7, N_BRANCHES).permute(1, 2, 3, 0), valid=valid.reshape(n_targets, n_q7, N_BRANCHES)
+    )
 
 
 def wrist_in_reach(rotation_link7: torch.Tensor, position_link7: torch.Tensor, geometry: PandaArmGeometry) -> torch.Tensor:
@@ -212,6 +224,7 @@ def _shoulder_angles(
     q2_magnitude = torch.acos(r22.clamp(-1.0, 1.0))
     q1_up, q3_up = torch.atan2(r12, r02), torch.atan2(r21, -r20)
     # sin q2 = 0 leaves only q1 + q3 (R03 = Rz(q1 + q3); q2 = pi lies outside the Panda's limits).
+    q1_down, q3_down = _wrap(q1_up + math.pi), _wrap(q3_up + math.pi)
     aligned = torch.sin(q2_magnitude) < 1e-6  # beyond it atan2 of the O(1e-16) entries is noise
     if aligned.any():
         x, y, z = cos5 * cos4, -sin5 * cos4, -sin4  # Rz(-q5) Ry(q4) e_x
@@ -220,8 +233,9 @@ def _shoulder_angles(
         r10 = x * x6[..., 1, None, None] + y * y6[..., 1, None, None] + z * z6[..., 1, None, None]
         half_sum = 0.5 * torch.atan2(r10, r00)
         q1_up, q3_up = torch.where(aligned, half_sum, q1_up), torch.where(aligned, half_sum, q3_up)
-    shoulder_down = aligned[..., None] & torch.tensor([False, True], device=aligned.device)  # the "down" branch repeats the aligned solution
-    q1 = torch.where(shoulder_down, q1_up[..., None], _wrap(torch.stack((q1_up, q1_up + math.pi), dim=-1)))
-    q3 = torch.where(shoulder_down, q3_up[..., None], _wrap(torch.stack((q3_up, q3_up + math.pi), dim=-1)))
-    q2 = torch.stack((q2_magnitude, -q2_magnitude), dim=-1)  # (N, K, 2, 2, 2)
+        # The "down" branch repeats the aligned solution.
+        q1_down, q3_down = torch.where(aligned, q1_up, q1_down), torch.where(aligned, q3_up, q3_down)
+    q1 = torch.stack((_wrap(q1_up), q1_down), dim=-1)  # (N, K, 2, 2, 2)
+    q3 = torch.stack((_wrap(q3_up), q3_down), dim=-1)
+    q2 = torch.stack((q2_magnitude, -q2_magnitude), dim=-1)
     return q1, q2, q3

@@ -89,12 +89,14 @@ def serial_chain_frames(joints: torch.Tensor, chain: SerialChain) -> torch.Tenso
     return frames
 
 
-def geometric_jacobian(frames: torch.Tensor, joint_frames: tuple[int, ...], axes: torch.Tensor, end_frame: int) -> torch.Tensor:
+def geometric_jacobian(frames: torch.Tensor, joint_frames: torch.Tensor, axes: torch.Tensor, end_frame: int) -> torch.Tensor:
     """The geometric Jacobian of a chain's end frame, base frame, from its frames' poses.
 
     Args:
         frames: (F, 3, 4, B) frame poses in the base frame (``serial_chain_frames``).
-        joint_frames: J frame indices, the frame each revolute joint turns.
+        joint_frames: (J,) int64 frame indices, the frame each revolute joint turns (a tensor: the
+            damped-least-squares steps that call this every iteration would otherwise convert a
+            list each time).
         axes: (J, 3) unit joint axes, each in its own frame.
         end_frame: index of the end frame.
 
@@ -102,7 +104,7 @@ def geometric_jacobian(frames: torch.Tensor, joint_frames: tuple[int, ...], axes
         (B, 6, J): rows 0-2 the end frame origin's linear velocity (m/rad), rows 3-5 its
         angular velocity, per unit joint velocity.
     """
-    joint = frames[list(joint_frames)]  # (J, 3, 4, B)
+    joint = frames[joint_frames]  # (J, 3, 4, B)
     axis_base = (joint[:, :, :3] * axes.to(frames.dtype)[:, None, :, None]).sum(dim=2)  # (J, 3, B)
     lever = frames[end_frame, None, :, 3] - joint[:, :, 3]
     linear = torch.linalg.cross(axis_base, lever, dim=1)

@@ -72,7 +72,7 @@ class ChainFrames:
 
     names: tuple[str, ...]  # every frame, base first, fixed ones included
     chain: SerialChain
-    joint_frames: tuple[int, ...]  # the frame each joint turns
+    joint_frames: torch.Tensor  # (J,) int64: the frame each joint turns
     axes: torch.Tensor  # (J, 3) joint axes in their frames
 
     @classmethod
@@ -93,7 +93,9 @@ class ChainFrames:
         joint_frames = tuple(moving.index(name) for name in joint_names)
         axes = torch.stack([frames[index].joint.axis for index in joint_frames])
         joint_of_frame = tuple(-1 if name is None else joint_names.index(name) for name in moving)
-        return cls(names=names, chain=serial_chain(torch.stack(offsets), joint_of_frame, axes), joint_frames=joint_frames, axes=axes)
+        return cls(
+            names=names, chain=serial_chain(torch.stack(offsets), joint_of_frame, axes), joint_frames=torch.tensor(joint_frames), axes=axes
+        )
 
     def poses(self, joints: torch.Tensor) -> torch.Tensor:
         """(F, 3, 4, M) every frame's pose in the chain's base frame at (M, J) ``joints``, as rows
@@ -218,7 +220,7 @@ class PandaIK:
         near_limit = self._limit_margin(candidates) < required_margin[:, None]
         # Squared joint distances stay under 7 (2 pi)^2 < 300: the offset ranks every solution
         # clear of the limits before any near them.
-        rank_key = (candidates - preferred[:, None]).square().sum(dim=-1) + 300.0 * near_limit
+        rank_key = _squared_distances(candidates, preferred) + 300.0 * near_limit
         nearest = rank_key.masked_fill(~valid, float("inf")).argmin(dim=1)
         return candidates[torch.arange(len(candidates)), nearest], valid.any(dim=1)
 
@@ -230,8 +232,16 @@ class PandaIK:
         return rotation_link7, position_link7
 
     def _limit_margin(self, joints: torch.Tensor) -> torch.Tensor:
-        """(...) smallest distance (rad) of any joint of (..., 7) ``joints`` from its limits."""
-        return torch.minimum(joints - self.lower.to(joints.dtype), self.upper.to(joints.dtype) - joints).amin(dim=-1)
+        """(...) smallest distance (rad) of any joint of (..., 7) ``joints`` from its limits.
+
+        Joint by joint (the minimum is exact in any order): on the closed form's joint-major
+        candidates each joint's values are contiguous, and the temporaries a seventh of the size.
+        """
+        margin = None
+        for joint, lower, upper in zip(joints.unbind(-1), self.lower.tolist(), self.upper.tolist()):
+            gap = torch.minimum(joint - lower, upper - joint)
+            margin = gap if margin is None else torch.minimum(margin, gap, out=margin)
+        return margin
 
     def solve(
         self,
@@ -373,7 +383,7 @@ class PandaIK:
                 rotation_link7, position_link7, start[:, 6:].double(), self.arm_geometry, self.lower, self.upper
             )
             branches, valid = solutions.joints[:, 0], solutions.valid[:, 0]  # (M, 8, 7), (M, 8)
-            distance = (branches - start.double()[:, None]).square().sum(dim=-1).masked_fill(~valid, float("inf"))
+            distance = _squared_distances(branches, start.double()).masked_fill(~valid, float("inf"))
             nearest = branches[torch.arange(len(branches)), distance.argmin(dim=1)].to(torch.float32)
             found = valid.any(dim=1)
             joints = torch.where(found[:, None], torch.minimum(torch.maximum(nearest, self.lower), self.upper), start)
@@ -403,6 +413,18 @@ def panda_ik(config: Config) -> PandaIK:
     """The ``PandaIK`` of this configuration, built once per distinct planner and base settings
     and shared by planning and execution."""
     return _cached_ik(astuple(config.planner), tuple(config.scene.robot_base_xyz_m))
+
+
+def _squared_distances(candidates: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """(M, C) squared joint-space distances of (M, C, 7) ``candidates`` from (M, 7) ``reference``.
+
+    The differences are summed from a contiguous (M, C, 7) tensor whatever ``candidates``' own
+    layout (the closed form's is joint-major): torch's sum of a row of 7 is no left-to-right sum,
+    and a sum over another layout takes another order, so could round differently.
+    """
+    offsets = torch.empty(candidates.shape, dtype=candidates.dtype)
+    torch.sub(candidates, reference[:, None], out=offsets)
+    return offsets.square_().sum(dim=-1)
 
 
 def _errors_of_pose(pose: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
