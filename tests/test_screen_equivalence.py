@@ -96,6 +96,23 @@ def test_the_table_check_decides_every_pose_as_checking_every_hull_point_does(yc
     assert 0.05 < through.float().mean() < 0.95
 
 
+@pytest.mark.parametrize("shift_m", [(0.0, 0.0, 0.0), (30.0, -20.0, 10.0)])
+def test_the_table_check_decides_poses_whose_lowest_point_lies_exactly_at_the_table_top_as_every_point_does(ycb_clouds, shift_m):
+    """Table tops equal to some poses' exact lowest heights (at the grasp or the pre-grasp), where
+    the verdict turns on equality, also with the scene moved far from the origin."""
+    screened = screen_candidates([ycb_clouds["025_mug"]], CONFIG, [0])
+    hand = hand_geometry(CONFIG.planner)
+    centre, rotation = screened.centre_world + torch.tensor(shift_m), screened.rotation_world
+    retreat = CONFIG.execution.pregrasp_offset_m
+    for links in (PANDA.finger_links, tuple(n for n in hand.links if n not in PANDA.finger_links)):
+        points = hand.vertices(links)
+        lowest = (centre[:, 2, None, None] + rotation[..., 2, :] @ points.T).amin(dim=-1)
+        heights = torch.cat((lowest.flatten()[::997], (lowest - retreat * rotation[..., 2, 2]).flatten()[::997]))
+        for table_z in heights.tolist():
+            through = table_penetration(centre, rotation, points, retreat, table_z)
+            assert torch.equal(through, dense_table_penetration(centre, rotation, points, retreat, table_z))
+
+
 def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window_round_at_a_time_returns(ycb_clouds, monkeypatch):
     """``plan_batch`` with its lookahead blocks and culled hand check, against the same planner
     screening exactly the window's unscreened candidates per round with the dense hand check."""
