@@ -36,6 +36,10 @@ VOLUME_SLACK_M = 2e-5
 # at 5,000 and at 500,000 pairs, blocks of 32k to 256k pairs took ever less time (fewer Python
 # rounds), the plans' chunk_elements capping them here.
 VOLUME_BLOCK_ELEMENTS = 262_144
+# Poses whose heights of hand points the table check takes from one GEMM: the heights (~1 MB for
+# the 32-point cover) stay in cache for the minimum that follows (at 500,000 pairs one GEMM over
+# every pose of a block of candidates made the check ~4x slower); 4,096 to 16,384 measured alike.
+TABLE_BLOCK_POSES = 8192
 # Points that bound a pose's lowest hand point for the table check: 32 of the hand's 204 hull
 # vertices cover every vertex within 2.5 cm, leaving ~10 % of a cloud's poses to check on all.
 TABLE_COVER_POINTS = 32
@@ -320,8 +324,7 @@ def table_penetration(
     # exhaustive check, so every verdict is bit-for-bit the exhaustive one; the slack absorbs the
     # bounds' float32 rounding.
     subset, reach = table_cover(points) if cover is None else cover
-    # amin, not min: min also finds the indices, which made it several times slower.
-    upper = centre[:, 2, None] + (row_z @ points[subset].T).amin(dim=-1)
+    upper = centre[:, 2, None] + _lowest_along(row_z, points[subset])
     lower = upper - reach
     through = (upper < table_top_z_m - TABLE_BOUND_SLACK_M) | (upper - drop < table_top_z_m - TABLE_BOUND_SLACK_M)
     clear = (lower >= table_top_z_m + TABLE_BOUND_SLACK_M) & (lower - drop >= table_top_z_m + TABLE_BOUND_SLACK_M)
@@ -332,11 +335,24 @@ def table_penetration(
     padded_slots = torch.cat((slots, slots.new_zeros(max(0, 8 - slots.numel()))))
     # Rounding is monotonic, so adding the centre's height to the lowest of the GEMM's heights
     # gives the lowest of the heights with it added, bit for bit, at one addition per pose.
-    lowest_grasp = centre[poses, 2] + (row_z[padded, padded_slots] @ points.T).amin(dim=-1)[: poses.numel()]
+    lowest_grasp = centre[poses, 2] + _lowest_along(row_z[padded, padded_slots], points)[: poses.numel()]
     # Retreating along -approach changes every point's height by -retreat * approach_z.
     lowest_pregrasp = lowest_grasp - drop[poses, slots]
     through[poses, slots] = (lowest_grasp < table_top_z_m) | (lowest_pregrasp < table_top_z_m)
     return through
+
+
+def _lowest_along(directions: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """(...) the least of (M, 3) ``points``' heights along each of (..., 3) ``directions``: the
+    minima of ``directions @ points.T``, in near-equal GEMMs of at most ``TABLE_BLOCK_POSES``
+    directions and at least half as many unless there are fewer in all: never the fewer than 4
+    rows that MKL rounds otherwise, so each height rounds as in one GEMM over every direction."""
+    n_blocks = -(-directions[..., 0].numel() // TABLE_BLOCK_POSES)
+    # amin, not min: min also finds the indices, which made it several times slower.
+    if n_blocks <= 1:  # most calls: no split and concatenation, ~10 us each
+        return (directions @ points.T).amin(dim=-1)
+    blocks = directions.reshape(-1, 3).tensor_split(n_blocks)
+    return torch.cat([(block @ points.T).amin(dim=1) for block in blocks]).view(directions.shape[:-1])
 
 
 def table_cover(points: torch.Tensor) -> tuple[torch.Tensor, float]:
