@@ -250,9 +250,10 @@ def _count_bounds(
     and each pose's finger slabs' middle and half extent along |y| (p, 1); ``coordinates`` and
     ``scratch`` (2, p, N) are overwritten."""
     # Excess over each box (> 0 outside, <= 0 inside), then over the gripper, all raised by the
-    # finger slabs' half width so that their |x| test needs no subtraction. Near the thresholds
-    # the excesses are under ~0.3 m, so the raised constants change their rounding by ~2e-8 m at
-    # most: far inside the half of the slack that the coordinates' own rounding leaves spare.
+    # finger slabs' half width so that their |x| test needs no subtraction. For points near the
+    # thresholds every value on the way lies under ~0.3 m, so each of the few roundings there errs
+    # by at most 2^-24 * 0.3 m ~ 2e-8 m, raised or not: far inside the half of the slack (1e-5 m)
+    # that the coordinates' own rounding leaves spare.
     raise_m = geometry.finger_width_m / 2
     abs_x, abs_y, z = coordinates.unbind(dim=1)
     finger, palm_z = scratch
