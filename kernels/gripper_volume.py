@@ -36,6 +36,10 @@ VOLUME_SLACK_M = 2e-5
 # at 5,000 and at 500,000 pairs, blocks of 32k to 256k pairs took ever less time (fewer Python
 # rounds), the plans' chunk_elements capping them here.
 VOLUME_BLOCK_ELEMENTS = 262_144
+# Poses whose heights of hand points the table check takes from one GEMM: the heights (~1 MB for
+# the 32-point cover) stay in cache for the minimum that follows (at 500,000 pairs one GEMM over
+# every pose of a block of candidates made the check ~4x slower); 4,096 to 16,384 measured alike.
+TABLE_BLOCK_POSES = 8192
 # Points that bound a pose's lowest hand point for the table check: 32 of the hand's 204 hull
 # vertices cover every vertex within 2.5 cm, leaving ~10 % of a cloud's poses to check on all.
 TABLE_COVER_POINTS = 32
@@ -245,23 +249,28 @@ def _count_bounds(
     grasp-frame x, y and z (``coordinates`` (p, 3, N), z measured from the finger slabs' middle)
     and each pose's finger slabs' middle and half extent along |y| (p, 1); ``coordinates`` and
     ``scratch`` (2, p, N) are overwritten."""
-    # Excess over each box (> 0 outside, <= 0 inside), then over the gripper.
+    # Excess over each box (> 0 outside, <= 0 inside), then over the gripper, all raised by the
+    # finger slabs' half width so that their |x| test needs no subtraction. For points near the
+    # thresholds every value on the way lies under ~0.3 m, so each of the few roundings there errs
+    # by at most 2^-24 * 0.3 m ~ 2e-8 m, raised or not: far inside the half of the slack (1e-5 m)
+    # that the coordinates' own rounding leaves spare.
+    raise_m = geometry.finger_width_m / 2
     abs_x, abs_y, z = coordinates.unbind(dim=1)
     finger, palm_z = scratch
     coordinates[:, :2].abs_()
-    torch.sub(abs_y, finger_y_mid, out=finger).abs_().sub_(finger_y_half)
-    torch.maximum(finger, torch.sub(abs_x, geometry.finger_width_m / 2, out=palm_z), out=finger)
-    torch.add(z, (geometry.finger_length_m + geometry.palm_depth_m) / 2, out=palm_z).abs_().sub_(geometry.palm_depth_m / 2)
-    torch.maximum(finger, z.abs_().sub_(geometry.finger_length_m / 2), out=finger)
-    palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2), abs_y.sub_(geometry.palm_span_m / 2), out=abs_x)
+    torch.sub(abs_y, finger_y_mid, out=finger).abs_().sub_(finger_y_half - raise_m)
+    torch.maximum(finger, abs_x, out=finger)
+    torch.add(z, (geometry.finger_length_m + geometry.palm_depth_m) / 2, out=palm_z).abs_().sub_(geometry.palm_depth_m / 2 - raise_m)
+    torch.maximum(finger, z.abs_().sub_(geometry.finger_length_m / 2 - raise_m), out=finger)
+    palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2 - raise_m), abs_y.sub_(geometry.palm_span_m / 2 - raise_m), out=abs_x)
     excess = torch.minimum(finger, torch.maximum(palm, palm_z, out=palm), out=finger)
     # A point inside by more than the slack is inside one box alone (they meet only at one
     # face); a point within the slack of a face may be inside, or inside both boxes at their
     # common face, so it may count once more: bounds inside +- uncertain, where inside counts
     # excess <= slack and uncertain |excess| <= slack, i.e. inside less those below -slack.
-    # Comparing in place into float32 0/1 and summing is several times faster than through bool.
-    inside = palm_z.copy_(excess).le_(VOLUME_SLACK_M).sum(dim=1)
-    surely = excess.lt_(-VOLUME_SLACK_M).sum(dim=1)
+    # Comparing into float32 0/1 and summing is several times faster than through bool.
+    inside = torch.le(excess, raise_m + VOLUME_SLACK_M, out=palm_z).sum(dim=1)
+    surely = excess.lt_(raise_m - VOLUME_SLACK_M).sum(dim=1)
     return 2 * inside - surely, surely
 
 
@@ -316,7 +325,7 @@ def table_penetration(
     # exhaustive check, so every verdict is bit-for-bit the exhaustive one; the slack absorbs the
     # bounds' float32 rounding.
     subset, reach = table_cover(points) if cover is None else cover
-    upper = centre[:, 2, None] + (row_z @ points[subset].T).min(dim=-1).values
+    upper = centre[:, 2, None] + _lowest_along(row_z, points[subset])
     lower = upper - reach
     through = (upper < table_top_z_m - TABLE_BOUND_SLACK_M) | (upper - drop < table_top_z_m - TABLE_BOUND_SLACK_M)
     clear = (lower >= table_top_z_m + TABLE_BOUND_SLACK_M) & (lower - drop >= table_top_z_m + TABLE_BOUND_SLACK_M)
@@ -325,12 +334,26 @@ def table_penetration(
     # rows keeps the exhaustive check's rounding.
     padded = torch.cat((poses, poses.new_zeros(max(0, 8 - poses.numel()))))
     padded_slots = torch.cat((slots, slots.new_zeros(max(0, 8 - slots.numel()))))
-    point_z = centre[padded, 2, None] + row_z[padded, padded_slots] @ points.T  # (R, M)
-    lowest_grasp = point_z.min(dim=-1).values[: poses.numel()]
+    # Rounding is monotonic, so adding the centre's height to the lowest of the GEMM's heights
+    # gives the lowest of the heights with it added, bit for bit, at one addition per pose.
+    lowest_grasp = centre[poses, 2] + _lowest_along(row_z[padded, padded_slots], points)[: poses.numel()]
     # Retreating along -approach changes every point's height by -retreat * approach_z.
     lowest_pregrasp = lowest_grasp - drop[poses, slots]
     through[poses, slots] = (lowest_grasp < table_top_z_m) | (lowest_pregrasp < table_top_z_m)
     return through
+
+
+def _lowest_along(directions: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """(...) the least of (M, 3) ``points``' heights along each of (..., 3) ``directions``: the
+    minima of ``directions @ points.T``, in near-equal GEMMs of at most ``TABLE_BLOCK_POSES``
+    directions and at least half as many unless there are fewer in all: never the fewer than 4
+    rows that MKL rounds otherwise, so each height rounds as in one GEMM over every direction."""
+    n_blocks = -(-directions[..., 0].numel() // TABLE_BLOCK_POSES)
+    # amin, not min: min also finds the indices, which made it several times slower.
+    if n_blocks <= 1:  # most calls: no split and concatenation, ~10 us each
+        return (directions @ points.T).amin(dim=-1)
+    blocks = directions.reshape(-1, 3).tensor_split(n_blocks)
+    return torch.cat([(block @ points.T).amin(dim=1) for block in blocks]).view(directions.shape[:-1])
 
 
 def table_cover(points: torch.Tensor) -> tuple[torch.Tensor, float]:

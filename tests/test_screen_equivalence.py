@@ -20,6 +20,7 @@ from sagp_batched.hand import DOP_DIRECTIONS
 from sagp_batched.robot import PANDA
 from sagp_batched import planner
 from sagp_batched.planner import ScreenedCandidates, _MotionVerdicts, _ScreenVerdicts, gripper_geometry, hand_geometry, plan_batch, screen_candidates
+from sagp_batched_kernels import gripper_volume
 from sagp_batched_kernels.gripper_volume import table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance
 
@@ -94,6 +95,25 @@ def test_the_table_check_decides_every_pose_as_checking_every_hull_point_does(yc
             through = table_penetration(centre, rotation, points, CONFIG.execution.pregrasp_offset_m, float(table_z))
             assert torch.equal(through, dense_table_penetration(centre, rotation, points, CONFIG.execution.pregrasp_offset_m, float(table_z)))
     assert 0.05 < through.float().mean() < 0.95
+
+
+@pytest.mark.parametrize(("shift_m", "block_poses"), [((0.0, 0.0, 0.0), gripper_volume.TABLE_BLOCK_POSES), ((30.0, -20.0, 10.0), 13)])
+def test_the_table_check_decides_poses_whose_lowest_point_lies_exactly_at_the_table_top_as_every_point_does(ycb_clouds, monkeypatch, shift_m, block_poses):
+    """Table tops equal to some poses' exact lowest heights (at the grasp or the pre-grasp), where
+    the verdict turns on equality, also with the scene moved far from the origin and with GEMMs of
+    a few poses each."""
+    monkeypatch.setattr(gripper_volume, "TABLE_BLOCK_POSES", block_poses)
+    screened = screen_candidates([ycb_clouds["025_mug"]], CONFIG, [0])
+    hand = hand_geometry(CONFIG.planner)
+    centre, rotation = screened.centre_world + torch.tensor(shift_m), screened.rotation_world
+    retreat = CONFIG.execution.pregrasp_offset_m
+    for links in (PANDA.finger_links, tuple(n for n in hand.links if n not in PANDA.finger_links)):
+        points = hand.vertices(links)
+        lowest = (centre[:, 2, None, None] + rotation[..., 2, :] @ points.T).amin(dim=-1)
+        heights = torch.cat((lowest.flatten()[::997], (lowest - retreat * rotation[..., 2, 2]).flatten()[::997]))
+        for table_z in heights.tolist():
+            through = table_penetration(centre, rotation, points, retreat, table_z)
+            assert torch.equal(through, dense_table_penetration(centre, rotation, points, retreat, table_z))
 
 
 def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window_round_at_a_time_returns(ycb_clouds, monkeypatch):
