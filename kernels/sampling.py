@@ -89,7 +89,7 @@ def sample_guided_pair_indices(
     if n_points * (n_points - 1) < min(n_pairs * n_proposals, QUALITY_TABLE_MAX_ENTRIES + 1):
         table = _proposal_quality_table(points, normals, min_width_m, max_width_m).view(-1)
     block_pairs = max(1, min(chunk_pairs, n_pairs, SCORE_BLOCK_ELEMENTS // n_proposals))
-    work = _ScoreWork(block_pairs, n_proposals, points.dtype) if table is None else None
+    work = _ScoreWork(block_pairs * n_proposals, points.dtype) if table is None else None
     for start in range(0, n_pairs, chunk_pairs):
         chunk_anchor = first[start : start + chunk_pairs]
         # Same skip trick as sample_pair_indices: distinct from the anchor without rejection.
@@ -112,14 +112,30 @@ def sample_guided_pair_indices(
 def _proposal_quality_table(points: torch.Tensor, normals: torch.Tensor, min_width_m: float, max_width_m: float) -> torch.Tensor:
     """(N, N - 1) ``_proposal_quality`` of every anchor (row) with every proposal as drawn (column
     j is point j + (j >= anchor), the sampler's skip), by the same elementwise arithmetic: each
-    entry is bit for bit the value scoring that proposal gives."""
+    entry is bit for bit the value scoring that proposal gives, but for the sign of a coincident
+    pair's zero quality (in reach only when ``min_width_m`` is 0)."""
     n_points = points.shape[0]
-    rows_per_block = max(1, SCORE_BLOCK_ELEMENTS // n_points)
-    work = _ScoreWork(rows_per_block, n_points, points.dtype)
+    work = _ScoreWork(max(SCORE_BLOCK_ELEMENTS, n_points), points.dtype)
     table = torch.empty(n_points, n_points, dtype=points.dtype)
-    for start in range(0, n_points, rows_per_block):
-        anchor = torch.arange(start, min(start + rows_per_block, n_points))
-        table[start : start + anchor.shape[0]] = _proposal_quality(points, normals, anchor, None, work, min_width_m, max_width_m)
+    start = 0
+    while start < n_points:
+        # Only the upper triangle is scored, then mirrored (two thirds of the time to score every
+        # pair): swapping anchor and proposal negates the offset exactly (IEEE subtraction is
+        # antisymmetric), so the width is the same and the axis exactly negated, and the two
+        # contact cosines swap exactly (negation commutes with rounding), so min(cos_i, cos_j) is
+        # the same bits. Coincident points (offset +0 both ways) are the one exception: in reach
+        # only when min_width_m is 0, their zero quality may come out -0.0 one way, +0.0 the
+        # other, which compare equal, so the argmax over proposals is the same.
+        rows = max(1, SCORE_BLOCK_ELEMENTS // (n_points - start))
+        end = min(start + rows, n_points)
+        # Scoring the cloud from ``start`` on with its first rows as anchors proposes columns
+        # start..N-1 by broadcasting.
+        block = _proposal_quality(
+            points[start:], normals[start:], torch.arange(end - start), None, work, min_width_m, max_width_m
+        )
+        table[start:end, start:] = block
+        table[start:, start:end] = block.T
+        start = end
     # Each row without its diagonal entry, in order: the skip's columns.
     return table.view(-1)[1:].view(n_points - 1, n_points + 1)[:, :-1].reshape(n_points, n_points - 1)
 
@@ -150,7 +166,8 @@ def _proposal_quality(
     """(B, K) antipodal quality of proposals (B, K) for anchors (B,), -inf out of reach, scored in ``work``
     (the returned tensor is one of its work tensors). ``proposal`` None proposes every point, in
     order (K = N), taken by broadcasting instead of gathers."""
-    gathered, offset, width, cos_i, cos_j, term, out_of_reach, beyond = work.cut(anchor.shape[0])
+    n_proposed = points.shape[0] if proposal is None else proposal.shape[1]
+    gathered, offset, width, cos_i, cos_j, term, out_of_reach, beyond = work.cut(anchor.shape[0], n_proposed)
     flat = None if proposal is None else proposal.reshape(-1)
 
     def proposed(values: torch.Tensor) -> torch.Tensor:
@@ -172,20 +189,21 @@ def _proposal_quality(
 
 
 class _ScoreWork:
-    """The guided sampler's work tensors for blocks of up to ``pairs`` pairs of ``proposals`` proposals."""
+    """The guided sampler's work tensors for blocks of up to ``elements`` (pair, proposal) combinations."""
 
-    def __init__(self, pairs: int, proposals: int, dtype: torch.dtype):
-        self.pairs = pairs
+    def __init__(self, elements: int, dtype: torch.dtype):
         self.tensors = (
-            torch.empty(pairs * proposals, 3, dtype=dtype),  # gathered points, then normals
-            torch.empty(pairs, proposals, 3, dtype=dtype),  # offsets, then closing axes
-            *(torch.empty(pairs, proposals, dtype=dtype) for _ in range(4)),  # widths, cos_i, cos_j, a product
-            *(torch.empty(pairs, proposals, dtype=torch.bool) for _ in range(2)),  # out of reach, beyond
+            torch.empty(elements, 3, dtype=dtype),  # gathered points, then normals
+            torch.empty(elements, 3, dtype=dtype),  # offsets, then closing axes
+            *(torch.empty(elements, dtype=dtype) for _ in range(4)),  # widths, cos_i, cos_j, a product
+            *(torch.empty(elements, dtype=torch.bool) for _ in range(2)),  # out of reach, beyond
         )
 
-    def cut(self, pairs: int) -> tuple[torch.Tensor, ...]:
-        """The work tensors cut to a block of ``pairs`` pairs."""
-        return tuple(tensor[: tensor.shape[0] * pairs // self.pairs] for tensor in self.tensors)
+    def cut(self, pairs: int, proposals: int) -> tuple[torch.Tensor, ...]:
+        """The work tensors cut to a block of ``pairs`` pairs of ``proposals`` proposals: the
+        gathered rows flat (pairs * proposals, 3), the others (pairs, proposals, ...)."""
+        gathered, *rest = (tensor[: pairs * proposals] for tensor in self.tensors)
+        return (gathered, *(tensor.view(pairs, proposals, *tensor.shape[1:]) for tensor in rest))
 
 
 def _dot(vectors: torch.Tensor, axis: torch.Tensor, out: torch.Tensor, term: torch.Tensor) -> torch.Tensor:

@@ -131,3 +131,27 @@ def test_proposals_read_from_the_quality_table_give_the_pairs_scoring_each_propo
     assert torch.equal(from_table, scored)
     assert torch.equal(table_state, torch.rand(4, generator=generator))
     assert (from_table[:, 0] != from_table[:, 1]).all()
+
+
+@pytest.mark.parametrize("min_width_m", [PLANNER.min_width_m, 0.0])
+def test_quality_table_scored_on_one_triangle_equals_scoring_every_pair(monkeypatch, min_width_m):
+    from sagp_batched_kernels import sampling
+
+    generator = torch.Generator().manual_seed(5)
+    # Points over 0.2 m, so many pairs are out of reach, with a few coincident points.
+    points = torch.rand(300, 3, generator=generator) * 0.2
+    points[::37] = points[1]
+    normals = torch.nn.functional.normalize(torch.randn(300, 3, generator=generator), dim=1)
+    # Blocks of a few rows, growing as the rows shorten: the mirrored blocks must tile the table.
+    monkeypatch.setattr(sampling, "SCORE_BLOCK_ELEMENTS", 1000)
+    table = sampling._proposal_quality_table(points, normals, min_width_m, PLANNER.max_width_m)
+    everything = torch.arange(len(points))
+    full = sampling._proposal_quality(
+        points, normals, everything, None, sampling._ScoreWork(len(points) ** 2, points.dtype), min_width_m, PLANNER.max_width_m
+    )
+    expected = full[~torch.eye(len(points), dtype=torch.bool)].view(len(points), len(points) - 1)
+    # Bit for bit, except that a coincident pair's zero quality (in reach when the minimum width
+    # is 0) may swap sign: -0.0 and 0.0 compare equal, so the sampler's argmax is unchanged.
+    assert torch.equal(table, expected)
+    if min_width_m > 0:
+        assert torch.equal(table.view(torch.int32), expected.view(torch.int32))
