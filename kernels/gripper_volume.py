@@ -70,6 +70,21 @@ class GripperGeometry(NamedTuple):
     palm_depth_m: float
     contact_clearance_m: float
 
+    @property
+    def finger_y_max(self) -> float:
+        """Outer |y| of the finger slabs: the open finger's back face."""
+        return self.open_width_m / 2 + self.finger_thickness_m
+
+    @property
+    def finger_z_min(self) -> float:
+        """The finger root along z, where the fingers meet the palm."""
+        return self.fingertip_offset_m - self.finger_length_m
+
+    @property
+    def palm_z_min(self) -> float:
+        """The palm's back face along z."""
+        return self.finger_z_min - self.palm_depth_m
+
 
 def gripper_occupancy(
     points: torch.Tensor,
@@ -107,10 +122,8 @@ def gripper_occupancy(
     if poses is None:
         poses = torch.ones(n_candidates, n_approaches, dtype=torch.bool)
     n_points = points.shape[1]
-    finger_z_max = geometry.fingertip_offset_m
-    finger_z_min = finger_z_max - geometry.finger_length_m
-    palm_z_min = finger_z_min - geometry.palm_depth_m
-    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
+    finger_z_max, finger_z_min, palm_z_min = geometry.fingertip_offset_m, geometry.finger_z_min, geometry.palm_z_min
+    finger_y_max = geometry.finger_y_max
     finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
     palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
     finger_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
@@ -179,9 +192,7 @@ def gripper_occupancy_within(
         (C, K) bool: ``poses & (gripper_occupancy(...).total.to(float32) <= limit[:, None])``.
     """
     n_candidates, n_approaches = rotation.shape[:2]
-    finger_z_max = geometry.fingertip_offset_m
-    finger_z_min = finger_z_max - geometry.finger_length_m
-    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
+    finger_z_max, finger_z_min, finger_y_max = geometry.fingertip_offset_m, geometry.finger_z_min, geometry.finger_y_max
     pose_row, pose_slot = poses.nonzero(as_tuple=True)
     # Each pose's grasp axes as rows (R, 3, 3) and offsets -axis . centre (R, 3, 1), z measured
     # from the finger slabs' middle, and its finger slabs' middle and half extent along |y| (R, 1).
@@ -218,12 +229,10 @@ def gripper_occupancy_within(
 def _centre_reach_l1(geometry: GripperGeometry) -> float:
     """How far (L1, metres) from the world origin a grasp centre may lie for the volume verdict's
     coordinates to stay within half of ``VOLUME_SLACK_M`` of the exhaustive GEMM's."""
-    finger_y_max = geometry.open_width_m / 2 + geometry.finger_thickness_m
-    finger_z_min = geometry.fingertip_offset_m - geometry.finger_length_m
     # A point within the slack of a box has grasp-frame |local|_1 below reach_l1, so its world
     # offset from the centre has |p - c|_1 <= sqrt(3) |p - c|_2 <= sqrt(3) reach_l1 = near_l1.
-    reach_l1 = max(geometry.palm_width_m / 2 + geometry.palm_span_m / 2, geometry.finger_width_m / 2 + finger_y_max) + max(
-        abs(finger_z_min - geometry.palm_depth_m), abs(geometry.fingertip_offset_m)
+    reach_l1 = max(geometry.palm_width_m / 2 + geometry.palm_span_m / 2, geometry.finger_width_m / 2 + geometry.finger_y_max) + max(
+        abs(geometry.palm_z_min), abs(geometry.fingertip_offset_m)
     ) + 3 * VOLUME_SLACK_M
     near_l1 = math.sqrt(3.0) * reach_l1
     # A coordinate is a . p - a . c here and a . (p - c) in the exhaustive GEMM: four-term sums

@@ -75,10 +75,17 @@ def _separation(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor
     return _least_excess(projection, middle, half)
 
 
-def _lower_bound(projection: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, slack_m: float) -> torch.Tensor:
-    """(c, n) a lower bound of s(p) from the first three directions' (3, c, n) projections and
-    (S, 3, c or 1, 1) slab middles, less ``slack_m``; NaN rows -> inf."""
-    return _least_excess(projection, middle, half) - slack_m
+def _bound_from_world(
+    points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, middle: torch.Tensor, half: torch.Tensor
+) -> torch.Tensor:
+    """(r, N) s(p) over the first three directions, a lower bound of s(p) up to rounding, of each
+    row's scene points ``points[scene]`` for rows with (r, 3, 3) ``axes`` and (r, 3) ``centre``;
+    ``middle`` and ``half``: (S, D, 1, 1) slabs. NaN rows -> inf.
+
+    a_d . (p - c) - m_d is taken as a_d . p - (a_d . c + m_d): the points stay in the world frame."""
+    projection = _scene_projection(points, scene, axes)  # (3, r, N)
+    offset = (axes @ centre[:, :, None]).view(-1, 3).T[:, :, None] + middle[:, :3]  # (S, 3, r, 1)
+    return _least_excess(projection, offset, half[:, :3])
 
 
 def _scene_projection(points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor) -> torch.Tensor:
@@ -176,9 +183,7 @@ def hand_clearance(
             scene, block_axes = object_index[block], axes[block, :3]
             # From world coordinates like the point pass: the bound only picks which probes are
             # evaluated, and each evaluated probe's separation is exact whichever are picked.
-            projection = _scene_projection(probe_points, scene, block_axes)  # (3, c, P)
-            offset = (block_axes @ centre[block, :, None]).view(-1, 3).T[:, :, None] + middle[:, :3]  # (S, 3, c, 1)
-            picked = _least_per_run(_least_excess(projection, offset, half[:, :3]), n_runs)
+            picked = _least_per_run(_bound_from_world(probe_points, scene, block_axes, centre[block], middle, half), n_runs)
             probe = probe_points[scene[:, None], picked] - centre[block, None, :]  # (c, runs, 3)
             clearance[block] = _separation(probe, axes[block], middle, half).amin(dim=1)
     slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
@@ -188,10 +193,7 @@ def hand_clearance(
     for start in range(0, open_rows.numel(), step):
         rows = open_rows[start:start + step]
         scene, row_axes = object_index[rows], axes[rows]
-        # a_d . (p - c) - m_d as a_d . p - (a_d . c + m_d): the points stay in the world frame.
-        projection = _scene_projection(points, scene, row_axes[:, :3])  # (3, r, N)
-        offset = (row_axes[:, :3] @ centre[rows, :, None]).view(-1, 3).T[:, :, None] + middle[:, :3]  # (S, 3, r, 1)
-        candidates = _lower_bound(projection, offset, half[:, :3], slack_m) < clearance[rows, None]
+        candidates = _bound_from_world(points, scene, row_axes[:, :3], centre[rows], middle, half) - slack_m < clearance[rows, None]
         per_row = candidates.sum(dim=1)
         if int(per_row.max()):
             found = _separation(_compacted(points, scene, centre[rows], candidates, per_row), row_axes, middle, half).amin(dim=1)

@@ -483,6 +483,14 @@ class _ScreenVerdicts:
         rate_based = (missing * self.LOOKAHEAD_MARGIN * computed.clamp_min(1) / survived.clamp_min(1)).ceil().to(torch.int64)
         return torch.minimum(rate_based, missing + computed // 2).clamp_min(missing)
 
+    def compute_ahead(self, unknown: torch.Tensor, missing: torch.Tensor) -> None:
+        """Verdicts for each object's first ``block_sizes(missing)`` candidates, in ranking order,
+        among the (A,) ``unknown`` ones; (B,) ``missing``: candidates each object needs verdicts for."""
+        candidate_object = self.screened.object_index
+        block = self.block_sizes(missing, candidate_object)
+        rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, missing.shape[0])
+        self.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
+
     def compute(self, rows: torch.Tensor) -> None:
         clock = time.perf_counter()
         self.usable[rows] = self.screened.table_and_volume_ok(rows)
@@ -591,9 +599,7 @@ class _MotionVerdicts:
         shortfall = (wanted - torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, past.to(torch.int64))).clamp_min(0)
         unknown = beyond & ~screens.ready
         if (shortfall > 0).any() and unknown.any():
-            block = screens.block_sizes(shortfall, candidate_object)
-            rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, n_objects)
-            screens.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
+            screens.compute_ahead(unknown, shortfall)
             past = beyond & screens.ready & screens.any_usable
         return past
 
@@ -690,10 +696,7 @@ def _window_with_verdicts(
         missing = unknown & in_window
         if not missing.any():
             return in_window
-        per_object = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
-        block = verdicts.block_sizes(per_object, candidate_object)
-        rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, n_objects)
-        verdicts.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
+        verdicts.compute_ahead(unknown, torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64)))
 
 
 def _planned_candidates(
