@@ -1,7 +1,10 @@
 """Benchmark the batched planner against the loop reference on YCB object clouds.
 
     python -m runners.bench --json OUT.json [--objects 025_mug,003_cracker_box] [--pairs 5000,50000,500000]
-        [--repeats 5] [--ik-targets 2000] [--ik-unreachable 200] [--objects-dir DIR] [--cache-dir DIR] [--threads 1]
+        [--repeats 5] [--ik-targets 2000] [--ik-unreachable 200] [--objects-dir DIR] [--cache-dir DIR] [--threads 1[,2]]
+
+``--threads 1,2`` times the planner and the IK at each torch thread count in turn, in one run, so
+figures for one core and for several compare on the same clouds and targets.
 """
 from __future__ import annotations
 
@@ -42,12 +45,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--objects-dir", default=None)
     parser.add_argument("--cache-dir", type=Path, default=Path("~/.cache/sagp_batched/clouds").expanduser())
     parser.add_argument("--profile", default=None)
-    parser.add_argument("--threads", type=int, default=DEFAULT_TORCH_THREADS)
+    parser.add_argument("--threads", default=str(DEFAULT_TORCH_THREADS), help="comma-separated torch thread counts, each timed in turn")
     parser.add_argument("--world-object", default="005_tomato_soup_can", help="object of the PyBullet timing runs")
     parser.add_argument("--world-runs", type=int, default=20, help="trials timed in PyBullet (reset, capture, plan, attempt); 0 skips")
     args = parser.parse_args(argv)
+    thread_counts = _thread_counts(parser, args.threads)
 
-    configure_torch(args.threads)
+    configure_torch(thread_counts[0])
     config = load_config(args.profile)
     object_set = load_object_set(_ycb_dir(args.objects_dir))
     settings = BenchmarkSettings(
@@ -60,27 +64,30 @@ def main(argv: list[str] | None = None) -> int:
         ik_unreachable_targets=args.ik_unreachable,
     )
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in args.objects.split(",")]
-    results = []
-    for cloud in clouds:
-        for row in benchmark_object(cloud, config, settings):
-            results.append(row)
-            reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
-            stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
-            print(
-                f"{row['object']:>22} pairs={row['pairs']:>7} plan={row['batched_plan_s']:.3f} s "
-                f"({row['candidates_per_s']:.0f} pairs/s) reference={reference} | {stages} | {row['counts_last_repeat']}",
-                flush=True,
-            )
-    ik = None
-    if args.ik_targets > 0:
-        ik = benchmark_ik(config, settings)
-        _print_ik(ik)
+    results, ik = [], []
+    for threads in thread_counts:
+        configure_torch(threads)
+        for cloud in clouds:
+            for row in benchmark_object(cloud, config, settings):
+                row["threads"] = threads
+                results.append(row)
+                reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
+                stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
+                print(
+                    f"{row['object']:>22} pairs={row['pairs']:>7} threads={threads} plan={row['batched_plan_s']:.3f} s "
+                    f"({row['candidates_per_s']:.0f} pairs/s) reference={reference} | {stages} | {row['counts_last_repeat']}",
+                    flush=True,
+                )
+        if args.ik_targets > 0:
+            ik.append({"threads": threads, **benchmark_ik(config, settings)})
+            _print_ik(ik[-1])
+    configure_torch(thread_counts[0])
     print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
     world = None
     if args.world_runs > 0:
         world = benchmark_world(object_set.get(args.world_object), config, args.world_runs)
         print(
-            f"PyBullet, {world['object']}, medians of {world['runs']} trials: reset {world['reset_s']:.3f} s, "
+            f"PyBullet, {world['object']}, {thread_counts[0]} threads, medians of {world['runs']} trials: reset {world['reset_s']:.3f} s, "
             f"capture (3 views) {world['capture_s']:.3f} s, plan {world['plan_s']:.3f} s, "
             f"attempt {world['attempt_s']:.3f} s, first-attempt success {world['first_attempt_success']:.0%}"
         )
@@ -90,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         "world": world,
         "provenance": {
             "torch": torch.__version__,
-            "threads": torch.get_num_threads(),
+            "threads": thread_counts,
             "git": git_revision(),
             "packages": package_versions(),
             "python": sys.version.split()[0],
@@ -102,9 +109,19 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _thread_counts(parser: argparse.ArgumentParser, text: str) -> list[int]:
+    try:
+        counts = [int(part) for part in text.split(",")]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 1:
+        parser.error(f"--threads takes positive whole numbers separated by commas, got {text!r}")
+    return counts
+
+
 def _print_ik(ik: dict) -> None:
     print(
-        f"IK: {ik['reachable_targets']} reachable targets (FK of random in-limit joints, above the table), "
+        f"IK ({ik['threads']} threads): {ik['reachable_targets']} reachable targets (FK of random in-limit joints, above the table), "
         f"{ik['unreachable_targets']} unreachable (>= {ik['unreachable_min_distance_from_shoulder_m']} m from the shoulder); "
         f"success = FK within {ik['pos_tolerance_m'] * 1e3:.1f} mm / {ik['rot_tolerance_rad']} rad and inside the limits"
     )

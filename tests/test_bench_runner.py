@@ -20,7 +20,8 @@ def test_bench_writes_planner_ik_and_world_figures(tmp_path, ycb_dir):
     (row,) = report["results"]
     assert row["pairs"] == 2000 and row["batched_plan_s"] > 0 and row["reference_plan_s"] > 0
     assert row["stage_median_s"]["ik"] > 0 and row["counts_last_repeat"]["sampled"] == 2000
-    ik = report["ik"]
+    (ik,) = report["ik"]
+    assert ik["threads"] == 1 and report["provenance"]["threads"] == [1]
     assert ik["reachable_targets"] == 64 and ik["unreachable_targets"] == 16
     assert [solver["solver"] for solver in ik["solvers"]] == ["PandaIK", "pk.PseudoInverseIK 10x30"]
     planner_ik = ik["solvers"][0]
@@ -28,3 +29,27 @@ def test_bench_writes_planner_ik_and_world_figures(tmp_path, ycb_dir):
     assert report["world"]["runs"] == 2 and report["world"]["capture_s"] > 0 and report["world"]["attempt_s"] > 0
     assert report["provenance"]["torch"]
     assert "pairs/s" in done.stdout and "PandaIK: " in done.stdout and "capture (3 views)" in done.stdout
+
+
+def test_bench_times_each_thread_count_in_one_run(tmp_path, ycb_dir):
+    out = tmp_path / "bench.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench", "--json", str(out), "--objects", "005_tomato_soup_can", "--pairs", "500",
+         "--repeats", "1", "--reference-max-pairs", "0", "--ik-targets", "16", "--ik-unreachable", "4", "--world-runs", "0",
+         "--threads", "2,1", "--objects-dir", str(ycb_dir), "--cache-dir", str(tmp_path / "clouds")],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads(out.read_text())
+    assert [(row["threads"], row["pairs"]) for row in report["results"]] == [(2, 500), (1, 500)]
+    assert [ik["threads"] for ik in report["ik"]] == [2, 1]
+    assert "threads=2 plan=" in done.stdout and "threads=1 plan=" in done.stdout
+
+
+def test_bench_rejects_a_bad_thread_count(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench", "--json", str(tmp_path / "bench.json"), "--threads", "1,0"],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )
+    assert done.returncode == 2 and "--threads takes positive whole numbers" in done.stderr
+    assert "Traceback" not in done.stderr and not (tmp_path / "bench.json").exists()
