@@ -459,6 +459,12 @@ class _ScreenVerdicts:
     # Verdict blocks cover this many times the candidates the window still needs at the survival
     # rate seen so far: a little more than the expected need, so one block usually suffices.
     LOOKAHEAD_MARGIN = 1.25
+    # A block may add this many candidates beyond those needed even where half the computed ones
+    # are fewer. Growing from ~250 by halves took a power drill or a banana (one candidate in ten
+    # survives) 5-8 calls of ~1.5-3 ms fixed cost at 5,000 pairs, 3-4 with this. The cap binds only
+    # where few candidates survive, and there the hand is swept for few and a candidate costs
+    # ~0.01 ms, so 1,024 never needed cost about what the calls saved (512 still took 4-5 calls).
+    MIN_BLOCK_GROWTH = 1024
 
     def __init__(self, screened: ScreenedCandidates):
         self.screened = screened
@@ -468,6 +474,11 @@ class _ScreenVerdicts:
         # (A,) some approach usable: kept as verdicts come, since the window asks every round and
         # reducing (A, K) each time cost ~0.1 s a plan at 500,000 pairs
         self.any_usable = torch.zeros(n_candidates, dtype=torch.bool)
+        # Those candidates' rows, ascending (ranking order within each object): the motion lookahead
+        # walks them every window round, and masking all (A,) rows cost ~6 ms a round at 500,000 pairs.
+        self.usable_rows = torch.zeros(0, dtype=torch.int64)
+        # (B,) candidates with verdicts per object, counted as they come for the same reason
+        self.computed = torch.zeros(int(screened.occupancy_points.shape[0]), dtype=torch.int64)
         self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
         self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
         self.volume_s = self.hand_s = 0.0
@@ -475,13 +486,13 @@ class _ScreenVerdicts:
     def block_sizes(self, missing: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
         """(B,) candidates to compute next per object, given (B,) ``missing``: candidates in its
         window without verdicts. The survival rate seen so far says how many are needed; a block
-        adds at most half of what is computed, since survival grows down a mug's ranking (its top
-        pairs lie on the rim and body, where the hand hits) and the early rate would overshoot."""
-        n_objects = missing.shape[0]
-        computed = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, self.ready.to(torch.int64))
-        survived = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, object_index, (self.ready & self.any_usable).to(torch.int64))
+        adds at most half of what is computed (at least ``MIN_BLOCK_GROWTH``), since survival grows
+        down a mug's ranking (its top pairs lie on the rim and body, where the hand hits) and the
+        early rate would overshoot."""
+        computed = self.computed
+        survived = torch.bincount(object_index[self.usable_rows], minlength=missing.shape[0])
         rate_based = (missing * self.LOOKAHEAD_MARGIN * computed.clamp_min(1) / survived.clamp_min(1)).ceil().to(torch.int64)
-        return torch.minimum(rate_based, missing + computed // 2).clamp_min(missing)
+        return torch.minimum(rate_based, missing + (computed // 2).clamp_min(self.MIN_BLOCK_GROWTH)).clamp_min(missing)
 
     def compute_ahead(self, unknown: torch.Tensor, missing: torch.Tensor) -> None:
         """Verdicts for each object's first ``block_sizes(missing)`` candidates, in ranking order,
@@ -489,7 +500,9 @@ class _ScreenVerdicts:
         candidate_object = self.screened.object_index
         block = self.block_sizes(missing, candidate_object)
         rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, missing.shape[0])
-        self.compute((unknown & (rank < block[candidate_object])).nonzero().squeeze(1))
+        rows = (unknown & (rank < block[candidate_object])).nonzero().squeeze(1)
+        if rows.numel():  # none where the objects short of candidates have no unknown ones left
+            self.compute(rows)
 
     def compute(self, rows: torch.Tensor) -> None:
         clock = time.perf_counter()
@@ -503,6 +516,8 @@ class _ScreenVerdicts:
         self.hand_blocked[rows[candidate[swept.blocked]], slots[swept.blocked]] = True
         self.usable[rows[candidate[swept.blocked]], slots[swept.blocked]] = False
         self.any_usable[rows] = self.usable[rows].any(dim=1)
+        self.usable_rows = torch.cat((self.usable_rows, rows[self.any_usable[rows]])).sort().values
+        self.computed.index_add_(0, self.screened.object_index[rows], torch.ones_like(rows))
         self.ready[rows] = True
         self.hand_s += time.perf_counter() - hand_clock
 
@@ -511,30 +526,38 @@ class _MotionVerdicts:
     """Motion checks of (candidate, approach) grasps, computed ahead of ``plan_batch``'s rounds and
     applied (counted, stored) only when the search reaches them.
 
-    A round that checked only each pending candidate's current approach left a cracker box 9
-    rounds to find its 200 feasible grasps, the later ones of a few grasps each at the same ~5 ms
-    of fixed cost. A check's outcome depends on its own grasp alone, so checking ahead changes no
-    result; it only moves work into fewer, larger batches. When a round meets pending grasps
-    without a result, one batch checks them and the first usable approach of the candidates next
-    past the window whose screens are known (screening further if too few are), as many as the
-    window is expected to lose to candidates that run out of approaches. A small round also
-    checks its candidates' later approaches, and is filled up to ``SMALL_ROUND_CHECKS`` grasps
-    with candidates past the window: its fixed cost buys those at little more.
+    A round costs ~8-10 ms on its own and a check ~0.1 ms more (1 thread), so the checks are
+    gathered into as few rounds as the search allows. A check's outcome depends on its own grasp
+    alone, so checking ahead changes no result; it only moves work between batches. When a round
+    meets pending grasps without a result, one batch checks the grasps the search is expected to
+    need: walking each object's undecided candidates in ranking order (the window's, then those past
+    it, screening further where too few are screened), until their expected feasible count covers
+    the feasible candidates the object still lacks. A candidate counts 1 once an approach it will
+    reach is known feasible, else the share of candidates expected to end feasible (observed, with
+    its losses taken ``LOOKAHEAD_MARGIN`` times over). Before any of an object's candidates is
+    decided that share is a guess, and each candidate gets only its next approach checked; once it
+    is observed, every unchecked approach a candidate may need, so that a candidate whose first
+    approach fails needs no round of its own (it left a mustard bottle 12 rounds at 5,000 pairs).
+    A round is filled up to ``SMALL_ROUND_CHECKS`` grasps: its fixed cost buys those at little more.
     """
 
-    # Candidates past the window checked ahead: this margin times the window's candidates without
-    # results times the share of decided candidates that ran out of approaches.
+    # The share of candidates that run out of approaches is taken this many times over: a little
+    # more lookahead than expected, so that one round usually suffices.
     LOOKAHEAD_MARGIN = 1.25
     # That share before any candidate is decided (one in ten; at 5,000 pairs a power drill's is
     # 0.02-0.04, a soup can's 0.07-0.10, a cracker box's ~0.4) and how many decided candidates it
     # weighs as: a guess the first observations soon outweigh.
     PRIOR_EXHAUSTED_SHARE = 0.1
     PRIOR_WEIGHT = 4
-    # A check costs ~0.17 ms and a round ~5 ms on its own, so a round of fewer grasps than this
-    # is mostly fixed cost.
+    # Where nearly every candidate is lost, the expected feasible share used is at least this: the
+    # lookahead (and the screening past the window it pays for) stays within ten times the
+    # feasible candidates still needed, and later rounds correct a shortfall.
+    MIN_SUCCESS_SHARE = 0.1
+    # A round costs ~8-10 ms on its own and a check ~0.1 ms more, so a round of fewer grasps than
+    # this is mostly fixed cost.
     SMALL_ROUND_CHECKS = 32
 
-    def __init__(self, n_candidates: int, n_approaches: int, n_waypoints: int):
+    def __init__(self, n_candidates: int, n_approaches: int, n_waypoints: int, max_candidates: int):
         self.ready = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
         self.feasible = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
         self.grasp_ik_rejected = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)  # else, if infeasible, the motion
@@ -543,19 +566,26 @@ class _MotionVerdicts:
         self.kept_paths = torch.zeros(0, n_waypoints, 7)
         self.kept_s_reach = torch.zeros(0)
         self.ik_targets = 0
+        self.max_candidates = max_candidates
+        # Candidates with any grasp checked, ascending: the only ones that can be decided with a
+        # usable approach (a few hundred; masking all (A,) rows cost ~6 ms a round at 500,000 pairs).
+        self.checked_rows = torch.zeros(0, dtype=torch.int64)
 
-    def exhausted_share(self, search: "_CandidateSearch", screens: _ScreenVerdicts, n_objects: int) -> torch.Tensor:
-        """(B,) per object, the share of decided candidates that had a usable approach and still ran out."""
-        candidate_object = screens.screened.object_index
-        decided = search.screened & screens.any_usable & (search.status != UNDECIDED)
+    def success_share(self, search: "_CandidateSearch", screens: _ScreenVerdicts, n_objects: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B,) per object, the share of candidates with a usable approach expected to end feasible
+        (their observed loss rate, with the prior, taken ``LOOKAHEAD_MARGIN`` times over), and (B,)
+        bool whether any of its candidates with a usable approach is decided."""
+        status = search.status[self.checked_rows]
+        row_object = screens.screened.object_index[self.checked_rows]
         count = torch.zeros(n_objects, dtype=torch.float32)
-        exhausted = count.index_add(0, candidate_object, (decided & (search.status == EXHAUSTED)).to(torch.float32))
-        decided_count = count.index_add(0, candidate_object, decided.to(torch.float32))
-        return (exhausted + self.PRIOR_EXHAUSTED_SHARE * self.PRIOR_WEIGHT) / (decided_count + self.PRIOR_WEIGHT)
+        exhausted = count.index_add(0, row_object, (status == EXHAUSTED).to(torch.float32))
+        decided_count = count.index_add(0, row_object, (status != UNDECIDED).to(torch.float32))
+        share = (exhausted + self.PRIOR_EXHAUSTED_SHARE * self.PRIOR_WEIGHT) / (decided_count + self.PRIOR_WEIGHT)
+        return (1 - self.LOOKAHEAD_MARGIN * share).clamp_min(self.MIN_SUCCESS_SHARE), decided_count > 0
 
     def ensure(
-        self, pending: torch.Tensor, slots: torch.Tensor, in_window: torch.Tensor, search: "_CandidateSearch",
-        screens: _ScreenVerdicts, check: Callable[[torch.Tensor, torch.Tensor], MotionCheck],
+        self, pending: torch.Tensor, slots: torch.Tensor, search: "_CandidateSearch", screens: _ScreenVerdicts,
+        check: Callable[[torch.Tensor, torch.Tensor], MotionCheck],
     ) -> None:
         """Have results for the (``pending``, ``slots``) grasps, checking ahead (see the class) where one is missing."""
         missing = ~self.ready[pending, slots]
@@ -563,49 +593,89 @@ class _MotionVerdicts:
             return
         candidate_object = screens.screened.object_index
         n_objects = int(screens.screened.occupancy_points.shape[0])
+        success, observed = self.success_share(search, screens, n_objects)
+        check_all = observed | (int(missing.sum()) < self.SMALL_ROUND_CHECKS)
+        needed = self._feasible_needed(search, screens, n_objects)
+        with_missing = torch.zeros(n_objects, dtype=torch.bool)
+        with_missing[candidate_object[pending[missing]]] = True
+        fill = torch.where(with_missing, math.ceil(self.SMALL_ROUND_CHECKS / int(with_missing.sum())), 0)
+        rows, grasps, supply = self._open_candidates(search, screens, success, check_all)
+        # Screen further where the screened candidates are expected to fall short.
+        short = self._candidates_short(needed, fill, success, rows, grasps, supply, candidate_object)
+        unknown = (search.status == UNDECIDED) & ~screens.ready
+        if (short > 0).any() and unknown.any():
+            screens.compute_ahead(unknown, short)
+            rows, grasps, supply = self._open_candidates(search, screens, success, check_all)
+        row_object = candidate_object[rows]
+        taken = (_segment_exclusive_cumsum(supply, row_object, n_objects) < needed[row_object]) | (
+            _segment_exclusive_cumsum(grasps.sum(dim=1), row_object, n_objects) < fill[row_object]
+        )
+        taken_rows, taken_slots = (grasps & taken[:, None]).nonzero(as_tuple=True)
         n_approaches = self.ready.shape[1]
-        rows = pending[missing]
-        ahead = torch.zeros_like(self.ready)
-        ahead[rows, slots[missing]] = True
-        # A round this small costs mostly its fixed overhead: it also takes its candidates' later
-        # approaches, and candidates past the window up to ``SMALL_ROUND_CHECKS`` grasps.
-        small = rows.numel() < self.SMALL_ROUND_CHECKS
-        if small:
-            ahead[rows] = search.usable[rows] & (torch.arange(n_approaches) >= slots[missing, None])
-        per_object = torch.zeros(n_objects).index_add_(0, candidate_object[rows], torch.ones(rows.numel()))
-        extra = (self.LOOKAHEAD_MARGIN * per_object * self.exhausted_share(search, screens, n_objects)).ceil().to(torch.int64)
-        if small:
-            spare = max(0, self.SMALL_ROUND_CHECKS - int(ahead.sum())) / int((per_object > 0).sum())
-            extra = torch.where(per_object > 0, extra.clamp_min(math.ceil(spare)), extra)
-        past = self._past_window_with_screens(extra, in_window, search, screens)
-        rank = _segment_exclusive_cumsum(past.to(torch.int64), candidate_object, n_objects)
-        chosen = (past & (rank < extra[candidate_object])).nonzero().squeeze(1)
-        ahead[chosen, screens.usable[chosen].to(torch.int8).argmax(dim=1)] = True  # each one's first usable approach
-        ahead &= ~self.ready
-        check_rows, check_slots = ahead.nonzero(as_tuple=True)
+        keys = torch.cat((rows[taken_rows] * n_approaches + taken_slots, pending[missing] * n_approaches + slots[missing])).unique()
+        check_rows, check_slots = keys // n_approaches, keys % n_approaches
         self.store(check_rows, check_slots, check(check_rows, check_slots))
 
-    @staticmethod
-    def _past_window_with_screens(
-        wanted: torch.Tensor, in_window: torch.Tensor, search: "_CandidateSearch", screens: _ScreenVerdicts
-    ) -> torch.Tensor:
-        """(A,) bool: the candidates past the window with a usable approach by the screens, after
-        screening further ahead where an object has fewer than its (B,) ``wanted``: candidates the
-        window will reach once its own run out of approaches."""
+    def _feasible_needed(self, search: "_CandidateSearch", screens: _ScreenVerdicts, n_objects: int) -> torch.Tensor:
+        """(B,) float: feasible candidates each object still lacks."""
+        row_object = screens.screened.object_index[self.checked_rows]
+        feasible = torch.zeros(n_objects).index_add_(0, row_object, (search.status[self.checked_rows] == FEASIBLE).to(torch.float32))
+        return (self.max_candidates - feasible).clamp_min(0)
+
+    def screening_shortfall(self, search: "_CandidateSearch", screens: _ScreenVerdicts) -> torch.Tensor:
+        """(B,) int64 usable candidates each object is expected to need screened beyond those it has,
+        for the feasible candidates it still lacks (0 before any outcome is observed): what the next
+        round's lookahead would screen."""
         candidate_object = screens.screened.object_index
-        n_objects = wanted.shape[0]
-        beyond = ~in_window & (search.status == UNDECIDED)
-        past = beyond & screens.ready & screens.any_usable
-        shortfall = (wanted - torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, past.to(torch.int64))).clamp_min(0)
-        unknown = beyond & ~screens.ready
-        if (shortfall > 0).any() and unknown.any():
-            screens.compute_ahead(unknown, shortfall)
-            past = beyond & screens.ready & screens.any_usable
-        return past
+        n_objects = int(screens.screened.occupancy_points.shape[0])
+        success, observed = self.success_share(search, screens, n_objects)
+        needed = self._feasible_needed(search, screens, n_objects)
+        rows, grasps, supply = self._open_candidates(search, screens, success, observed)
+        # Before any outcome the success share is the prior's guess: sizing the window's blocks for
+        # it saved at most one ~2 ms call at 5,000 pairs but shifted a 500,000-pair mug's growing
+        # blocks into a last one 12,000-25,000 candidates (~0.1-0.2 s) larger.
+        needed = torch.where(observed, needed, 0)
+        return self._candidates_short(needed, torch.zeros(n_objects, dtype=torch.int64), success, rows, grasps, supply, candidate_object)
+
+    def _open_candidates(
+        self, search: "_CandidateSearch", screens: _ScreenVerdicts, success: torch.Tensor, check_all: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The candidates the search may still reach, (C,) rows in ranking order (undecided, with a
+        usable approach by the screens); the (C, K) unchecked approaches each needs before its
+        outcome is known (all of them where its object's ``check_all``, else the next one); and
+        (C,) its expected feasible count: 1 where an approach it will reach is known feasible, its
+        object's ``success`` where one is still unchecked, else 0."""
+        rows = screens.usable_rows[search.status[screens.usable_rows] == UNDECIDED]
+        n_approaches = self.ready.shape[1]
+        order = torch.arange(n_approaches)
+        start = torch.where(search.screened[rows], search.cursor[rows], 0)  # past the window: from the first
+        remaining = screens.usable[rows] & (order >= start[:, None])
+        ready = self.ready[rows]
+        first_feasible = torch.where(remaining & ready & self.feasible[rows], order, n_approaches).amin(dim=1)
+        unchecked = remaining & ~ready & (order < first_feasible[:, None])
+        row_object = screens.screened.object_index[rows]
+        grasps = torch.where(check_all[row_object, None], unchecked, unchecked & (unchecked.cumsum(dim=1) == 1))
+        supply = torch.where(first_feasible < n_approaches, 1.0, torch.where(unchecked.any(dim=1), success[row_object], 0.0))
+        return rows, grasps, supply.to(torch.float64)
+
+    @staticmethod
+    def _candidates_short(
+        needed: torch.Tensor, fill: torch.Tensor, success: torch.Tensor, rows: torch.Tensor, grasps: torch.Tensor,
+        supply: torch.Tensor, candidate_object: torch.Tensor,
+    ) -> torch.Tensor:
+        """(B,) int64 usable candidates each object needs screened beyond those it has: to cover
+        the feasible candidates it ``needed`` at its ``success`` share, and to ``fill`` a round."""
+        n_objects = needed.shape[0]
+        row_object = candidate_object[rows]
+        expected = torch.zeros(n_objects, dtype=torch.float64).index_add_(0, row_object, supply)
+        checks = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, row_object, grasps.sum(dim=1))
+        for_needed = ((needed - expected).clamp_min(0) / success).ceil().to(torch.int64)
+        return torch.maximum(for_needed, (fill - checks).clamp_min(0))
 
     def store(self, rows: torch.Tensor, slots: torch.Tensor, motion: MotionCheck) -> None:
         feasible = motion.feasible
         self.ready[rows, slots] = True
+        self.checked_rows = torch.cat((self.checked_rows, rows)).unique()
         self.feasible[rows, slots] = feasible
         self.grasp_ik_rejected[rows, slots] = motion.rejected_by[:, 0].bool()
         self.kept_index[rows[feasible], slots[feasible]] = torch.arange(int(feasible.sum()), dtype=torch.int32) + self.kept_paths.shape[0]
@@ -676,7 +746,8 @@ class _CandidateSearch:
 
 
 def _window_with_verdicts(
-    search: _CandidateSearch, verdicts: "_ScreenVerdicts", candidate_object: torch.Tensor, n_objects: int, max_candidates: int
+    search: _CandidateSearch, verdicts: "_ScreenVerdicts", motions: _MotionVerdicts, candidate_object: torch.Tensor, n_objects: int,
+    max_candidates: int,
 ) -> torch.Tensor:
     """(A,) bool: each object's first ``max_candidates`` candidates still alive, with the screens'
     verdicts computed for every candidate in it.
@@ -686,8 +757,11 @@ def _window_with_verdicts(
     the candidates it exhausted) reaches, and it screens the same candidates. Verdicts are computed
     ahead, in blocks sized by the survival rate seen so far, so a mug (one antipodal candidate in
     several hundred survives) takes ~15 blocks at 500,000 pairs, not one round per 200 candidates
-    each recounting every candidate's window.
+    each recounting every candidate's window. The blocks also cover the usable candidates the next
+    motion round's lookahead is expected to want past the window (``_MotionVerdicts.screening_shortfall``,
+    estimated once: it costs ~0.3 ms), which it would otherwise screen in a call of its own (~2 ms fixed).
     """
+    usable_target = None  # (B,) usable candidates each object is expected to need screened in all
     while True:
         waiting = (search.status == UNDECIDED) & ~search.screened
         unknown = waiting & ~verdicts.ready
@@ -696,7 +770,11 @@ def _window_with_verdicts(
         missing = unknown & in_window
         if not missing.any():
             return in_window
-        verdicts.compute_ahead(unknown, torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64)))
+        wanted = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
+        usable = torch.bincount(candidate_object[verdicts.usable_rows], minlength=n_objects)
+        if usable_target is None:
+            usable_target = usable + motions.screening_shortfall(search, verdicts)
+        verdicts.compute_ahead(unknown, torch.maximum(wanted, usable_target - usable))
 
 
 def _planned_candidates(
@@ -789,7 +867,7 @@ def plan_batch(
     n_waypoints = motion_waypoints(torch.zeros(0, 3), torch.zeros(0, 3), config.execution).shape[1]
     search = _CandidateSearch.start(n_candidates, n_approaches)
     verdicts = _ScreenVerdicts(screened)
-    motions = _MotionVerdicts(n_candidates, n_approaches, n_waypoints)
+    motions = _MotionVerdicts(n_candidates, n_approaches, n_waypoints, planner.max_candidates)
     ik = panda_ik(config)
     motion_time = {"ik": 0.0, "motion": 0.0}
 
@@ -797,7 +875,7 @@ def plan_batch(
         return check_motions(screened.centre_world[rows], *screened.frames(rows, slots), ik, config, motion_time)
 
     while True:
-        in_window = _window_with_verdicts(search, verdicts, screened.object_index, len(clouds), planner.max_candidates)
+        in_window = _window_with_verdicts(search, verdicts, motions, screened.object_index, len(clouds), planner.max_candidates)
         to_screen = (in_window & (search.status == UNDECIDED) & ~search.screened).nonzero().squeeze(1)
         if to_screen.numel():
             search.apply_screens(to_screen, verdicts)
@@ -806,7 +884,7 @@ def plan_batch(
         if pending.numel() == 0:
             break
         slots = search.cursor[pending]
-        motions.ensure(pending, slots, in_window, search, verdicts, check)
+        motions.ensure(pending, slots, search, verdicts, check)
         search.apply_motions(pending, slots, *motions.verdicts(pending, slots))
     stage_time["frames_volume"] += verdicts.volume_s
     stage_time["hand_sweep"] = verdicts.hand_s

@@ -6,6 +6,7 @@ only on poses that clear the table, and ``plan_batch`` screens candidates ahead 
 blocks; each is compared here with the plain definition: every point, every pose, one window
 round at a time.
 """
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -149,7 +150,7 @@ def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_p
     ahead = plan_batch(clouds, config, seeds)
     ahead_batches, batches[:] = list(batches), []
 
-    def pending_only(self, pending, slots, in_window, search, screens, check):
+    def pending_only(self, pending, slots, search, screens, check):
         missing = ~self.ready[pending, slots]
         if missing.any():
             self.store(pending[missing], slots[missing], check(pending[missing], slots[missing]))
@@ -158,6 +159,73 @@ def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_p
     assert_same_plans(ahead, plan_batch(clouds, config, seeds))
     assert sum(result.counts["rejected_grasp_ik"] + result.counts["rejected_motion"] for result in ahead) > 0
     assert len(ahead_batches) < len(batches)
+
+
+def previous_lookahead(self, pending, slots, search, screens, check):
+    """The motion lookahead before the losses it expects were sized by cost (e8ed604): the pending
+    grasps without a result (with their later approaches in a round of fewer than 32), and the first
+    usable approach of 1.25 x (pending x the share of decided candidates that ran out) candidates
+    past the window, a small round filled to 32 with more of them."""
+    missing = ~self.ready[pending, slots]
+    if not missing.any():
+        return
+    candidate_object, n_objects = screens.screened.object_index, int(screens.screened.occupancy_points.shape[0])
+    rows = pending[missing]
+    ahead = torch.zeros_like(self.ready)
+    ahead[rows, slots[missing]] = True
+    small = rows.numel() < 32
+    if small:
+        ahead[rows] = search.usable[rows] & (torch.arange(self.ready.shape[1]) >= slots[missing, None])
+    decided = search.screened & screens.any_usable & (search.status != planner.UNDECIDED)
+    exhausted = torch.zeros(n_objects).index_add_(0, candidate_object, (decided & (search.status == planner.EXHAUSTED)).float())
+    share = (exhausted + 0.4) / (torch.zeros(n_objects).index_add_(0, candidate_object, decided.float()) + 4)
+    per_object = torch.zeros(n_objects).index_add_(0, candidate_object[rows], torch.ones(rows.numel()))
+    extra = (1.25 * per_object * share).ceil().to(torch.int64)
+    if small:
+        spare = max(0, 32 - int(ahead.sum())) / int((per_object > 0).sum())
+        extra = torch.where(per_object > 0, extra.clamp_min(math.ceil(spare)), extra)
+    beyond = ~search.screened & (search.status == planner.UNDECIDED)  # the window's candidates are all screened
+    past_count = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, (beyond & screens.ready & screens.any_usable).long())
+    if ((extra - past_count) > 0).any() and (beyond & ~screens.ready).any():
+        screens.compute_ahead(beyond & ~screens.ready, (extra - past_count).clamp_min(0))
+    past = beyond & screens.ready & screens.any_usable
+    chosen = (past & (planner._segment_exclusive_cumsum(past.long(), candidate_object, n_objects) < extra[candidate_object])).nonzero().squeeze(1)
+    ahead[chosen, screens.usable[chosen].to(torch.int8).argmax(dim=1)] = True
+    check_rows, check_slots = (ahead & ~self.ready).nonzero(as_tuple=True)
+    self.store(check_rows, check_slots, check(check_rows, check_slots))
+
+
+def test_lookahead_sized_by_the_observed_losses_plans_alike_in_fewer_motion_rounds_and_screening_calls(ycb_clouds, monkeypatch):
+    """Once an object's losses to the motion checks are observed, a round checks every approach its
+    expected candidates may need and the window screens them in its own blocks, which grow by at
+    least ``MIN_BLOCK_GROWTH``: against the previous rule (``previous_lookahead``, blocks growing by
+    halves for the window alone) the plans are the same, in fewer motion rounds and screening calls.
+    A cracker box loses ~40 % of its screened candidates to grasp IK and motion; the mug screens all
+    of its candidates and still lacks feasible ones, while the others screen further ahead."""
+    clouds = [ycb_clouds["003_cracker_box"], ycb_clouds["005_tomato_soup_can"], ycb_clouds["box beside the mug"], ycb_clouds["025_mug"]]
+    seeds = [1, 2, 3, 0]
+    calls = {"screen": 0, "motion": 0}
+    check_motions, compute = planner.check_motions, _ScreenVerdicts.compute
+
+    def counted_check(*args, **kwargs):
+        calls["motion"] += 1
+        return check_motions(*args, **kwargs)
+
+    def counted_compute(self, rows):
+        calls["screen"] += 1
+        return compute(self, rows)
+
+    monkeypatch.setattr(planner, "check_motions", counted_check)
+    monkeypatch.setattr(_ScreenVerdicts, "compute", counted_compute)
+    sized = plan_batch(clouds, CONFIG, seeds)
+    sized_calls, calls["screen"], calls["motion"] = dict(calls), 0, 0
+    monkeypatch.setattr(_MotionVerdicts, "ensure", previous_lookahead)
+    monkeypatch.setattr(_MotionVerdicts, "screening_shortfall", lambda self, search, screens: torch.zeros(len(clouds), dtype=torch.int64))
+    monkeypatch.setattr(_ScreenVerdicts, "MIN_BLOCK_GROWTH", 0)
+    assert_same_plans(sized, plan_batch(clouds, CONFIG, seeds))
+    assert all(result.counts["rejected_grasp_ik"] + result.counts["rejected_motion"] > 20 for result in sized[:3])
+    assert len(sized[3]) < CONFIG.planner.max_candidates
+    assert sized_calls["motion"] < calls["motion"] and sized_calls["screen"] < calls["screen"], (sized_calls, calls)
 
 
 def dense_gripper_points(screened: ScreenedCandidates, rows: torch.Tensor) -> torch.Tensor:
