@@ -112,9 +112,14 @@ def test_bad_inputs_raise_named_errors(change, message):
 
 
 @pytest.mark.parametrize("spread_m", [None, 100.0])
-def test_proposals_read_from_the_quality_table_give_the_pairs_scoring_each_proposal_gives(monkeypatch, spread_m):
+@pytest.mark.parametrize("draw_block_elements", [None, (1100, 300)])
+def test_proposals_read_from_the_quality_table_give_the_pairs_scoring_each_proposal_gives(monkeypatch, spread_m, draw_block_elements):
     # A grid box's points tie in quality often (argmax must break ties alike); points spread over
-    # 100 m leave every proposal out of reach (the fallback to the first proposal).
+    # 100 m leave every proposal out of reach (the fallback to the first proposal). Draws of 17
+    # pairs read in blocks of 4 (the last of each short) must give the pairs one draw gives.
+    if draw_block_elements is not None:
+        monkeypatch.setattr("sagp_batched_kernels.sampling.QUALITY_TABLE_DRAW_ELEMENTS", draw_block_elements[0])
+        monkeypatch.setattr("sagp_batched_kernels.sampling.QUALITY_TABLE_BLOCK_ELEMENTS", draw_block_elements[1])
     points, normals = _tensors(*box_surface((0.05, 0.06, 0.1), (0.0, 0.0, 0.0)))
     keep = torch.randperm(len(points), generator=torch.Generator().manual_seed(1))[:400]
     points, normals = points[keep], normals[keep]
