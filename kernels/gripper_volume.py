@@ -32,7 +32,7 @@ TABLE_BOUND_SLACK_M = 1e-5
 # that their rounding moves them (for grasp centres within ~4.8 m, L1, of the origin; see
 # ``gripper_occupancy_within``).
 VOLUME_SLACK_M = 2e-5
-# (pose, point) pairs the volume verdict takes at once, in ~5 MB of buffers it reuses: measured
+# (pose, point) pairs the volume verdict takes at once, in ~6 MB of buffers it reuses: measured
 # at 5,000 and at 500,000 pairs, blocks of 32k to 256k pairs took ever less time (fewer Python
 # rounds), the plans' chunk_elements capping them here.
 VOLUME_BLOCK_ELEMENTS = 262_144
@@ -157,6 +157,21 @@ def gripper_occupancy(
     return GripperOccupancy(finger_counts.view(shape), palm_counts.view(shape))
 
 
+class _Layout(NamedTuple):
+    """The volume verdict's counted poses, in groups that share one closing axis, ordered by group
+    size (``_closing_groups``): G groups of R poses."""
+
+    closing_axis: torch.Tensor  # (G, 1, 3) each group's closing axis, as a row
+    closing_offset: torch.Tensor  # (G, 1, 1) its y offset -axis . centre
+    finger_y_mid: torch.Tensor  # (G, 1, 1) its finger slabs' middle along |y|
+    finger_y_half: torch.Tensor  # (G, 1, 1) and half extent
+    scene: torch.Tensor  # (G,) its scene
+    scene_starts: list[int]  # the groups that begin another scene's run
+    xz_axes: torch.Tensor  # (2, R, 3) each pose's x and z axes, as rows
+    xz_offset: torch.Tensor  # (2, R, 1) and offsets, z measured from the finger slabs' middle
+    classes: list[tuple[int, int, int, int]]  # per group size: (size, first group, end group, first pose)
+
+
 def gripper_occupancy_within(
     points: torch.Tensor,
     object_index: torch.Tensor,
@@ -174,17 +189,20 @@ def gripper_occupancy_within(
     Why it is cheaper: each counted pose's grasp-frame coordinates come from its own frame's
     rows applied to the scene's raw points, a . p - a . c, as three broadcast multiply-adds per
     axis, without the exhaustive check's (candidate, point, 3) offsets p - c, its GEMM over every
-    approach and its gather of the counted poses. They differ from the exhaustive GEMM's by
-    rounding (<< ``VOLUME_SLACK_M`` for grasp centres within a few metres of the origin), so a
-    pose's count is bounded: points inside a box by more than the slack count, points outside
-    every box by more than it do not, and only points within it of a face (rare, but common on a
-    grid aligned with the gripper) are uncertain. Poses whose bounds straddle ``limit``, and
-    those whose centre is too far out for the rounding bound, are counted by
+    approach and its gather of the counted poses; and a candidate's poses that share one closing
+    axis (all of them, for ``grasp_rotations``' frames) share its y coordinates and their finger
+    slab and palm excesses, computed once for them. The coordinates differ from the exhaustive
+    GEMM's by rounding (<< ``VOLUME_SLACK_M`` for grasp centres within a few metres of the
+    origin), so a pose's count is bounded: points inside a box by more than the slack count,
+    points outside every box by more than it do not, and only points within it of a face (rare,
+    but common on a grid aligned with the gripper) are uncertain. Poses whose bounds straddle
+    ``limit``, and those whose centre is too far out for the rounding bound, are counted by
     ``gripper_occupancy`` itself.
 
     Args:
         points, object_index, centre, rotation, width_m, geometry, chunk_elements: as for
-            ``gripper_occupancy``; ``chunk_elements`` bounds the (pose, point) pairs held at once.
+            ``gripper_occupancy``; ``chunk_elements`` bounds the (pose, point) pairs held at once
+            (one candidate's poses at least).
         limit: (C,) float32 largest point count each candidate's poses may hold.
         poses: (C, K) bool, the poses to decide; the others are reported False.
 
@@ -194,30 +212,25 @@ def gripper_occupancy_within(
     n_candidates, n_approaches = rotation.shape[:2]
     finger_z_max, finger_z_min, finger_y_max = geometry.fingertip_offset_m, geometry.finger_z_min, geometry.finger_y_max
     pose_row, pose_slot = poses.nonzero(as_tuple=True)
-    # Each pose's grasp axes as rows (R, 3, 3) and offsets -axis . centre (R, 3, 1), z measured
-    # from the finger slabs' middle, and its finger slabs' middle and half extent along |y| (R, 1).
-    axes = rotation[pose_row, pose_slot].transpose(1, 2)
+    # The poses in groups that share one closing axis, then each pose's grasp axes as rows
+    # (R, 3, 3) and offsets -axis . centre (R, 3, 1), z measured from the finger slabs' middle.
+    frames = rotation.reshape(-1, 3, 3).index_select(0, pose_row * n_approaches + pose_slot)
+    order, group_first, classes = _closing_groups(pose_row, frames[:, :, 1])
+    pose_row, pose_slot, axes = pose_row[order], pose_slot[order], frames[order].transpose(1, 2)
     offset = -(axes @ centre[pose_row, :, None])
     offset[:, 2] -= (finger_z_min + finger_z_max) / 2
-    finger_y_min = width_m[pose_row, None] / 2 + geometry.contact_clearance_m
-    finger_y_mid, finger_y_half = (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2
-    scene_columns = points.permute(2, 0, 1).contiguous()  # (3, B, N): each coordinate's rows
-    scene = object_index[pose_row]
-    scene_starts = ((scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1).tolist()  # poses that begin another scene's run
-    maybe, surely = torch.empty(pose_row.numel()), torch.empty(pose_row.numel())
+    # A group's y coordinates come from its first pose's closing row and y offset: for each of
+    # its poses they are a . p - a . c with that pose's own axis a (bit-identical) and centre c,
+    # though a . c may round unlike that pose's own product: ``_centre_reach_l1``'s bound holds.
+    closing_axis, closing_offset = axes[group_first, 1:2], offset[group_first, 1:2]
+    finger_y_min = width_m[pose_row[group_first], None, None] / 2 + geometry.contact_clearance_m
+    scene = object_index[pose_row[group_first]]
+    layout = _Layout(
+        closing_axis, closing_offset, (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2, scene,
+        ((scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1).tolist(), axes[:, 0::2].transpose(0, 1), offset[:, 0::2].transpose(0, 1), classes,
+    )
     pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
-    # Every block reuses these: fresh temporaries of this size cost page faults on each block.
-    block_rows = min(pose_budget, pose_row.numel())
-    coordinates, scratch = torch.empty(block_rows, 3, points.shape[1]), torch.empty(2, block_rows, points.shape[1])
-    for first in range(0, pose_row.numel(), pose_budget):
-        last = min(first + pose_budget, pose_row.numel())
-        if bisect.bisect_right(scene_starts, first) == bisect.bisect_left(scene_starts, last):
-            # One scene (the common case): its points broadcast over the poses.
-            columns = scene_columns[:, int(scene[first]), None, None]  # (3, 1, 1, N)
-        else:
-            columns = scene_columns[:, scene[first:last], None]  # (3, p, 1, N)
-        block = _coordinates(axes[first:last], offset[first:last], columns, coordinates[: last - first])
-        maybe[first:last], surely[first:last] = _count_bounds(block, finger_y_mid[first:last], finger_y_half[first:last], geometry, scratch[:, : last - first])
+    maybe, surely = _pose_bounds(layout, points.permute(2, 0, 1).contiguous(), geometry, pose_budget)
     pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= _centre_reach_l1(geometry)
     within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
@@ -243,44 +256,130 @@ def _centre_reach_l1(geometry: GripperGeometry) -> float:
     return VOLUME_SLACK_M / (2.0 * 32.0 * 2.0**-24) - near_l1
 
 
+def _closing_groups(pose_row: torch.Tensor, closing_axis: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, list[tuple[int, int, int, int]]]:
+    """Group the poses (R, in candidate order) into runs of one candidate's poses whose closing
+    axes (R, 3) are bit-identical, so that they share their y coordinates; and order the groups by
+    size, so that blocks of one size broadcast a group's y terms over its poses.
+
+    Returns:
+        order (R,) the poses' new order, groups contiguous; group_first (G,) each group's first
+        pose in that order; and per group size, (size, first group, end group, first pose).
+    """
+    n_poses = pose_row.numel()
+    begins = torch.ones(n_poses, dtype=torch.bool)
+    begins[1:] = (pose_row[1:] != pose_row[:-1]) | (closing_axis[1:] != closing_axis[:-1]).any(dim=1)
+    first = begins.nonzero().squeeze(1)
+    size = torch.diff(first, append=torch.tensor([n_poses]))
+    by_size = torch.argsort(size, stable=True)
+    size = size[by_size]
+    group_first = size.cumsum(0) - size
+    order = (first[by_size] - group_first).repeat_interleave(size) + torch.arange(n_poses)
+    sizes, counts = torch.unique_consecutive(size, return_counts=True)
+    group_ends = counts.cumsum(0).tolist()
+    group_starts = [0, *group_ends][:-1]
+    pose_starts = group_first[group_starts].tolist()
+    return order, group_first, list(zip(sizes.tolist(), group_starts, group_ends, pose_starts))
+
+
+def _pose_bounds(layout: _Layout, scene_columns: torch.Tensor, geometry: GripperGeometry, pose_budget: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Upper and lower bounds (R,) float32 of each pose's gripper point count (``_count_bounds``),
+    in blocks of whole groups of one size of at most ``pose_budget`` poses; ``scene_columns``
+    (3, B, N) holds the scene points' world x, y and z rows."""
+    n_poses, n_points = layout.xz_axes.shape[1], scene_columns.shape[-1]
+    maybe, surely = torch.empty(n_poses), torch.empty(n_poses)
+    # Every block reuses these (coordinates, scratch, and y terms of up to as many groups): fresh
+    # temporaries of this size cost page faults on each block. A block holds one group at least.
+    block_rows = min(max([pose_budget] + [size for size, *_ in layout.classes]), n_poses)
+    coordinates, scratch, closing = torch.empty(3, 2, block_rows, n_points)
+    for size, group_start, group_end, pose_start in layout.classes:
+        # This size's poses as (group, pose of the group), and the groups per block.
+        poses, shape = slice(pose_start, pose_start + (group_end - group_start) * size), (group_end - group_start, size)
+        axes, offset = layout.xz_axes[:, poses].unflatten(1, shape), layout.xz_offset[:, poses].unflatten(1, shape)
+        bounds, step = (maybe[poses].view(shape), surely[poses].view(shape)), max(1, pose_budget // size)
+        # The y terms of whole blocks' groups, up to ``pose_budget`` groups, at once: taken per
+        # block of poses (51 to 85 groups), the 500,000-pair mug's verdict took ~4 % longer.
+        span = step * max(1, pose_budget // step)
+        for terms_first in range(group_start, group_end, span):
+            terms_last = min(terms_first + span, group_end)
+            terms = _closing_terms(layout, terms_first, terms_last, scene_columns, geometry, closing[:, : terms_last - terms_first, None])
+            for first in range(terms_first, terms_last, step):
+                last = min(first + step, terms_last)
+                block, rows = slice(first - group_start, last - group_start), slice(first - terms_first, last - terms_first)
+                buffer_shape = (2, last - first, size, n_points)
+                block_coordinates = _coordinates(
+                    axes[:, block], offset[:, block], _scene_rows(layout, scene_columns, first, last),
+                    coordinates[:, : (last - first) * size].view(buffer_shape),
+                )
+                _count_bounds(
+                    block_coordinates, terms[:, rows], geometry, scratch[:, : (last - first) * size].view(buffer_shape),
+                    (bounds[0][block], bounds[1][block]),
+                )
+    return maybe, surely
+
+
+def _scene_rows(layout: _Layout, scene_columns: torch.Tensor, first: int, last: int) -> torch.Tensor:
+    """The world x, y and z rows (3, g or 1, 1, N) of the scene points of groups [first, last),
+    from ``scene_columns`` (3, B, N)."""
+    if bisect.bisect_right(layout.scene_starts, first) == bisect.bisect_left(layout.scene_starts, last):
+        # One scene (the common case): its points broadcast over the groups.
+        return scene_columns[:, int(layout.scene[first]), None, None]
+    return scene_columns[:, layout.scene[first:last], None]
+
+
 def _coordinates(axes: torch.Tensor, offset: torch.Tensor, columns: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
-    """``out`` (p, 3, N) set to the coordinates of points along (p, 3, 3) world ``axes`` (rows),
-    plus (p, 3, 1) ``offset``; ``columns`` (3, p or 1, 1, N) holds the points' world x, y and z rows."""
-    # An out-of-place addcmul broadcasting three ways is several times slower than these.
+    """``out`` set to the coordinates of points along world ``axes`` (..., 3), plus ``offset``
+    (..., 1); ``columns`` (3, ..., N) holds the points' world x, y and z rows, broadcasting."""
+    # An out-of-place addcmul broadcasting three ways is several times slower than these; a
+    # (rows, 4) @ (4, N) GEMM with the offsets as a fourth column took 2.5x as long (K = 4).
     torch.mul(axes[..., 0:1], columns[0], out=out)
     return out.addcmul_(axes[..., 1:2], columns[1]).addcmul_(axes[..., 2:3], columns[2]).add_(offset)
 
 
+def _closing_terms(layout: _Layout, first: int, last: int, scene_columns: torch.Tensor, geometry: GripperGeometry, out: torch.Tensor) -> torch.Tensor:
+    """``out`` (2, g, 1, N) set to the finger slabs' and the palm's excess along |y| (raised as in
+    ``_count_bounds``) of the scene points' y coordinates along the closing axes of groups
+    [first, last), from ``scene_columns`` (3, B, N)."""
+    raise_m = geometry.finger_width_m / 2
+    finger, palm = out
+    columns = _scene_rows(layout, scene_columns, first, last)
+    _coordinates(layout.closing_axis[first:last], layout.closing_offset[first:last], columns, palm).abs_()
+    torch.sub(palm, layout.finger_y_mid[first:last], out=finger).abs_().sub_(layout.finger_y_half[first:last] - raise_m)
+    palm.sub_(geometry.palm_span_m / 2 - raise_m)
+    return out
+
+
 def _count_bounds(
-    coordinates: torch.Tensor, finger_y_mid: torch.Tensor, finger_y_half: torch.Tensor, geometry: GripperGeometry, scratch: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Upper and lower bounds (p,) float32 of each pose's gripper point count, from the points'
-    grasp-frame x, y and z (``coordinates`` (p, 3, N), z measured from the finger slabs' middle)
-    and each pose's finger slabs' middle and half extent along |y| (p, 1); ``coordinates`` and
-    ``scratch`` (2, p, N) are overwritten."""
+    coordinates: torch.Tensor, closing: torch.Tensor, geometry: GripperGeometry, scratch: torch.Tensor, out: tuple[torch.Tensor, torch.Tensor]
+) -> None:
+    """``out`` set to upper and lower bounds (g, s) float32 of the gripper point counts of g groups
+    of s poses, from the points' grasp-frame x and z (``coordinates`` (2, g, s, N), z measured from the finger
+    slabs' middle) and each group's excesses along |y| (``closing`` (2, g, 1, N), from
+    ``_closing_terms``); ``coordinates`` and ``scratch`` (2, g, s, N) are overwritten."""
     # Excess over each box (> 0 outside, <= 0 inside), then over the gripper, all raised by the
     # finger slabs' half width so that their |x| test needs no subtraction. For points near the
     # thresholds every value on the way lies under ~0.3 m, so each of the few roundings there errs
     # by at most 2^-24 * 0.3 m ~ 2e-8 m, raised or not: far inside the half of the slack (1e-5 m)
     # that the coordinates' own rounding leaves spare.
     raise_m = geometry.finger_width_m / 2
-    abs_x, abs_y, z = coordinates.unbind(dim=1)
-    finger, palm_z = scratch
-    coordinates[:, :2].abs_()
-    torch.sub(abs_y, finger_y_mid, out=finger).abs_().sub_(finger_y_half - raise_m)
-    torch.maximum(finger, abs_x, out=finger)
+    abs_x, z = coordinates
+    finger_y, palm_y = closing
+    palm, palm_z = scratch
+    abs_x.abs_()
+    torch.maximum(torch.sub(abs_x, geometry.palm_width_m / 2 - raise_m, out=palm), palm_y, out=palm)
+    finger = torch.maximum(abs_x, finger_y, out=abs_x)
     torch.add(z, (geometry.finger_length_m + geometry.palm_depth_m) / 2, out=palm_z).abs_().sub_(geometry.palm_depth_m / 2 - raise_m)
+    torch.maximum(palm, palm_z, out=palm)
     torch.maximum(finger, z.abs_().sub_(geometry.finger_length_m / 2 - raise_m), out=finger)
-    palm = torch.maximum(abs_x.sub_(geometry.palm_width_m / 2 - raise_m), abs_y.sub_(geometry.palm_span_m / 2 - raise_m), out=abs_x)
-    excess = torch.minimum(finger, torch.maximum(palm, palm_z, out=palm), out=finger)
+    excess = torch.minimum(finger, palm, out=finger)
     # A point inside by more than the slack is inside one box alone (they meet only at one
     # face); a point within the slack of a face may be inside, or inside both boxes at their
     # common face, so it may count once more: bounds inside +- uncertain, where inside counts
     # excess <= slack and uncertain |excess| <= slack, i.e. inside less those below -slack.
     # Comparing into float32 0/1 and summing is several times faster than through bool.
-    inside = torch.le(excess, raise_m + VOLUME_SLACK_M, out=palm_z).sum(dim=1)
-    surely = excess.lt_(raise_m - VOLUME_SLACK_M).sum(dim=1)
-    return 2 * inside - surely, surely
+    maybe, surely = out
+    torch.sum(torch.le(excess, raise_m + VOLUME_SLACK_M, out=palm_z), dim=-1, out=maybe)
+    torch.sum(excess.lt_(raise_m - VOLUME_SLACK_M), dim=-1, out=surely)
+    maybe.mul_(2).sub_(surely)
 
 
 def _counted_where_undecided(
