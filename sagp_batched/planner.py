@@ -165,6 +165,10 @@ class ScreenedCandidates:
     def n_candidates(self) -> int:
         return self.width_m.shape[0]
 
+    @property
+    def n_objects(self) -> int:
+        return self.occupancy_points.shape[0]
+
     def frames(self, rows: torch.Tensor, slots: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Approach directions (R, K, 3), in prior order, and grasp frames (R, K, 3, 3) of candidates
         ``rows``; with ``slots`` (R,), only those approaches: (R, 3) and (R, 3, 3).
@@ -478,27 +482,30 @@ class _ScreenVerdicts:
         # walks them every window round, and masking all (A,) rows cost ~6 ms a round at 500,000 pairs.
         self.usable_rows = torch.zeros(0, dtype=torch.int64)
         # (B,) candidates with verdicts per object, counted as they come for the same reason
-        self.computed = torch.zeros(int(screened.occupancy_points.shape[0]), dtype=torch.int64)
+        self.computed = torch.zeros(screened.n_objects, dtype=torch.int64)
         self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
         self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
         self.volume_s = self.hand_s = 0.0
 
-    def block_sizes(self, missing: torch.Tensor, object_index: torch.Tensor) -> torch.Tensor:
+    def block_sizes(self, missing: torch.Tensor) -> torch.Tensor:
         """(B,) candidates to compute next per object, given (B,) ``missing``: candidates in its
         window without verdicts. The survival rate seen so far says how many are needed; a block
         adds at most half of what is computed (at least ``MIN_BLOCK_GROWTH``), since survival grows
         down a mug's ranking (its top pairs lie on the rim and body, where the hand hits) and the
         early rate would overshoot."""
-        computed = self.computed
-        survived = torch.bincount(object_index[self.usable_rows], minlength=missing.shape[0])
+        computed, survived = self.computed, self.usable_per_object()
         rate_based = (missing * self.LOOKAHEAD_MARGIN * computed.clamp_min(1) / survived.clamp_min(1)).ceil().to(torch.int64)
         return torch.minimum(rate_based, missing + (computed // 2).clamp_min(self.MIN_BLOCK_GROWTH)).clamp_min(missing)
+
+    def usable_per_object(self) -> torch.Tensor:
+        """(B,) int64 candidates with verdicts and a usable approach, per object."""
+        return torch.bincount(self.screened.object_index[self.usable_rows], minlength=self.screened.n_objects)
 
     def compute_ahead(self, unknown: torch.Tensor, missing: torch.Tensor) -> None:
         """Verdicts for each object's first ``block_sizes(missing)`` candidates, in ranking order,
         among the (A,) ``unknown`` ones; (B,) ``missing``: candidates each object needs verdicts for."""
         candidate_object = self.screened.object_index
-        block = self.block_sizes(missing, candidate_object)
+        block = self.block_sizes(missing)
         rank = _segment_exclusive_cumsum(unknown.to(torch.int64), candidate_object, missing.shape[0])
         rows = (unknown & (rank < block[candidate_object])).nonzero().squeeze(1)
         if rows.numel():  # none where the objects short of candidates have no unknown ones left
@@ -571,17 +578,20 @@ class _MotionVerdicts:
         # usable approach (a few hundred; masking all (A,) rows cost ~6 ms a round at 500,000 pairs).
         self.checked_rows = torch.zeros(0, dtype=torch.int64)
 
-    def success_share(self, search: "_CandidateSearch", screens: _ScreenVerdicts, n_objects: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B,) per object, the share of candidates with a usable approach expected to end feasible
-        (their observed loss rate, with the prior, taken ``LOOKAHEAD_MARGIN`` times over), and (B,)
-        bool whether any of its candidates with a usable approach is decided."""
+    def outcomes(self, search: "_CandidateSearch", screens: _ScreenVerdicts) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Per object (B,): the share of candidates with a usable approach expected to end feasible
+        (their observed loss rate, with the prior, taken ``LOOKAHEAD_MARGIN`` times over); bool,
+        whether any of its candidates with a usable approach is decided; and float, the feasible
+        candidates it still lacks."""
         status = search.status[self.checked_rows]
         row_object = screens.screened.object_index[self.checked_rows]
-        count = torch.zeros(n_objects, dtype=torch.float32)
+        count = torch.zeros(screens.screened.n_objects, dtype=torch.float32)
         exhausted = count.index_add(0, row_object, (status == EXHAUSTED).to(torch.float32))
         decided_count = count.index_add(0, row_object, (status != UNDECIDED).to(torch.float32))
+        feasible = count.index_add(0, row_object, (status == FEASIBLE).to(torch.float32))
         share = (exhausted + self.PRIOR_EXHAUSTED_SHARE * self.PRIOR_WEIGHT) / (decided_count + self.PRIOR_WEIGHT)
-        return (1 - self.LOOKAHEAD_MARGIN * share).clamp_min(self.MIN_SUCCESS_SHARE), decided_count > 0
+        success = (1 - self.LOOKAHEAD_MARGIN * share).clamp_min(self.MIN_SUCCESS_SHARE)
+        return success, decided_count > 0, (self.max_candidates - feasible).clamp_min(0)
 
     def ensure(
         self, pending: torch.Tensor, slots: torch.Tensor, search: "_CandidateSearch", screens: _ScreenVerdicts,
@@ -592,10 +602,9 @@ class _MotionVerdicts:
         if not missing.any():
             return
         candidate_object = screens.screened.object_index
-        n_objects = int(screens.screened.occupancy_points.shape[0])
-        success, observed = self.success_share(search, screens, n_objects)
+        n_objects = screens.screened.n_objects
+        success, observed, needed = self.outcomes(search, screens)
         check_all = observed | (int(missing.sum()) < self.SMALL_ROUND_CHECKS)
-        needed = self._feasible_needed(search, screens, n_objects)
         with_missing = torch.zeros(n_objects, dtype=torch.bool)
         with_missing[candidate_object[pending[missing]]] = True
         fill = torch.where(with_missing, math.ceil(self.SMALL_ROUND_CHECKS / int(with_missing.sum())), 0)
@@ -616,26 +625,19 @@ class _MotionVerdicts:
         check_rows, check_slots = keys // n_approaches, keys % n_approaches
         self.store(check_rows, check_slots, check(check_rows, check_slots))
 
-    def _feasible_needed(self, search: "_CandidateSearch", screens: _ScreenVerdicts, n_objects: int) -> torch.Tensor:
-        """(B,) float: feasible candidates each object still lacks."""
-        row_object = screens.screened.object_index[self.checked_rows]
-        feasible = torch.zeros(n_objects).index_add_(0, row_object, (search.status[self.checked_rows] == FEASIBLE).to(torch.float32))
-        return (self.max_candidates - feasible).clamp_min(0)
-
     def screening_shortfall(self, search: "_CandidateSearch", screens: _ScreenVerdicts) -> torch.Tensor:
         """(B,) int64 usable candidates each object is expected to need screened beyond those it has,
         for the feasible candidates it still lacks (0 before any outcome is observed): what the next
         round's lookahead would screen."""
-        candidate_object = screens.screened.object_index
-        n_objects = int(screens.screened.occupancy_points.shape[0])
-        success, observed = self.success_share(search, screens, n_objects)
-        needed = self._feasible_needed(search, screens, n_objects)
+        success, observed, needed = self.outcomes(search, screens)
         rows, grasps, supply = self._open_candidates(search, screens, success, observed)
         # Before any outcome the success share is the prior's guess: sizing the window's blocks for
         # it saved at most one ~2 ms call at 5,000 pairs but shifted a 500,000-pair mug's growing
         # blocks into a last one 12,000-25,000 candidates (~0.1-0.2 s) larger.
         needed = torch.where(observed, needed, 0)
-        return self._candidates_short(needed, torch.zeros(n_objects, dtype=torch.int64), success, rows, grasps, supply, candidate_object)
+        return self._candidates_short(
+            needed, torch.zeros_like(observed, dtype=torch.int64), success, rows, grasps, supply, screens.screened.object_index
+        )
 
     def _open_candidates(
         self, search: "_CandidateSearch", screens: _ScreenVerdicts, success: torch.Tensor, check_all: torch.Tensor
@@ -771,7 +773,7 @@ def _window_with_verdicts(
         if not missing.any():
             return in_window
         wanted = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
-        usable = torch.bincount(candidate_object[verdicts.usable_rows], minlength=n_objects)
+        usable = verdicts.usable_per_object()
         if usable_target is None:
             usable_target = usable + motions.screening_shortfall(search, verdicts)
         verdicts.compute_ahead(unknown, torch.maximum(wanted, usable_target - usable))

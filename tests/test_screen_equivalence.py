@@ -124,7 +124,7 @@ def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window
     seeds = [3, 4]
     config = CONFIG.override("planner", n_pairs=2000)
     fast = plan_batch(clouds, config, seeds)
-    monkeypatch.setattr(_ScreenVerdicts, "block_sizes", lambda self, missing, object_index: missing)
+    monkeypatch.setattr(_ScreenVerdicts, "block_sizes", lambda self, missing: missing)
     monkeypatch.setattr(ScreenedCandidates, "hand_clearance", dense_hand_clearance)
     assert_same_plans(fast, plan_batch(clouds, config, seeds))
     assert sum(result.counts["rejected_hand"] for result in fast) > 0 and all(len(result) > 0 for result in fast)
