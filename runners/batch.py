@@ -46,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--export-grasps", action="store_true", default=None, help="write every scored candidate to grasps/")
     parser.add_argument("--save-frames", action="store_true", default=None, help="save images at contact and after the lift")
     parser.add_argument("--gui", action="store_true", default=None, help="PyBullet GUI instead of DIRECT")
+    parser.add_argument("--keep-errors", action="store_true", default=None,
+                        help="on resume, keep trials recorded with an error instead of running them again")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -59,6 +61,7 @@ def main(argv: list[str] | None = None) -> int:
                 "objects_dir": args.objects_dir, "out": args.out, "workers": args.workers, "backend": args.backend,
                 "ray_address": args.ray_address, "trial_timeout_s": args.trial_timeout_s,
                 "export_grasps": args.export_grasps, "save_frames": args.save_frames, "gui": args.gui,
+                "keep_errors": args.keep_errors,
             },
             "rating": {"backend": args.rater, "model": args.model, "endpoint": args.endpoint},
             "planner": {"n_pairs": args.n_pairs},
@@ -97,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     configure_torch()
     try:
         result = run_study(config, objects, methods, objects_dir=config.run.objects_dir,
-                           progress=not args.no_progress, not_run=not_run)
+                           progress=not args.no_progress, not_run=not_run,
+                           on_note=lambda note: print(f"note: {note}", file=sys.stderr))
     except (ConfigError, ObjectSetError, UnknownObjectError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

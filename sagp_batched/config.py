@@ -371,6 +371,8 @@ class RunConfig:
     export_grasps: bool = False
     save_frames: bool = False
     gui: bool = False
+    # On resume, trials whose record is an error run again unless this keeps them.
+    keep_errors: bool = False
 
 
 @dataclass

@@ -1,7 +1,9 @@
 """Study metrics (the published protocol) over trial records, with 95 % Wilson intervals.
 
 Definitions, per method x task x group:
-- GSR: grasp success rate, the object lifted and held (the T1 criterion) over all trials.
+- n: trials that ran to an outcome; ``errors``: trials whose record is an error (an exception or the
+  time limit), counted apart and left out of every rate, since they say nothing of a grasp.
+- GSR: grasp success rate, the object lifted and held (the T1 criterion) over the trials that ran.
 - FAS: first-attempt success, trials whose first executed attempt lifted the object, over the trials
   that executed at least one attempt (errors, perception failures and "no_candidates" trials are
   left out of its denominator, unlike GSR's), so it measures the ranking's top choice, not the retries.
@@ -78,8 +80,24 @@ def attempt_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def group_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Metrics of one group of trial records (errors count as failed trials)."""
+# A neutral rating's reason is kept to this many characters in summaries (it may quote a model's answer).
+NEUTRAL_REASON_MAX_CHARS = 120
+
+
+def neutral_rating_reasons(records: list[dict[str, Any]]) -> dict[str, int]:
+    """Reason -> count over the records whose zone rating was neutral (the rater gave no usable answer)."""
+    reasons = Counter()
+    for record in records:
+        rating = record.get("rating") or {}
+        if rating.get("outcome") == "neutral":
+            issues = rating.get("issues") or ["no reason given"]
+            reasons[str(issues[0])[:NEUTRAL_REASON_MAX_CHARS]] += 1
+    return dict(sorted(reasons.items()))
+
+
+def group_metrics(group: list[dict[str, Any]]) -> dict[str, Any]:
+    """Metrics of one group of trial records; error records are counted apart, not as failed trials."""
+    records = [r for r in group if not r.get("error")]
     n = len(records)
     lifted = [r for r in records if r.get("success")]
     attempted = [r for r in records if r.get("attempt_log")]
@@ -104,7 +122,9 @@ def group_metrics(records: list[dict[str, Any]]) -> dict[str, Any]:
     }
     return {
         "n": n,
-        "errors": sum(1 for r in records if r.get("error")),
+        "errors": len(group) - n,
+        "neutral_ratings": sum(neutral_rating_reasons(group).values()),
+        "neutral_rating_reasons": neutral_rating_reasons(group),
         **{name: (k / total if total else None) for name, (k, total) in counts.items()},
         "counts": {name: list(kn) for name, kn in counts.items()},
         "ci95": {name: wilson_interval(k, total) for name, (k, total) in counts.items()},

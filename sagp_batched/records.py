@@ -9,12 +9,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import math
+
 import numpy as np
 
 from .config import Config
 from .judging import GraspPlacement, TaskOutcome
 from .objects import ObjectSpec
-from .types import Grasp, GraspAttempt
+from .types import METHODS, TASKS, Grasp, GraspAttempt
 
 PLAN_COUNTS: tuple[str, ...] = ("sampled", "antipodal", "collision_free", "ik_feasible")
 STAGE_TIMES: tuple[str, ...] = ("perception", "geometry", "rating", "total_plan")
@@ -167,3 +169,76 @@ def _jsonable(details: dict[str, Any]) -> dict[str, Any]:
             value = value.tolist()
         out[key] = value
     return out
+
+
+# --- the record's schema: what ``TrialRecord.to_json`` writes, checked on every line read back -----
+
+_OPTIONAL_BOOL = (bool, type(None))
+_OPTIONAL_NUMBER = (int, float, type(None))
+_OPTIONAL_TEXT = (str, type(None))
+# Every key of a record and the JSON types its value may take (bool is not accepted as an int).
+RECORD_FIELDS: dict[str, tuple[type, ...]] = {
+    "object": (str,), "category": (str,), "asymmetric": (bool,), "task": (str,), "method": (str,),
+    "trial": (int,), "seed": (int,), "candidate_seed": (int,), "success": (bool,), "task_success": (bool,),
+    "attempts": (int,), "attempt_log": (list,), "grasp": (dict, type(None)), "failure_reason": _OPTIONAL_TEXT,
+    "in_preferred_zone": _OPTIONAL_BOOL, "in_avoid_zone": _OPTIONAL_BOOL, "in_functional_region": _OPTIONAL_BOOL,
+    "in_avoid_region": _OPTIONAL_BOOL, "orientation_change_deg": _OPTIONAL_NUMBER, "orientation_kept": _OPTIONAL_BOOL,
+    "distractors_max_displacement_m": _OPTIONAL_NUMBER, "n_candidates": (dict,), "times_s": (dict,),
+    "rating": (dict, type(None)), "skipped": (bool,), "error": _OPTIONAL_TEXT,
+}
+OPTIONAL_RECORD_FIELDS: dict[str, tuple[type, ...]] = {"traceback": (str,), "frames": (dict,)}
+ATTEMPT_FIELDS: dict[str, tuple[type, ...]] = {"candidate": (int,), "success": (bool,), "failure_reason": _OPTIONAL_TEXT}
+
+
+def _type_problem(where: str, value: Any, allowed: tuple[type, ...]) -> str | None:
+    if isinstance(value, bool) and bool not in allowed:
+        return f"{where} is a boolean"
+    if not isinstance(value, allowed):
+        return f"{where} is {type(value).__name__}, not {' or '.join('null' if t is type(None) else t.__name__ for t in allowed)}"
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"{where} is not finite"
+    return None
+
+
+def record_problem(record: Any) -> str | None:
+    """Why ``record`` (a parsed line of ``trials.jsonl``) is not a trial record, or None if it is one.
+
+    A record has exactly the keys ``to_json`` writes with their types, names a known task and method,
+    and is consistent with itself: a success is a held final attempt, an error executed nothing."""
+    if not isinstance(record, dict):
+        return f"a JSON {type(record).__name__}, not an object"
+    missing = [key for key in RECORD_FIELDS if key not in record]
+    if missing:
+        return f"missing {', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}"
+    unknown = [key for key in record if key not in RECORD_FIELDS and key not in OPTIONAL_RECORD_FIELDS]
+    if unknown:
+        return f"unknown key {unknown[0]!r}"
+    for key, value in record.items():
+        problem = _type_problem(key, value, RECORD_FIELDS.get(key) or OPTIONAL_RECORD_FIELDS[key])
+        if problem:
+            return problem
+    if record["task"] not in TASKS or record["method"] not in METHODS:
+        return f"unknown task {record['task']!r} or method {record['method']!r}"
+    if record["trial"] < 0:
+        return "trial is negative"
+    if set(record["n_candidates"]) != set(PLAN_COUNTS) or set(record["times_s"]) != set(STAGE_TIMES):
+        return "n_candidates or times_s does not hold the stage keys"
+    attempt_log = record["attempt_log"]
+    for number, attempt in enumerate(attempt_log):
+        if not isinstance(attempt, dict):
+            return f"attempt {number} is not an object"
+        for key, allowed in ATTEMPT_FIELDS.items():
+            if key not in attempt:
+                return f"attempt {number} has no {key}"
+            problem = _type_problem(f"attempt {number} {key}", attempt[key], allowed)
+            if problem:
+                return problem
+    if record["attempts"] != len(attempt_log):
+        return f"attempts is {record['attempts']} but the attempt log holds {len(attempt_log)}"
+    if record["success"] and not (attempt_log and attempt_log[-1]["success"] and record["grasp"] is not None):
+        return "success without a held final attempt and its grasp"
+    if record["task_success"] and not record["success"]:
+        return "task success without grasp success"
+    if record["error"] is not None and (attempt_log or record["success"]):
+        return "an error record with executed attempts"
+    return None

@@ -31,13 +31,26 @@ def _label(method: str) -> str:
 
 
 def _task_table(summary: dict[str, Any], task: str) -> list[str]:
-    lines = ["| method | " + " | ".join(RATE_METRICS) + " | MPT s | geometry s | rating s |", "|---|" + "---|" * (len(RATE_METRICS) + 3)]
+    lines = ["| method | trials | errors | " + " | ".join(RATE_METRICS) + " | MPT s | geometry s | rating s |",
+             "|---|" + "---|" * (len(RATE_METRICS) + 5)]
     for method, by_task in summary.items():
         if task not in by_task:
             continue
         m = by_task[task]["all"]
         rates = " | ".join(format_rate(m, key) for key in RATE_METRICS)
-        lines.append(f"| {_label(method)} | {rates} | {_seconds(m['MPT_s'])} | {_seconds(m['geometry_s'])} | {_seconds(m['rating_s'])} |")
+        lines.append(f"| {_label(method)} | {m['n']} | {m['errors']} | {rates} | {_seconds(m['MPT_s'])} | {_seconds(m['geometry_s'])} "
+                     f"| {_seconds(m['rating_s'])} |")
+    return lines
+
+
+def _neutral_ratings_lines(summary: dict[str, Any], task: str, methods: list[str]) -> list[str]:
+    """How many trials each method ran on a neutral zone rating, and why; empty when none did."""
+    lines = []
+    for method in methods:
+        m = summary[method][task]["all"]
+        if m["neutral_ratings"]:
+            reasons = "; ".join(f"{reason} ×{count}" for reason, count in m["neutral_rating_reasons"].items())
+            lines.append(f"- {_label(method)}: {m['neutral_ratings']} of {m['n'] + m['errors']} trials: {reasons}")
     return lines
 
 
@@ -110,13 +123,17 @@ def summary_markdown(summary: dict[str, Any], not_run: dict[str, str], by_object
              "functional region (handle, grip) / avoid region (rim, chuck, blades), over those grasps. "
              "MPT: mean planning time per trial in seconds (geometry + rating + ranking; perception excluded). "
              "Failed attempts are counted by reason@stage; prediction mismatches are failed attempts "
-             "the planner had predicted reachable and collision-free.", ""]
+             "the planner had predicted reachable and collision-free. "
+             "Trials that ended in an error (an exception or the time limit) are counted under errors, "
+             "apart from failed grasps, and left out of every rate.", ""]
     tasks = sorted({task for by_task in summary.values() for task in by_task})
     for task in tasks:
         methods = [m for m in summary if task in summary[m]]
         lines += [f"## Task {task}", ""] + _task_table(summary, task)
         lines += ["", f"### Task {task} by group (GSR / PZA)", ""] + _group_table(summary, task, methods)
         lines += ["", f"### Task {task} failed attempts", ""] + _failure_table(summary, task, methods)
+        neutral = _neutral_ratings_lines(summary, task, methods)
+        lines += ["", f"### Task {task} neutral zone ratings", ""] + (neutral or ["none"])
         if by_object is not None:
             lines += ["", f"### Task {task} by object (FAS / GSR / failed attempts)", ""] + _object_table(by_object, task)
             functional = _functional_object_table(by_object, task, set(load_regions()))

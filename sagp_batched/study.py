@@ -1,15 +1,14 @@
 """The study loop: units over objects x tasks x trials, run locally, in processes, or on Ray.
 
-Long runs lose nothing: each finished record is appended to ``trials.jsonl`` and flushed at once;
-a re-run into the same directory skips finished records (a truncated last line from a killed run
-is dropped and re-run); a unit that raises or times out is recorded with its error.
+Long runs lose nothing: each finished record is appended to ``trials.jsonl`` and synced at once
+(``run_directory``); a re-run into the same directory skips finished records and runs again the
+trials whose line was torn or invalid, and those that ended in an error unless ``run.keep_errors``;
+a unit that raises or times out is recorded with its error.
 """
 from __future__ import annotations
 
 import concurrent.futures
-import json
 import multiprocessing
-import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,18 +18,12 @@ from . import provenance
 from .config import Config, ConfigError, load_config
 from .experiment import TrialRunner
 from .records import TrialRecord, TrialUnit, record_key
+from .run_directory import (
+    CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, RunDirectoryError, RunLock, TrialWriter, check_same_run, read_records, recover_trials_file, write_json,
+)
 from .metrics import summarise
 from .objects import ObjectSet, load_object_set
 from .types import METHODS, TASKS
-
-TRIALS_FILE = "trials.jsonl"
-# Settings that say how a run is executed, not what it computes: they may differ on resume.
-EXECUTION_ONLY = {"out", "workers", "backend", "ray_address", "gui", "trial_timeout_s", "objects", "tasks", "methods", "n_trials", "save_frames", "export_grasps"}
-
-
-class RunDirectoryMismatch(ConfigError):
-    """The output directory holds a run made with different method settings."""
-
 
 @dataclass
 class StudyResult:
@@ -39,6 +32,7 @@ class StudyResult:
     summary: dict[str, Any]
     new_records: int
     not_run: dict[str, str] = field(default_factory=dict)
+    rejected_lines: int = 0  # lines of trials.jsonl set aside in trials.rejected.jsonl on this start
 
 
 def resolve_object_ids(config: Config, objects: ObjectSet) -> list[str]:
@@ -66,62 +60,6 @@ def plan_units(config: Config, objects: ObjectSet, methods: Iterable[str]) -> li
         for task in config.run.tasks
         for trial in range(config.run.n_trials)
     ]
-
-
-def read_records(path: Path) -> list[dict[str, Any]]:
-    """Records of a trials file, last one per key kept; a torn final line is ignored."""
-    if not path.exists():
-        return []
-    by_key: dict[tuple, dict[str, Any]] = {}
-    for line in path.read_text().splitlines():
-        if not line.strip():
-            continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            continue  # the line a killed run was writing: its unit is run again
-        by_key[record_key(record)] = record
-    return list(by_key.values())
-
-
-def _method_settings(config_dict: dict[str, Any]) -> dict[str, Any]:
-    settings = dict(config_dict)
-    settings["run"] = {k: v for k, v in config_dict["run"].items() if k not in EXECUTION_ONLY}
-    return settings
-
-
-def _check_run_directory(out_dir: Path, config: Config) -> None:
-    saved = out_dir / "config.json"
-    if not saved.exists():
-        return
-    previous = json.loads(saved.read_text())
-    current = json.loads(json.dumps(config.to_dict()))
-    if _method_settings(previous) != _method_settings(current):
-        differing = sorted(
-            f"{section}.{key}"
-            for section, values in _method_settings(current).items()
-            for key, value in values.items()
-            if _method_settings(previous).get(section, {}).get(key) != value
-        )
-        raise RunDirectoryMismatch(
-            f"{out_dir} holds a run made with other settings ({', '.join(differing)}); "
-            "choose another --out or delete that directory"
-        )
-
-
-class TrialWriter:
-    """Appends records to trials.jsonl, flushed and synced one by one."""
-
-    def __init__(self, path: Path):
-        self._file = path.open("a", encoding="utf-8")
-
-    def write(self, record: dict[str, Any]) -> None:
-        self._file.write(json.dumps(record, sort_keys=True) + "\n")
-        self._file.flush()
-        os.fsync(self._file.fileno())
-
-    def close(self) -> None:
-        self._file.close()
 
 
 # --- executors ---------------------------------------------------------------------------------
@@ -168,7 +106,7 @@ def _run_processes(config: Config, units: list[TrialUnit], emit: Callable, objec
                     records = _crashed_unit_records(config, objects_dir, unit, exc)
                 for record in records:
                     emit(record)
-        except KeyboardInterrupt:
+        except BaseException:  # an interrupt, or a record that cannot be written: start no further unit
             pool.shutdown(wait=False, cancel_futures=True)
             raise
 
@@ -211,6 +149,16 @@ def _run_ray(config: Config, units: list[TrialUnit], emit: Callable, objects_dir
 # --- the study ---------------------------------------------------------------------------------
 
 
+def _pending_units(units: list[TrialUnit], finished: set[tuple[str, str, str, int]]) -> list[TrialUnit]:
+    """The units with methods still to run, each holding only those methods."""
+    pending = []
+    for unit in units:
+        methods = tuple(m for m in unit.methods if (unit.object_id, unit.task, m, unit.trial) not in finished)
+        if methods:
+            pending.append(TrialUnit(unit.object_id, unit.task, unit.trial, methods))
+    return pending
+
+
 def run_study(
     config: Config,
     objects: ObjectSet,
@@ -219,29 +167,50 @@ def run_study(
     objects_dir: str | None = None,
     progress: bool = True,
     not_run: dict[str, str] | None = None,
+    on_note: Callable[[str], None] | None = None,
 ) -> StudyResult:
-    """Run (or finish) the study described by ``config`` into ``config.run.out``."""
-    from .report import write_reports
+    """Run (or finish) the study described by ``config`` into ``config.run.out``.
 
+    ``on_note`` hears, in one line each, what a resume found and set aside (torn or invalid lines,
+    error records run again)."""
     out_dir = Path(config.run.out).expanduser()
     units = plan_units(config, objects, methods)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    _check_run_directory(out_dir, config)
-    (out_dir / "config.json").write_text(json.dumps(config.to_dict(), indent=2, sort_keys=True))
-    seeds = sorted({config.scene.seed_base + u.trial for u in units})
-    (out_dir / "provenance.json").write_text(json.dumps(provenance.collect(
-        config.to_dict(),
-        scene_seeds=seeds,
-        candidate_seed_offset=config.planner.seed + config.scene.seed_base,
-        objects={"source": objects.source, "checksum": objects.checksum(), "ids": [u for u in dict.fromkeys(x.object_id for x in units)]},
-        methods=list(methods),
-        not_run=not_run or {},
-    ), indent=2, sort_keys=True, default=str))
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot create the run directory {out_dir}: {exc.strerror or exc}") from exc
+    with RunLock(out_dir):
+        return _run_locked(config, objects, methods, units, out_dir, objects_dir, progress, not_run or {}, on_note or (lambda note: None))
 
+
+def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], units: list[TrialUnit], out_dir: Path,
+                objects_dir: str | None, progress: bool, not_run: dict[str, str], on_note: Callable[[str], None]) -> StudyResult:
+    from .report import write_reports
+
+    checksum = objects.checksum()
+    check_same_run(out_dir, config, checksum, objects.source)
     trials_path = out_dir / TRIALS_FILE
-    finished = {record_key(r) for r in read_records(trials_path)}
-    pending = [u for u in units if not all(key in finished for key in u.keys())]
-    pending = [TrialUnit(u.object_id, u.task, u.trial, tuple(m for m in u.methods if (u.object_id, u.task, m, u.trial) not in finished)) for u in pending]
+    recovered = recover_trials_file(trials_path)
+    if recovered.rejected:
+        reasons = sorted({line.reason for line in recovered.rejected})
+        on_note(f"{len(recovered.rejected)} line(s) of {trials_path} set aside in trials.rejected.jsonl and their trials "
+                f"run again ({'; '.join(reasons)[:300]})")
+    write_json(out_dir / CONFIG_FILE, config.to_dict())
+    write_json(out_dir / PROVENANCE_FILE, provenance.collect(
+        config.to_dict(),
+        scene_seeds=sorted({config.scene.seed_base + u.trial for u in units}),
+        candidate_seed_offset=config.planner.seed + config.scene.seed_base,
+        objects={"source": objects.source, "checksum": checksum, "ids": list(dict.fromkeys(u.object_id for u in units))},
+        methods=list(methods),
+        not_run=not_run,
+    ))
+
+    wanted = {key for u in units for key in u.keys()}
+    errors = {record_key(r) for r in recovered.records if r["error"] is not None} & wanted
+    if errors and not config.run.keep_errors:
+        on_note(f"{len(errors)} trial(s) that ended in an error run again (--keep-errors keeps them)")
+    finished = {record_key(r) for r in recovered.records} - (set() if config.run.keep_errors else errors)
+    pending = _pending_units(units, finished)
 
     writer = TrialWriter(trials_path)
     bar = None
@@ -273,8 +242,10 @@ def run_study(
         if bar is not None:
             bar.close()
 
-    wanted = {key for u in units for key in u.keys()}
     records = sorted((r for r in read_records(trials_path) if record_key(r) in wanted), key=record_key)
     summary = summarise(records)
-    write_reports(out_dir, records, summary, not_run or {})
-    return StudyResult(out_dir, records, summary, new_records, not_run or {})
+    try:
+        write_reports(out_dir, records, summary, not_run)
+    except OSError as exc:
+        raise RunDirectoryError(f"cannot write the reports in {out_dir}: {exc.strerror or exc}; every trial is kept in {trials_path}") from exc
+    return StudyResult(out_dir, records, summary, new_records, not_run, len(recovered.rejected))

@@ -136,7 +136,7 @@ def test_fra_and_far_count_only_successful_grasps_on_annotated_objects():
 def test_the_report_has_fra_and_far_columns_and_an_fra_by_object_table(tmp_path):
     markdown = summary_markdown(summarise(RECORDS), {}, by_object=per_object(RECORDS))
     lines = markdown.splitlines()
-    assert lines[lines.index("## Task t2") + 2].startswith("| method | GSR | FAS | TSR | PZA | AC | OP | FRA | FAR |")
+    assert lines[lines.index("## Task t2") + 2].startswith("| method | trials | errors | GSR | FAS | TSR | PZA | AC | OP | FRA | FAR |")
     start = lines.index("### Task t2 FRA by object") + 2
     end = next((i for i in range(start, len(lines)) if not lines[i].startswith("|")), len(lines))
     table = lines[start:end]

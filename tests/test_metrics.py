@@ -58,9 +58,27 @@ def test_fas_counts_only_the_first_attempt_while_gsr_counts_a_later_success():
 
 def test_trials_without_attempts_are_left_out_of_the_fas_denominator_but_not_gsr():
     no_attempt_trial = {k: v for k, v in _trial([]).items() if k != "attempt_log"}
-    records = [_trial([_attempt(True)]), _trial([], error="perception failed"), no_attempt_trial]
+    records = [_trial([_attempt(True)]), _trial([]), no_attempt_trial]
     metrics = summarise(records)["sagp"]["t1"]["all"]
     assert metrics["counts"]["GSR"] == [1, 3] and metrics["counts"]["FAS"] == [1, 1]
+
+
+def test_error_trials_are_counted_apart_from_failed_grasps_and_left_out_of_every_rate():
+    records = [_trial([_attempt(True)]), _trial([], error="TrialTimeout: 300 s"), _trial([_attempt(False, "slipped", "lift")])]
+    metrics = summarise(records)["sagp"]["t1"]["all"]
+    assert metrics["n"] == 2 and metrics["errors"] == 1
+    assert metrics["counts"]["GSR"] == [1, 2] and metrics["counts"]["TSR"] == [1, 2] and metrics["counts"]["FAS"] == [1, 2]
+
+
+def test_neutral_ratings_are_counted_per_method_and_task_with_their_reasons():
+    neutral = {"backend": "openai", "outcome": "neutral", "issues": ["no JSON object in the answer"]}
+    rated = {"backend": "openai", "outcome": "ok", "issues": []}
+    records = [_trial([_attempt(True)], rating=neutral), _trial([_attempt(True)], rating=neutral),
+               _trial([_attempt(True)], rating=rated), _trial([_attempt(True)], method="go", rating=rated)]
+    summary = summarise(records)
+    assert summary["sagp"]["t1"]["all"]["neutral_ratings"] == 2
+    assert summary["sagp"]["t1"]["all"]["neutral_rating_reasons"] == {"no JSON object in the answer": 2}
+    assert summary["go"]["t1"]["all"]["neutral_ratings"] == 0
 
 
 def test_attempt_failures_count_reason_at_stage_across_records_and_unknown_stage_for_old_records():

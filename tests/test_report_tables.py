@@ -30,9 +30,10 @@ def _table_after(markdown, heading):
 
 def test_main_table_puts_fas_next_to_gsr_with_counts_and_interval():
     table = _table_after(summary_markdown(summarise(RECORDS), {}), "## Task t1")
-    assert table[0].startswith("| method | GSR | FAS | TSR |")
+    assert table[0].startswith("| method | trials | errors | GSR | FAS | TSR |")
     sagp = next(row for row in table if row.startswith("| SAGP |")).split(" | ")
-    assert sagp[1].startswith("1/2 (50.0 %, ") and sagp[2].startswith("0/2 (0.0 %, 0.0-")
+    assert sagp[1:3] == ["2", "0"]
+    assert sagp[3].startswith("1/2 (50.0 %, ") and sagp[4].startswith("0/2 (0.0 %, 0.0-")
 
 
 def test_failure_table_has_a_column_per_reason_at_stage_and_counts_per_method():

@@ -10,7 +10,8 @@ import pytest
 
 from sagp_batched.config import load_config
 from sagp_batched.objects import load_object_set
-from sagp_batched.study import read_records, run_study
+from sagp_batched.run_directory import REJECTED_FILE, read_records
+from sagp_batched.study import run_study
 
 REPO = Path(__file__).resolve().parent.parent
 # Fields that depend on wall-clock time or the machine, not on the seeds.
@@ -83,6 +84,53 @@ def test_end_to_end_resume_after_a_kill_equals_an_uninterrupted_run(tmp_path, yc
     lines = [line for line in trials.read_text().splitlines() if line.strip()]
     assert len(lines) == 3, "no trial lost or duplicated"
     assert _stable(read_records(trials)) == _stable(reference.records)
+
+
+def _batch_command(ycb_dir, out, n_trials=3):
+    return [sys.executable, "-m", "runners.batch", "--profile", "ci", "--objects", "005_tomato_soup_can", "--tasks", "t1",
+            "--methods", "go", "--n-trials", str(n_trials), "--objects-dir", str(ycb_dir), "--out", str(out), "--no-progress"]
+
+
+@pytest.mark.slow
+def test_end_to_end_a_torn_last_line_resumes_to_records_equal_to_an_uninterrupted_run(tmp_path, ycb_dir):
+    reference = _run(_config(tmp_path, ycb_dir, "reference", n_trials=3))
+    out = tmp_path / "torn"
+    assert subprocess.run(_batch_command(ycb_dir, out), cwd=REPO, capture_output=True).returncode == 0
+    trials = out / "trials.jsonl"
+    text = trials.read_text()
+    trials.write_text(text[: len(text) - len(text.splitlines()[-1]) // 2 - 1])  # half of the last record, no newline
+    resumed = subprocess.run(_batch_command(ycb_dir, out), cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "1 line(s) of" in resumed.stderr and "torn line" in resumed.stderr
+    assert len(trials.read_text().splitlines()) == 3 and len((out / REJECTED_FILE).read_text().splitlines()) == 1
+    assert _stable(read_records(trials)) == _stable(reference.records)
+
+
+@pytest.mark.slow
+def test_end_to_end_a_full_disk_stops_with_one_error_line_and_resumes_to_an_uninterrupted_run(tmp_path, ycb_dir):
+    import shutil
+
+    reference = _run(_config(tmp_path, ycb_dir, "reference", n_trials=3))
+    tiny = tmp_path / "tiny"
+    tiny.mkdir()
+    # Room for the lock, config.json, provenance.json and one page of records: the second record does not fit.
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=24k", "tmpfs", str(tiny)], capture_output=True, text=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
+    try:
+        full = subprocess.run(_batch_command(ycb_dir, tiny / "run"), cwd=REPO, capture_output=True, text=True, timeout=900)
+        errors = [line for line in full.stderr.splitlines() if line.startswith("error:")]
+        assert full.returncode == 2 and len(errors) == 1 and "No space left on device" in errors[0], full.stderr
+        assert "Traceback" not in full.stderr
+        kept = read_records(tiny / "run" / "trials.jsonl")
+        assert 1 <= len(kept) < 3 and (tiny / "run" / "trials.jsonl").read_bytes().endswith(b"\n")
+        shutil.copytree(tiny / "run", tmp_path / "roomy")
+    finally:
+        subprocess.run(["umount", str(tiny)], check=True)
+    resumed = subprocess.run(_batch_command(ycb_dir, tmp_path / "roomy"), cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "line(s) of" not in resumed.stderr, "nothing was torn"
+    assert _stable(read_records(tmp_path / "roomy" / "trials.jsonl")) == _stable(reference.records)
 
 
 @pytest.mark.slow
