@@ -4,7 +4,10 @@ ACRONYM's HDF5 files are read by grasp-learning code (Contact-GraspNet, GraspGen
 tools): ``grasps/transforms`` (N, 4, 4) gripper poses in the object's frame,
 ``grasps/qualities/flex/object_in_gripper`` (N,) outcomes, and the object as ``object/file`` (a mesh
 path relative to the mesh root the reader is given) times ``object/scale``. We keep that layout, so
-those loaders read our files unchanged, and add SAGP's own fields beside it:
+those loaders read our files unchanged, and add SAGP's own fields beside it. Every row of
+``grasps/`` was simulated: its ``object_in_gripper`` is an outcome (1 held, 0 dropped), never a
+default. The candidates no method executed are kept apart, under ``candidates/``, with the same
+per-grasp fields, so a loader that reads ``grasps/`` never takes an untested grasp for a failure.
 
 - ``grasps/transforms``: the grasp in ACRONYM's Franka gripper frame, in the object's URDF link
   frame, metres: z = approach, x = closing axis (the fingers open along +-x), origin at the gripper
@@ -16,8 +19,11 @@ those loaders read our files unchanged, and add SAGP's own fields beside it:
   y = closing axis, z = approach) is ``panda_hand`` moved 0.105 m along z.
 - ``grasps/qualities/flex/object_in_gripper``: 1 where an executed attempt held the object, else 0.
 - ``grasps/executed/<method>``: -1 not executed by that method, 0 failed, 1 held.
-- ``grasps/qualities/<method>/score`` and ``grasps/qualities/terms/{geom,reach,afford,avoid,task}``.
+- ``grasps/candidate_index``: each simulated grasp's row in ``candidates/``.
+- ``grasps/qualities/<method>/{score,afford,avoid,task}`` and ``grasps/qualities/terms/{geom,reach}``.
 - ``grasps/width``, ``grasps/zone`` (names), ``grasps/contacts`` (N, 2, 3) in the object frame.
+- ``candidates/``: the same fields (but the outcomes) for every scored candidate of the trial, in the
+  planner's order, and ``candidates/tested``: -1 untested, 0 dropped, 1 held.
 - ``object/file``: the URDF's visual mesh relative to the objects root (the directory holding
   ``objects.json``, e.g. ``025_mug/textured.obj``; ``pybullet_data`` for the built-in set; "" for an
   object without a visual mesh). ``object/scale``: the URDF's mesh scale when uniform (1.0 for every
@@ -47,6 +53,8 @@ from .types import GraspAttempt, GraspCandidates, PerceivedCloud
 # columns (x, y, z) = (closing, approach x closing, approach) = (y_p, -x_p, z_p) = R_planner @ Rz(+90).
 # The gripper is symmetric, so the sign only fixes which contact lies at -x (contact 0) and +x.
 ACRONYM_FROM_PLANNER_ROTATION = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+# A candidate no simulation has run: kept under ``candidates/`` only, never as a grasp label.
+UNTESTED = -1
 
 
 def acronym_gripper_transforms_object(candidates_object: GraspCandidates) -> np.ndarray:
@@ -117,7 +125,8 @@ def write_acronym(
     ranked_by_method: dict[str, GraspCandidates],
     attempts_by_method: dict[str, Sequence[GraspAttempt]],
 ) -> None:
-    """Write every scored candidate of one trial; the file is replaced atomically.
+    """Write one trial's grasps: the simulated ones under ``grasps/``, every scored candidate under
+    ``candidates/``; the file is replaced atomically.
 
     ``candidates`` is the planner's output; ``ranked_by_method`` holds each method's ranking of
     them and ``attempts_by_method`` the outcomes of its leading grasps, in ranked order.
@@ -128,30 +137,39 @@ def write_acronym(
     candidates_object = candidates.transform(cloud.object_from_world)
     transforms = acronym_gripper_transforms_object(candidates_object)
     mesh_file, urdf_file, mesh_scale, mesh_to_link = object_mesh_reference(spec)
-    held = np.zeros(n, dtype=np.int8)
+    outcome = np.full(n, UNTESTED, dtype=np.int8)  # over every method's attempts: held once is held
+    executed_by_method = {}
+    for method, ranked in ranked_by_method.items():
+        executed = np.full(n, UNTESTED, dtype=np.int8)
+        for candidate, attempt in zip(ranked.candidate_id.tolist(), attempts_by_method.get(method, ())):
+            executed[candidate] = int(attempt.success)
+            outcome[candidate] = max(outcome[candidate], int(attempt.success))
+        executed_by_method[method] = executed
+    tested = np.flatnonzero(outcome != UNTESTED)
+    zone_names = np.array([candidates.zone_names[z] if 0 <= z < len(candidates.zone_names) else "" for z in candidates.zone.tolist()], dtype=object)
+    rows = {
+        "transforms": transforms, "panda_hand_transforms": panda_hand_transforms_object(transforms),
+        "width": candidates.width_m.numpy(), "contacts": candidates_object.contacts_world.numpy(),
+        "qualities/terms/geom": candidates.s_geom.numpy(), "qualities/terms/reach": candidates.s_reach.numpy(),
+    }
+    for method, ranked in ranked_by_method.items():
+        # Methods re-rank the candidates: put their values back in the planner's order.
+        ids = ranked.candidate_id.numpy()
+        for term, values in (("score", ranked.score), ("afford", ranked.s_afford), ("avoid", ranked.s_avoid), ("task", ranked.s_task)):
+            aligned = np.empty(n, dtype=np.float32)
+            aligned[ids] = values.numpy()
+            rows[f"qualities/{method}/{term}"] = aligned
     tmp = path.with_suffix(".tmp")
     with h5py.File(tmp, "w") as f:
-        f["grasps/transforms"] = transforms
-        f["grasps/panda_hand_transforms"] = panda_hand_transforms_object(transforms)
-        f["grasps/width"] = candidates.width_m.numpy()
-        f["grasps/contacts"] = candidates_object.contacts_world.numpy()
-        names = np.array([candidates.zone_names[z] if 0 <= z < len(candidates.zone_names) else "" for z in candidates.zone.tolist()], dtype=object)
-        f.create_dataset("grasps/zone", data=names, dtype=h5py.string_dtype())
-        for term, values in (("geom", candidates.s_geom), ("reach", candidates.s_reach)):
-            f[f"grasps/qualities/terms/{term}"] = values.numpy()
-        for method, ranked in ranked_by_method.items():
-            # Methods re-rank the candidates: put their values back in the planner's order.
-            ids = ranked.candidate_id.numpy()
-            for term, values in (("score", ranked.score), ("afford", ranked.s_afford), ("avoid", ranked.s_avoid), ("task", ranked.s_task)):
-                aligned = np.empty(n, dtype=np.float32)
-                aligned[ids] = values.numpy()
-                f[f"grasps/qualities/{method}/{term}"] = aligned
-            executed = np.full(n, -1, dtype=np.int8)
-            for candidate, attempt in zip(ids, attempts_by_method.get(method, ())):
-                executed[candidate] = int(attempt.success)
-                held[candidate] |= int(attempt.success)
-            f[f"grasps/executed/{method}"] = executed
-        f["grasps/qualities/flex/object_in_gripper"] = held
+        for group, selection in (("grasps", tested), ("candidates", slice(None))):
+            for name, values in rows.items():
+                f[f"{group}/{name}"] = values[selection]
+            f.create_dataset(f"{group}/zone", data=zone_names[selection], dtype=h5py.string_dtype())
+        f["grasps/qualities/flex/object_in_gripper"] = outcome[tested]
+        f["grasps/candidate_index"] = tested
+        for method, executed in executed_by_method.items():
+            f[f"grasps/executed/{method}"] = executed[tested]
+        f["candidates/tested"] = outcome
         f["object/file"] = mesh_file
         f["object/scale"] = mesh_scale
         f["object/mesh_to_link"] = mesh_to_link

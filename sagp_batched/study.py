@@ -54,6 +54,9 @@ def plan_units(config: Config, objects: ObjectSet, methods: Iterable[str]) -> li
             raise ConfigError(f"unknown method '{method}' (known: {', '.join(METHODS)})")
     if config.run.n_trials < 1:
         raise ConfigError(f"n_trials must be at least 1, got {config.run.n_trials}")
+    if "t3" in config.run.tasks and not objects.distractors():
+        # Without distractors t3's clutter condition holds trivially and its trials would repeat t1's.
+        raise ConfigError(f"task t3 needs distractors and the object set {objects.source} has none: drop t3 from --tasks")
     return [
         TrialUnit(object_id, task, trial, methods)
         for object_id in resolve_object_ids(config, objects)

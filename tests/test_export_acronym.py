@@ -103,13 +103,17 @@ def test_exported_grasps_hold_both_contacts_between_the_fingers_of_acronyms_fran
     write_acronym(path, spec, cloud, candidates, {"go": ranked},
                   {"go": [GraspAttempt(False, "slipped", 0.0, 0.0), GraspAttempt(True, None, 0.1, 2.0)]})
 
-    # Read as acronym's load_grasps and load_mesh do.
+    # Every candidate's pose is under candidates/; the simulated ones are read as acronym's load_grasps and load_mesh do.
     with h5py.File(path, "r") as f:
-        transforms = np.array(f["grasps/transforms"])
+        transforms = np.array(f["candidates/transforms"])
+        panda_hand = np.array(f["candidates/panda_hand_transforms"])
+        tested = np.array(f["candidates/tested"])
+        labelled = np.array(f["grasps/transforms"])
         success = np.array(f["grasps/qualities/flex/object_in_gripper"])
+        labelled_index = np.array(f["grasps/candidate_index"])
+        executed_go = np.array(f["grasps/executed/go"])
         mesh_file = f["object/file"][()].decode()
         mesh_scale = f["object/scale"][()]
-        panda_hand = np.array(f["grasps/panda_hand_transforms"])
 
     assert transforms.shape == (40, 4, 4) and np.allclose(transforms[:, 3], [0, 0, 0, 1])
     rotations = transforms[:, :3, :3]
@@ -131,8 +135,11 @@ def test_exported_grasps_hold_both_contacts_between_the_fingers_of_acronyms_fran
     contacts_hand = np.einsum("nij,nkj->nki", hand_from_object[:, :3, :3], contacts_object) + hand_from_object[:, None, :3, 3]
     assert np.allclose(np.abs(contacts_hand[..., 1]), width[:, None] / 2, atol=1e-4)
 
-    # Outcomes in the planner's order: the go ranking's second choice (candidate 38) held, its first did not.
-    assert success.tolist() == [1 if k == 38 else 0 for k in range(40)]
+    # Only the two simulated grasps are labelled: the go ranking's second choice (candidate 38) held, its first
+    # (candidate 39) did not; the 38 untested candidates are no label, only candidates marked -1.
+    assert labelled_index.tolist() == [38, 39] and success.tolist() == [1, 0] and executed_go.tolist() == [1, 0]
+    assert np.array_equal(labelled, transforms[[38, 39]])
+    assert tested.tolist() == [-1] * 38 + [1, 0]
 
     # root/object/file is the URDF's visual mesh, in metres at its scale, and holds every contact.
     assert mesh_file == "box/meshes/box_visual.obj" and mesh_scale == 1.0

@@ -173,26 +173,32 @@ def test_end_to_end_grasp_export_and_frames(tmp_path, ycb_dir):
     result = _run(config)
     (path,) = sorted((result.out_dir / "grasps").glob("*.h5"))
     with h5py.File(path) as f:
-        transforms = f["grasps/transforms"][()]
-        n = len(transforms)
-        assert transforms.shape == (n, 4, 4) and n == result.records[0]["n_candidates"]["ik_feasible"]
-        assert np.allclose(transforms[:, 3], [0, 0, 0, 1])
-        rotations = transforms[:, :3, :3]
+        candidates = f["candidates/transforms"][()]
+        n = len(candidates)
+        assert candidates.shape == (n, 4, 4) and n == result.records[0]["n_candidates"]["ik_feasible"]
+        assert np.allclose(candidates[:, 3], [0, 0, 0, 1])
+        rotations = candidates[:, :3, :3]
         assert np.allclose(rotations @ rotations.transpose(0, 2, 1), np.eye(3), atol=1e-5)
+        # grasps/ holds the simulated candidates only, each with its outcome: no untested row reads as a failure.
+        labelled = f["grasps/candidate_index"][()]
+        executed_anywhere = {a["candidate"] for r in result.records for a in r["attempt_log"]}
+        assert sorted(labelled.tolist()) == sorted(executed_anywhere)
+        assert np.array_equal(f["grasps/transforms"][()], candidates[labelled])
+        held = f["grasps/qualities/flex/object_in_gripper"][()]
+        assert set(held.tolist()) <= {0, 1} and np.array_equal(f["candidates/tested"][()][labelled], held)
         for method in ("go", "sagp"):
             executed = f[f"grasps/executed/{method}"][()]
             record = next(r for r in result.records if r["method"] == method)
             assert (executed >= 0).sum() == record["attempts"]
             assert (executed == 1).any() == record["success"]
-            assert f[f"grasps/qualities/{method}/score"].shape == (n,)
-        assert f["grasps/qualities/flex/object_in_gripper"].shape == (n,)
+            assert f[f"candidates/qualities/{method}/score"].shape == (n,)
         # Each method's executed grasp, by its planner id, puts the hand's grasp target at the
         # recorded midpoint in the object frame, and carries that method's recorded score.
         for record in result.records:
             index = record["attempt_log"][-1]["candidate"]
-            grasp_target = transforms[index, :3, 3] + 0.105 * transforms[index, :3, 2]
+            grasp_target = candidates[index, :3, 3] + 0.105 * candidates[index, :3, 2]
             assert np.allclose(grasp_target, record["grasp"]["midpoint_object"], atol=1e-4)
-            assert f[f"grasps/qualities/{record['method']}/score"][index] == pytest.approx(record["grasp"]["score"], abs=1e-6)
+            assert f[f"candidates/qualities/{record['method']}/score"][index] == pytest.approx(record["grasp"]["score"], abs=1e-6)
     for record in result.records:
         for moment in ("contact", "lifted"):
             image = Image.open(result.out_dir / record["frames"][moment])
