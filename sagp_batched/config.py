@@ -10,10 +10,13 @@ from __future__ import annotations
 import dataclasses
 import tomllib
 from dataclasses import dataclass, field
+from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
-PROFILES_DIR = Path(__file__).resolve().parent.parent / "profiles"
+# The checkout's top-level profiles/ folder, installed as this package by pyproject.toml.
+PROFILES_PACKAGE = "sagp_batched.profiles"
 
 
 class ConfigError(ValueError):
@@ -437,17 +440,27 @@ def _merge(obj: Any, updates: dict[str, Any], prefix: str) -> Any:
     return dataclasses.replace(obj, **changes)
 
 
-def resolve_profile_path(name_or_path: str | Path) -> Path:
+def named_profiles() -> dict[str, Traversable]:
+    """The profiles that ship inside the package (``profiles/NAME.toml`` in the checkout), by name."""
+    try:
+        folder = resources.files(PROFILES_PACKAGE)
+    except ModuleNotFoundError as exc:
+        raise ConfigError(f"the package's named profiles ({PROFILES_PACKAGE}) are not installed: "
+                          "reinstall the package (pip install -e .)") from exc
+    return {entry.name.removesuffix(".toml"): entry for entry in folder.iterdir() if entry.name.endswith(".toml")}
+
+
+def resolve_profile_path(name_or_path: str | Path) -> Traversable:
     """A profile given by name (``paper``, ``ci``, ``datagen``) or by a path to a TOML file."""
     candidate = Path(name_or_path).expanduser()
-    if candidate.suffix == ".toml" or candidate.exists():
-        path = candidate
-    else:
-        path = PROFILES_DIR / f"{name_or_path}.toml"
-    if not path.is_file():
-        known = sorted(p.stem for p in PROFILES_DIR.glob("*.toml")) if PROFILES_DIR.is_dir() else []
-        raise ConfigError(f"profile '{name_or_path}' not found at {path} (named profiles: {', '.join(known)})")
-    return path
+    given_as_path = candidate.suffix == ".toml" or candidate.exists()
+    if given_as_path and candidate.is_file():
+        return candidate
+    profiles = named_profiles()
+    if not given_as_path and str(name_or_path) in profiles:
+        return profiles[str(name_or_path)]
+    missing = f"no TOML file at {candidate}" if given_as_path else "no such named profile"
+    raise ConfigError(f"profile '{name_or_path}' not found: {missing} (named profiles: {', '.join(sorted(profiles))})")
 
 
 def load_config(profile: str | Path | None = None, overrides: dict[str, dict[str, Any]] | None = None) -> Config:
