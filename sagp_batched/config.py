@@ -379,6 +379,20 @@ class RunConfig:
 
 
 @dataclass
+class DatasetConfig:
+    """How a labelled grasp dataset picks its grasps (``verdicts.classify_grasps``)."""
+
+    # Grasps closer than this and turned less than nms_rotation_deg count as one: the dataset's
+    # grasps are chosen to differ by at least that much (graspnetAPI's pose-space suppression).
+    nms_translation_m: float = 0.01
+    nms_rotation_deg: float = 20.0
+    # Share of each object's labelled grasps the planner calls feasible; the rest are drawn evenly
+    # from its rejection verdicts (table, volume, swept hand, grasp IK, motion): the negatives and
+    # the planner's calibration.
+    feasible_fraction: float = 0.5
+
+
+@dataclass
 class Config:
     scene: SceneConfig = field(default_factory=SceneConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
@@ -390,6 +404,7 @@ class Config:
     rating: RatingConfig = field(default_factory=RatingConfig)
     tasks: TaskConfig = field(default_factory=TaskConfig)
     run: RunConfig = field(default_factory=RunConfig)
+    dataset: DatasetConfig = field(default_factory=DatasetConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
