@@ -8,15 +8,37 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
-from sagp_batched.config import ConfigError, load_config
+from sagp_batched.config import RATING_BACKENDS, RUN_BACKENDS, ConfigError, load_config
 from sagp_batched.methods import REGISTRY
-from sagp_batched.objects import ObjectSetError, UnknownObjectError, load_object_set
+from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
-from sagp_batched.study import run_study
+from sagp_batched.study import plan_units, run_study
 
 MODEL_BACKENDS = ("transformers", "openai")
+# The flags that set a config value: flag -> (argparse dest, section, field).
+SETTING_FLAGS = {
+    "--methods": ("methods", "run", "methods"),
+    "--tasks": ("tasks", "run", "tasks"),
+    "--objects": ("objects", "run", "objects"),
+    "--n-trials": ("n_trials", "run", "n_trials"),
+    "--objects-dir": ("objects_dir", "run", "objects_dir"),
+    "--out": ("out", "run", "out"),
+    "--workers": ("workers", "run", "workers"),
+    "--backend": ("backend", "run", "backend"),
+    "--address": ("ray_address", "run", "ray_address"),
+    "--trial-timeout": ("trial_timeout_s", "run", "trial_timeout_s"),
+    "--export-grasps": ("export_grasps", "run", "export_grasps"),
+    "--save-frames": ("save_frames", "run", "save_frames"),
+    "--gui": ("gui", "run", "gui"),
+    "--keep-errors": ("keep_errors", "run", "keep_errors"),
+    "--rater": ("rater", "rating", "backend"),
+    "--model": ("model", "rating", "model"),
+    "--endpoint": ("endpoint", "rating", "endpoint"),
+    "--pairs": ("n_pairs", "planner", "n_pairs"),
+}
 
 
 def _csv(text: str) -> list[str]:
@@ -35,9 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", help="run directory (re-running into it resumes)")
     parser.add_argument("--resume", action="store_true", help="finish the run in --out, failing if there is none (a plain re-run into a run directory resumes too)")
     parser.add_argument("--workers", type=int, help="trial processes, each with its own PyBullet client")
-    parser.add_argument("--backend", choices=("local", "ray"), help="where trials run")
+    parser.add_argument("--backend", choices=RUN_BACKENDS, help="where trials run")
     parser.add_argument("--address", dest="ray_address", help="Ray cluster address for --backend ray")
-    parser.add_argument("--rater", choices=("prior", "transformers", "openai", "oracle"),
+    parser.add_argument("--rater", choices=RATING_BACKENDS,
                         help="zone-rating backend (oracle: rates zones from annotated regions with the true pose, an upper bound)")
     parser.add_argument("--model", help="model id or local path (transformers) or served model name (openai)")
     parser.add_argument("--endpoint", help="OpenAI-compatible base URL, e.g. http://127.0.0.1:8000/v1")
@@ -52,23 +74,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _setting_error(exc: ConfigError, args: argparse.Namespace) -> str:
+    """The error line of a refused setting, naming the flag when a flag gave it its value."""
+    for flag, (dest, section, key) in SETTING_FLAGS.items():
+        if exc.setting == f"{section}.{key}" and getattr(args, dest) is not None:
+            return f"error: {flag}: {exc}"
+    return f"error: {exc}"
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    overrides: dict[str, dict[str, Any]] = {}
+    for dest, section, key in SETTING_FLAGS.values():
+        overrides.setdefault(section, {})[key] = getattr(args, dest)
     try:
-        config = load_config(args.profile, overrides={
-            "run": {
-                "methods": args.methods, "tasks": args.tasks, "objects": args.objects, "n_trials": args.n_trials,
-                "objects_dir": args.objects_dir, "out": args.out, "workers": args.workers, "backend": args.backend,
-                "ray_address": args.ray_address, "trial_timeout_s": args.trial_timeout_s,
-                "export_grasps": args.export_grasps, "save_frames": args.save_frames, "gui": args.gui,
-                "keep_errors": args.keep_errors,
-            },
-            "rating": {"backend": args.rater, "model": args.model, "endpoint": args.endpoint},
-            "planner": {"n_pairs": args.n_pairs},
-        })
+        config = load_config(args.profile, overrides=overrides)
+    except ConfigError as exc:
+        print(_setting_error(exc, args), file=sys.stderr)
+        return 2
+    try:
         objects = load_object_set(config.run.objects_dir)
-    except (ConfigError, ObjectSetError, UnknownObjectError) as exc:
+        # Planned here as well as in the study so that unknown ids fail before preflight's checks take their time.
+        units = plan_units(config, objects, config.run.methods)
+    except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if not units:
+        print(f"error: run.objects {list(config.run.objects)}: the object set {objects.source} holds only distractors", file=sys.stderr)
         return 2
 
     if args.resume and not (Path(config.run.out).expanduser() / "config.json").exists():
@@ -78,7 +110,12 @@ def main(argv: list[str] | None = None) -> int:
     methods = list(config.run.methods)
     not_run: dict[str, str] = {}
     model_less = config.rating.backend not in MODEL_BACKENDS
-    for name in [m for m in methods if model_less and m in REGISTRY and REGISTRY[m].needs_model]:
+    needing_a_model = [m for m in methods if model_less and m in REGISTRY and REGISTRY[m].needs_model]
+    if needing_a_model == methods and args.methods is None:
+        print(f"error: run.methods {methods}: every method needs a model backend ({', '.join(MODEL_BACKENDS)}) and the rater "
+              f"is '{config.rating.backend}': choose --rater transformers|openai or other --methods", file=sys.stderr)
+        return 2
+    for name in needing_a_model:
         label = REGISTRY[name].label
         reason = f"needs a model backend ({', '.join(MODEL_BACKENDS)}); the rater is '{config.rating.backend}'"
         if args.methods is not None:
@@ -86,13 +123,15 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         methods.remove(name)
         not_run[name] = reason + " (not run)"
-        print(f"note: {label} {not_run[name]}", file=sys.stderr)
 
     try:
         preflight(config)
     except PreflightError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+
+    for name, reason in not_run.items():
+        print(f"note: {REGISTRY[name].label} {reason}", file=sys.stderr)
 
     print(f"objects: {objects.source}", file=sys.stderr)
     labels = {"prior": " (an offline prior table, not a VLM)", "oracle": " (UPPER BOUND: annotated regions and the true object pose, not a model)"}

@@ -12,7 +12,7 @@ import sys
 
 from sagp_batched.config import ConfigError, load_config
 from sagp_batched.functional_regions import region_membership
-from sagp_batched.objects import ObjectSetError, UnknownObjectError, load_object_set
+from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.perception import capture
 from sagp_batched.scene import Scene
 from sagp_batched.types import PerceptionFailure
@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_config(args.profile)
         spec = load_object_set(args.objects_dir).get(args.object_id)
-    except (ConfigError, ObjectSetError, UnknownObjectError) as exc:
+    except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     with Scene(config) as scene:

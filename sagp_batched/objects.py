@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import importlib.resources
 import json
+import math
 import os
 import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
@@ -52,7 +53,7 @@ BUILTIN_OBJECTS = (
 
 
 class ObjectSetError(ValueError):
-    """An objects directory is missing or its ``objects.json`` is malformed."""
+    """An objects directory is missing, or its ``objects.json`` is unreadable, malformed or lists no object."""
 
 
 class UnknownObjectError(KeyError):
@@ -118,12 +119,25 @@ class ObjectSet:
 
 
 def _check_urdf(urdf_path: Path, object_id: str) -> None:
+    """The URDF parses as a ``<robot>`` and every mesh it names exists: read, not loaded into PyBullet."""
     if not urdf_path.is_file():
         raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} does not exist")
     try:
-        ElementTree.parse(urdf_path)
+        root = ElementTree.parse(urdf_path).getroot()
     except ElementTree.ParseError as exc:
         raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} is not valid XML: {exc}") from exc
+    except OSError as exc:
+        raise ObjectLoadError(f"object '{object_id}': cannot read URDF {urdf_path}: {exc.strerror or exc}") from exc
+    if root.tag != "robot":
+        raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} is not a URDF (root element <{root.tag}>, not <robot>)")
+    for mesh in root.iter("mesh"):
+        filename = mesh.get("filename")
+        if not filename:
+            raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} has a <mesh> without a filename")
+        # PyBullet reads mesh names relative to the URDF's folder, a ROS "package://" prefix dropped.
+        mesh_path = urdf_path.parent / filename.removeprefix("package://")
+        if not mesh_path.is_file():
+            raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} names mesh {mesh_path}, which does not exist")
 
 
 def embedded_ycb_dir() -> Path:
@@ -138,7 +152,11 @@ def _load_ycb_dir(objects_dir: Path, source_label: str = "ycb") -> ObjectSet:
     if not index_path.is_file():
         raise ObjectSetError(f"objects directory {objects_dir} has no objects.json")
     try:
-        index = json.loads(index_path.read_text())
+        index = json.loads(index_path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ObjectSetError(f"{index_path} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.end]!r})") from exc
+    except OSError as exc:
+        raise ObjectSetError(f"cannot read {index_path}: {exc.strerror or exc}") from exc
     except json.JSONDecodeError as exc:
         raise ObjectSetError(f"{index_path} is not valid JSON: {exc}") from exc
     if not isinstance(index, dict) or not index:
@@ -161,10 +179,14 @@ def _load_ycb_dir(objects_dir: Path, source_label: str = "ycb") -> ObjectSet:
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ObjectSetError(f"{index_path}: entry '{object_id}' is malformed ({type(exc).__name__}: {exc})") from exc
-        if len(extents) != 3:
-            raise ObjectSetError(f"{index_path}: entry '{object_id}' extents_m must hold 3 numbers")
+        if len(extents) != 3 or not all(math.isfinite(e) and e > 0 for e in extents):
+            raise ObjectSetError(f"{index_path}: entry '{object_id}' extents_m must hold 3 finite numbers > 0, got {entry['extents_m']!r}")
+        if not (math.isfinite(spec.mass_kg) and spec.mass_kg > 0):
+            raise ObjectSetError(f"{index_path}: entry '{object_id}' mass_kg must be a finite number > 0, got {entry['mass_kg']!r}")
         _check_urdf(urdf_path, object_id)
         specs.append(spec)
+    if not specs:
+        raise ObjectSetError(f"{index_path} lists no objects")
     return ObjectSet(f"{source_label}:{objects_dir.resolve()}", specs)
 
 

@@ -1,4 +1,4 @@
-"""Checks of everything a run names (workers, run directory, model, Ray cluster) before any trial runs.
+"""Checks of everything a run names (display, Ray, run directory, model, Ray cluster) before any trial runs.
 
 Each check raises ``PreflightError`` with a one-line message and leaves nothing behind: a study that
 would fail on its first trial, or after an hour of them, fails here in seconds instead.
@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import os
 import socket
+import sys
 from pathlib import Path
 
 from .config import Config, RatingConfig
@@ -27,9 +28,18 @@ class PreflightError(ValueError):
         super().__init__(" ".join(message.split()))
 
 
-def check_workers(workers: int) -> None:
-    if workers < 1:
-        raise PreflightError(f"--workers must be at least 1, got {workers}")
+def check_display(gui: bool) -> None:
+    """A GUI run on Linux has a display to open: without one PyBullet's GUI connection waits forever."""
+    if gui and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise PreflightError("--gui needs a display, and neither $DISPLAY nor $WAYLAND_DISPLAY is set (drop --gui to run headless)")
+
+
+def check_ray_installed() -> None:
+    """Ray imports: the study imports it only after writing the run directory's config and provenance."""
+    try:
+        import ray  # noqa: F401
+    except ImportError as exc:
+        raise PreflightError(f"--backend ray needs Ray, which does not import ({exc}): pip install 'sagp-batched[ray]'") from exc
 
 
 def check_out_dir(out: str | Path) -> None:
@@ -86,7 +96,9 @@ def check_ray_address(address: str) -> None:
 
 def preflight(config: Config) -> None:
     """Every check the resolved ``config`` calls for: only backends the run uses are checked."""
-    check_workers(config.run.workers)
+    check_display(config.run.gui)
+    if config.run.backend == "ray":
+        check_ray_installed()
     check_out_dir(config.run.out)
     if config.run.backend == "ray" and config.run.ray_address:
         check_ray_address(config.run.ray_address)

@@ -1,7 +1,11 @@
 """Profiles resolve to one config; flags override them; bad settings are clear errors."""
+import dataclasses
+import math
+import re
+
 import pytest
 
-from sagp_batched.config import ConfigError, load_config
+from sagp_batched.config import Config, ConfigError, load_config
 
 
 # Every number the published method and experiment fix, as the paper states them. The paper
@@ -65,3 +69,43 @@ def test_unknown_profile_lists_the_named_ones(tmp_path):
     broken.write_text("[run\nn_trials = ")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_config(broken)
+
+
+def _numeric_settings():
+    """(section, field, default) of every setting holding a number or a tuple of numbers."""
+    config = Config()
+    for section in dataclasses.fields(config):
+        values = getattr(config, section.name)
+        for declared in dataclasses.fields(values):
+            default = getattr(values, declared.name)
+            if _first_number(default) is not None:
+                yield section.name, declared.name, default
+
+
+def _first_number(value):
+    if isinstance(value, tuple):
+        return next((n for n in map(_first_number, value) if n is not None), None)
+    return value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
+def _out_of_range(value):
+    """``value`` with its first number made invalid: nan for a float, -1 for a count (every count is >= 0)."""
+    if isinstance(value, tuple):
+        first = next(i for i, entry in enumerate(value) if _first_number(entry) is not None)
+        return value[:first] + (_out_of_range(value[first]),) + value[first + 1:]
+    return -1 if isinstance(value, int) else math.nan
+
+
+NUMERIC_SETTINGS = list(_numeric_settings())
+
+
+@pytest.mark.parametrize("section, key, default", NUMERIC_SETTINGS, ids=[f"{s}.{k}" for s, k, _ in NUMERIC_SETTINGS])
+def test_every_numeric_setting_refuses_an_out_of_range_value_by_name(section, key, default):
+    with pytest.raises(ConfigError, match=re.escape(f"{section}.{key}")) as refused:
+        load_config(overrides={section: {key: _out_of_range(default)}})
+    assert refused.value.setting == f"{section}.{key}"
+
+
+def test_sections_made_in_code_are_checked_like_profiles():
+    with pytest.raises(ConfigError, match=r"planner.n_pairs must be between 1 and 5,000,000, got 0"):
+        dataclasses.replace(Config().planner, n_pairs=0)

@@ -13,7 +13,7 @@ import pytest
 import torch
 from PIL import Image
 
-from sagp_batched.config import RatingConfig
+from sagp_batched.config import ConfigError, RatingConfig
 from sagp_batched.rating import (
     CachedRater,
     OpenAIVLM,
@@ -274,7 +274,7 @@ def test_bad_requests_are_named():
         rater.rate("025_mug", "mug", "t1", CROP[..., 0], ZONES)
     with pytest.raises(RatingError, match="unknown zones"):
         rater.rate("025_mug", "mug", "t1", CROP, {"handle": "the handle"})
-    with pytest.raises(RatingError, match="unknown rating backend"):
+    with pytest.raises(ConfigError, match="rating.backend: unknown value 'crystal_ball'"):
         get_rater(RatingConfig(backend="crystal_ball"))
 
 
@@ -368,7 +368,7 @@ def test_a_fully_cached_rerun_never_loads_the_model(tmp_path):
 
 
 def test_the_oracle_rates_the_mug_handle_zone_good_and_is_labelled_an_upper_bound():
-    from sagp_batched.config import RatingConfig
+    from sagp_batched.config import ConfigError, RatingConfig
     from sagp_batched.functional_regions import load_regions
     from sagp_batched.rating import get_rater
     from sagp_batched.report import rater_note
