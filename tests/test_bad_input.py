@@ -162,6 +162,8 @@ CASES = [
     BadInput("a refusal after a method is dropped for want of a model is still the only line",
              {"--profile": "paper", "--methods": DROPPED}, ("--gui",), setup=_no_display),
     BadInput("--backend ray without Ray is refused before anything is written", named=("--backend ray", "Ray"), setup=_ray_missing),
+    BadInput("t3 on an object set without distractors is refused instead of repeating t1", {"--tasks": "t1,t3"},
+             ("task t3 needs distractors",), setup=_broken_object(lambda objects_dir: None)),
 ]
 
 
