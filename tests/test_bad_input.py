@@ -58,6 +58,10 @@ def _broken_object(breakage: Callable[[Path], None]) -> Callable[[Path, pytest.M
     return build
 
 
+def _single_object(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
+    return {"--objects-dir": str(_one_object_dir(tmp_path))}
+
+
 def _no_display(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, str | None]:
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
@@ -163,7 +167,7 @@ CASES = [
              {"--profile": "paper", "--methods": DROPPED}, ("--gui",), setup=_no_display),
     BadInput("--backend ray without Ray is refused before anything is written", named=("--backend ray", "Ray"), setup=_ray_missing),
     BadInput("t3 on an object set without distractors is refused instead of repeating t1", {"--tasks": "t1,t3"},
-             ("task t3 needs distractors",), setup=_broken_object(lambda objects_dir: None)),
+             ("task t3 needs distractors",), setup=_single_object),
 ]
 
 
