@@ -507,6 +507,16 @@ class DatasetConfig(_Section):
     # from its rejection verdicts (table, volume, swept hand, grasp IK, motion): the negatives and
     # the planner's calibration.
     feasible_fraction: float = setting(0.5, at_least=0, at_most=1)
+    grasps_per_object: int = setting(500, at_least=1, at_most=100_000)
+    # "hand": the Panda hand alone moved along the approach (cheap, the arm's reach aside);
+    # "arm": the Panda executes the planned joint path, as the study does.
+    mode: str = setting("hand", choices=("hand", "arm"))
+    # Each capture places the object at a fresh seeded position and yaw on the table (and, for an
+    # object with several stable resting poses, in the next of them); its grasps share one plan.
+    captures_per_object: int = setting(2, at_least=1, at_most=100)
+    seed: int = setting(1000, at_least=0)
+    # Share of objects GraspGen's valid.txt lists, chosen by a hash of the object id.
+    valid_fraction: float = setting(0.2, at_least=0, at_most=1)
 
 
 @dataclass

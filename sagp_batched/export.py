@@ -91,10 +91,10 @@ def object_mesh_reference(spec: ObjectSpec) -> tuple[str, str, float, np.ndarray
     """(mesh file, URDF file, scale, (4, 4) mesh-to-link) for ACRONYM's ``object`` group.
 
     The mesh is the URDF's first ``<visual><geometry><mesh filename=...>``; both paths are relative
-    to the objects root (see ``_objects_root``). Mesh file is "" where the visual is a primitive.
+    to the objects root (see ``objects_root``). Mesh file is "" where the visual is a primitive.
     """
     urdf_path = Path(spec.urdf_path).resolve()
-    root = _objects_root(urdf_path)
+    root = objects_root(urdf_path)
     mesh_to_link = np.eye(4)
     mesh_file, scale = "", 1.0
     for visual in ElementTree.parse(urdf_path).getroot().iter("visual"):
@@ -180,7 +180,7 @@ def write_acronym(
     tmp.replace(path)
 
 
-def _objects_root(urdf_path: Path) -> Path:
+def objects_root(urdf_path: Path) -> Path:
     """The directory object paths are written relative to: the nearest one above the URDF holding an
     ``objects.json`` (a YCB set), else ``pybullet_data`` when the URDF is inside it, else the URDF's own."""
     for directory in urdf_path.parents:

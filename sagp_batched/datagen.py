@@ -1,0 +1,343 @@
+"""Labelled grasp datasets: for each object and resting pose, capture once, plan, and label grasps by simulation.
+
+``ObjectLabeller.label`` makes one object's labels in one PyBullet client; ``generate_dataset`` runs
+it over an object set (in this process or in worker processes), writes each finished object at once
+(``dataset``) and resumes where a stopped run left off.
+
+What a label is: the outcome of simulating the grasp (``labelling``): held after the lift and the
+shake, or dropped, with the object's motion during closing and shaking. The grasps are the planner's
+antipodal candidates across its verdicts (``verdicts.classify_grasps``): the feasible ones and those it
+rejects, so the dataset has both classes and measures the planner's calibration. A grasp whose
+simulation could not run (in ``arm`` mode: no arm solution for a grasp the planner rejected) is kept
+apart as untested, never written as a failure.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .config import Config
+from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
+from .export import acronym_gripper_transforms_object
+from .objects import ObjectSpec
+from .types import GraspCandidates, PerceptionFailure
+from .verdicts import ClassifiedGrasps, classify_grasps
+
+# The tasks a dataset's zone ratings are asked for: t3 is t1 among distractors, which a dataset
+# of single objects does not place.
+DATASET_TASKS: tuple[str, ...] = ("t1", "t2")
+# PyBullet's lateral friction where a URDF gives none.
+PYBULLET_DEFAULT_FRICTION = 0.5
+
+
+def object_physics(spec: ObjectSpec) -> ObjectPhysics:
+    """Mass, COM, inertia and friction as the URDF gives them to PyBullet; volume from its collision
+    mesh (the sum of its convex parts, the solid PyBullet collides), density = mass / volume."""
+    import trimesh
+
+    link = ElementTree.parse(spec.urdf_path).getroot().find("link")
+    inertial = link.find("inertial")
+    mass = float(inertial.find("mass").get("value")) if inertial is not None else spec.mass_kg
+    origin = inertial.find("origin") if inertial is not None else None
+    com = tuple(float(v) for v in (origin.get("xyz") if origin is not None else "0 0 0").split())
+    inertia_element = inertial.find("inertia") if inertial is not None else None
+    values = {key: float(inertia_element.get(key, 0.0)) if inertia_element is not None else 0.0
+              for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    inertia = ((values["ixx"], values["ixy"], values["ixz"]), (values["ixy"], values["iyy"], values["iyz"]),
+               (values["ixz"], values["iyz"], values["izz"]))
+    friction_element = link.find("contact/lateral_friction")
+    friction = float(friction_element.get("value")) if friction_element is not None else PYBULLET_DEFAULT_FRICTION
+    mesh_element = link.find("collision/geometry/mesh")
+    volume = 0.0
+    if mesh_element is not None:
+        scale = np.array([float(v) for v in (mesh_element.get("scale") or "1 1 1").split()])
+        mesh = trimesh.load(Path(spec.urdf_path).parent / mesh_element.get("filename"), force="mesh")
+        mesh.apply_scale(scale)
+        volume = float(sum(part.convex_hull.volume for part in mesh.split(only_watertight=False)))
+    density = mass / volume if volume > 0 else math.nan
+    return ObjectPhysics(mass, density, friction, com, inertia, volume)  # type: ignore[arg-type]
+
+
+@dataclass
+class ObjectLabels:
+    """One object's labelled and untested grasps, with what making them cost."""
+
+    object_id: str
+    grasps: LabelledGrasps
+    untested: UntestedGrasps
+    rater: str
+    neutral_tasks: dict[str, str]  # task -> why its rating is neutral (the rater does not know the object)
+    skipped_poses: list[str] = field(default_factory=list)
+    times_s: dict[str, float] = field(default_factory=dict)  # reset, capture, plan, simulate
+
+
+@dataclass(frozen=True)
+class SimulatedGrasp:
+    """A grasp's simulated outcome in the dataset's terms."""
+
+    held: bool
+    failure_reason: str
+    motion_closing_linear_m: float
+    motion_closing_angular_rad: float
+    motion_shaking_linear_m: float
+    motion_shaking_angular_rad: float
+
+
+def _zone_levels(candidates: GraspCandidates, ratings: dict) -> tuple[list[str], dict[str, list[str]]]:
+    names = [candidates.zone_names[z] if 0 <= z < len(candidates.zone_names) else "" for z in candidates.zone.tolist()]
+    levels = {task: [(rating.level(name) or "") if name else "" for name in names] for task, rating in ratings.items()}
+    return names, levels
+
+
+class ObjectLabeller:
+    """Labels objects in one PyBullet client: a scene, a rater and the chosen simulation mode."""
+
+    def __init__(self, config: Config):
+        from .labelling import GraspSimulator
+        from .rating import get_rater
+        from .scene import Scene
+
+        self.config = config
+        self.scene = Scene(config)
+        self.rater = get_rater(config.rating)
+        self.simulator = GraspSimulator(self.scene, config, config.dataset.mode)
+
+    def close(self) -> None:
+        self.simulator.close()
+        self.scene.close()
+
+    def label(self, spec: ObjectSpec, n_grasps: int) -> ObjectLabels:
+        """``n_grasps`` grasps of ``spec`` (split over its resting poses), each simulated once."""
+        dataset = self.config.dataset
+        n_poses = dataset.captures_per_object
+        shares = [n_grasps // n_poses + (1 if k < n_grasps % n_poses else 0) for k in range(n_poses)]
+        parts, untested, skipped, neutral = [], [], [], {}
+        times = dict.fromkeys(("reset", "capture", "plan", "simulate"), 0.0)
+        for pose_index, share in enumerate(shares):
+            result = self._label_pose(spec, pose_index, share, times)
+            if isinstance(result, str):
+                skipped.append(result)
+                continue
+            labelled, rejected, pose_neutral = result
+            parts.append(labelled)
+            untested.append(rejected)
+            neutral.update(pose_neutral)
+        grasps = LabelledGrasps.concatenate(parts) if parts else _empty_labels(DATASET_TASKS)
+        untested_all = UntestedGrasps(np.concatenate([u.transforms for u in untested]) if untested else np.zeros((0, 4, 4)),
+                                      sum((u.reason for u in untested), []))
+        rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
+        return ObjectLabels(spec.id, grasps, untested_all, rater, neutral, skipped, times)
+
+    def _label_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float]):
+        from .perception import capture
+        from .zone_marks import rating_image
+        from .zones import assign_zones
+
+        config, dataset = self.config, self.config.dataset
+        clock = time.perf_counter()
+        self.scene.reset(spec, trial=dataset.seed + pose_index)
+        times["reset"] += time.perf_counter() - clock
+        clock = time.perf_counter()
+        try:
+            cloud = capture(self.scene, config)
+        except PerceptionFailure as failure:
+            return f"capture {pose_index}: {failure.reason}"
+        times["capture"] += time.perf_counter() - clock
+        clock = time.perf_counter()
+        classified = classify_grasps(cloud, config, dataset.seed + pose_index, n_grasps)
+        decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
+        shown = rating_image(cloud, decomposition, config.rating)
+        ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, decomposition.describe()) for task in DATASET_TASKS}
+        neutral = {task: (rating.issues[0] if rating.issues else "neutral") for task, rating in ratings.items() if rating.is_neutral}
+        times["plan"] += time.perf_counter() - clock
+        clock = time.perf_counter()
+        outcomes = self.simulator.simulate(zoned, classified.verdict == 0)
+        times["simulate"] += time.perf_counter() - clock
+        labelled, rejected = _pose_labels(cloud, zoned, classified, outcomes, ratings, pose_index)
+        return labelled, rejected, neutral
+
+
+def _empty_labels(tasks: tuple[str, ...]) -> LabelledGrasps:
+    empty = np.zeros(0)
+    return LabelledGrasps(np.zeros((0, 4, 4)), empty, np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64), [], [],
+                          np.zeros(0, dtype=bool), [], empty, empty, empty, empty, empty, empty, [], {t: [] for t in tasks})
+
+
+def _pose_labels(cloud, zoned: GraspCandidates, classified: ClassifiedGrasps, outcomes: list, ratings: dict, pose_index: int):
+    """The pose's simulated grasps as labels in the object frame, and the grasps whose simulation could not run."""
+    tested = [i for i, outcome in enumerate(outcomes) if isinstance(outcome, SimulatedGrasp)]
+    object_frame = zoned.transform(cloud.object_from_world)
+    transforms = acronym_gripper_transforms_object(object_frame)
+    untested = [i for i in range(len(outcomes)) if i not in set(tested)]
+    kept = torch.as_tensor(tested, dtype=torch.int64)
+    chosen = zoned.select(kept)
+    zone_names, levels = _zone_levels(chosen, ratings)
+    verdicts = classified.verdict_names()
+    simulated = [outcomes[i] for i in tested]
+    labelled = LabelledGrasps(
+        transforms=transforms[tested].reshape(-1, 4, 4),
+        width_m=chosen.width_m.double().numpy(),
+        contacts=object_frame.contacts_world[kept].numpy().reshape(-1, 2, 3),
+        resting_pose=np.full(len(tested), pose_index, dtype=np.int64),
+        verdict=[verdicts[i] for i in tested],
+        verdict_reason=[classified.reasons[i] for i in tested],
+        held=np.array([o.held for o in simulated], dtype=bool),
+        failure_reason=[o.failure_reason for o in simulated],
+        motion_closing_linear_m=np.array([o.motion_closing_linear_m for o in simulated]),
+        motion_closing_angular_rad=np.array([o.motion_closing_angular_rad for o in simulated]),
+        motion_shaking_linear_m=np.array([o.motion_shaking_linear_m for o in simulated]),
+        motion_shaking_angular_rad=np.array([o.motion_shaking_angular_rad for o in simulated]),
+        s_geom=chosen.s_geom.double().numpy(),
+        s_reach=chosen.s_reach.double().numpy(),
+        zone=zone_names,
+        zone_rating=levels,
+    )
+    rejected = UntestedGrasps(transforms[untested].reshape(-1, 4, 4), [f"{verdicts[i]}: {outcomes[i]}" for i in untested])
+    return labelled, rejected
+
+
+# --- the dataset run -----------------------------------------------------------------------------
+
+
+@dataclass
+class DatasetResult:
+    out_dir: Path
+    new_objects: list[str]
+    manifest: dict
+
+
+def dataset_object_ids(config: Config, objects) -> list[str]:
+    """The objects a dataset labels: ``run.objects``, where "all" is every object of the set."""
+    requested = list(config.run.objects)
+    if requested == ["all"]:
+        return list(objects.ids)
+    for object_id in requested:
+        objects.get(object_id)  # raises UnknownObjectError naming the id
+    return requested
+
+
+_WORKER_LABELLER: ObjectLabeller | None = None
+
+
+def _init_worker(config_dict: dict) -> None:
+    global _WORKER_LABELLER
+    from .config import load_config
+    from .runtime import configure_torch
+
+    configure_torch()
+    _WORKER_LABELLER = ObjectLabeller(load_config(overrides=config_dict))
+
+
+def _label_in_worker(spec: ObjectSpec, n_grasps: int) -> ObjectLabels:
+    return _WORKER_LABELLER.label(spec, n_grasps)
+
+
+def _labels_in_processes(config: Config, specs: list[ObjectSpec]):
+    import concurrent.futures
+    import multiprocessing
+
+    context = multiprocessing.get_context("spawn")  # a fresh interpreter and PyBullet client per worker
+    with concurrent.futures.ProcessPoolExecutor(max_workers=config.run.workers, mp_context=context,
+                                                initializer=_init_worker, initargs=(config.to_dict(),)) as pool:
+        futures = [pool.submit(_label_in_worker, spec, config.dataset.grasps_per_object) for spec in specs]
+        try:
+            for future in concurrent.futures.as_completed(futures):
+                yield future.result()
+        except BaseException:  # an interrupt or a write that failed: start no further object
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
+
+def _labels_inline(config: Config, specs: list[ObjectSpec]):
+    labeller = ObjectLabeller(config)
+    try:
+        for spec in specs:
+            yield labeller.label(spec, config.dataset.grasps_per_object)
+    finally:
+        labeller.close()
+
+
+def _write_object(out_dir: Path, spec: ObjectSpec, labels: ObjectLabels, mode: str, write_s: list[float]) -> dict:
+    """Write one object's files and return its progress line (what the report and a resume read)."""
+    from sagp_batched_kernels.pose_nms import distinct_grasp_count
+
+    from .dataset import append_progress, copy_object_mesh, write_graspgen_file, write_object_file
+
+    clock = time.perf_counter()
+    for sub in ("grasps", "graspgen", "meshes"):
+        (out_dir / sub).mkdir(exist_ok=True)
+    mesh_file, scale, mesh_to_link = copy_object_mesh(spec, out_dir / "meshes")
+    grasps = labels.grasps
+    write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, object_physics(spec),
+                      grasps, labels.untested, mode, labels.rater)
+    write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
+    centres = torch.as_tensor(grasps.transforms[:, :3, 3] + DISTINCT_CENTRE_OFFSET_M * grasps.transforms[:, :3, 2])
+    distinct = distinct_grasp_count(centres, torch.as_tensor(grasps.transforms[:, :3, :3]), 0.01, math.radians(20.0))
+    write_s.append(time.perf_counter() - clock)
+    entry = {
+        "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
+        "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
+        "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
+        "by_verdict": {v: [int(sum(h for h, w in zip(grasps.held, grasps.verdict) if w == v)), grasps.verdict.count(v)]
+                       for v in sorted(set(grasps.verdict))},
+        "times_s": {**labels.times_s, "write": write_s[-1]},
+    }
+    append_progress(out_dir, entry)
+    return entry
+
+
+# The grasp centre (contact midpoint) lies this far along the ACRONYM gripper's approach (z) from its base.
+DISTINCT_CENTRE_OFFSET_M = 0.105
+
+
+def generate_dataset(config: Config, objects, out_dir: Path, *, progress: bool = True, on_note=None) -> DatasetResult:
+    """Label ``config.dataset.grasps_per_object`` grasps of every object of ``config.run.objects`` into
+    ``out_dir``; a re-run into the same directory skips the objects already written."""
+    from . import provenance
+    from .dataset import read_progress
+    from .dataset_report import write_dataset_report
+    from .run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_json
+
+    on_note = on_note or (lambda note: None)
+    object_ids = dataset_object_ids(config, objects)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with RunLock(out_dir):
+        check_same_run(out_dir, config, objects.checksum(), objects.source)
+        write_json(out_dir / CONFIG_FILE, config.to_dict())
+        write_json(out_dir / PROVENANCE_FILE, provenance.collect(
+            config.to_dict(), dataset_seed=config.dataset.seed,
+            objects={"source": objects.source, "checksum": objects.checksum(), "ids": object_ids,
+                     "skipped": [list(item) for item in getattr(objects, "skipped", [])]},
+        ))
+        finished = read_progress(out_dir)
+        pending = [objects.get(object_id) for object_id in object_ids if object_id not in finished]
+        if finished:
+            on_note(f"{len(finished)} object(s) already in {out_dir} are kept; {len(pending)} to label")
+        bar = None
+        if progress:
+            import sys
+
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(pending), unit="object", file=sys.stderr, dynamic_ncols=True)
+        labels_of = _labels_inline if config.run.workers == 1 else _labels_in_processes
+        new_objects, write_s = [], []
+        try:
+            for labels in labels_of(config, pending):
+                _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, write_s)
+                new_objects.append(labels.object_id)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix_str(labels.object_id)
+        finally:
+            if bar is not None:
+                bar.close()
+        manifest = write_dataset_report(out_dir, config, objects, object_ids)
+    return DatasetResult(out_dir, new_objects, manifest)
