@@ -21,7 +21,7 @@ from .methods import RankingInputs, get_method
 from .objects import ObjectSet, ObjectSpec
 from .rating.types import ZoneRating, clipped, neutral_rating
 from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit, candidate_seed
-from .types import GraspCandidates, PerceivedCloud, PerceptionFailure
+from .types import GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
 
 
 class TrialTimeout(RuntimeError):
@@ -151,6 +151,7 @@ class TrialRunner:
 
         ranked_by_method: dict[str, GraspCandidates] = {}
         attempts_by_method: dict[str, list] = {}
+        executed: dict[int, GraspAttempt] = {}  # candidate id -> its attempt, shared by the methods that try it
         for method in unit.methods:
             if rating_failure is not None and get_method(method).uses_rating:
                 emit(TrialRecord.build(spec, unit, method, config, error=rating_failure[0], traceback=rating_failure[1]))
@@ -166,9 +167,9 @@ class TrialRunner:
             if len(ranked) == 0:
                 emit(TrialRecord.build(spec, unit, method, config, plan=summary, failure_reason="no_candidates"))
                 continue
-            executed = self._execute(ranked, cloud, rating, unit, method)
-            attempts_by_method[method] = executed.attempts
-            emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=executed))
+            result = self._execute(ranked, cloud, rating, unit, method, executed)
+            attempts_by_method[method] = result.attempts
+            emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=result))
         if config.run.export_grasps:
             from .export import write_acronym
 
@@ -177,12 +178,13 @@ class TrialRunner:
             write_acronym(grasps_dir / f"{spec.id}_{unit.task}_{unit.trial:04d}.h5", spec, cloud, candidates,
                           ranked_by_method, attempts_by_method)
 
-    def _execute(self, ranked: GraspCandidates, cloud: PerceivedCloud, rating: ZoneRating, unit: TrialUnit, method: str) -> ExecutedGrasps:
-        """Execute the leading grasps of ``ranked`` and judge the last one tried."""
+    def _execute(self, ranked: GraspCandidates, cloud: PerceivedCloud, rating: ZoneRating, unit: TrialUnit, method: str,
+                 executed: dict[int, GraspAttempt]) -> ExecutedGrasps:
+        """Execute the leading grasps of ``ranked`` (reusing the unit's attempts in ``executed``) and judge the last one tried."""
         from .execution import execute_ranked
 
         config = self.config
-        attempts = execute_ranked(self.scene, config, ranked, record_frames=config.run.save_frames)
+        attempts = execute_ranked(self.scene, config, ranked, record_frames=config.run.save_frames, executed=executed)
         final_index = len(attempts) - 1
         final, final_grasp = attempts[-1], ranked[final_index]
         placement = place_grasp(unit.object_id, final_grasp, ranked[final_index:final_index + 1].transform(cloud.object_from_world)[0], rating)
