@@ -17,6 +17,7 @@ solution's IK branch.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Iterator, Sequence
 
@@ -362,18 +363,30 @@ def _path_to_execute(
     return path
 
 
-def execute_ranked(scene: Scene, config: Config, ranked: GraspCandidates, record_frames: bool = False) -> list[GraspAttempt]:
+def execute_ranked(
+    scene: Scene, config: Config, ranked: GraspCandidates, record_frames: bool = False,
+    executed: dict[int, GraspAttempt] | None = None,
+) -> list[GraspAttempt]:
     """Execute the first ``max_attempts`` grasps of a ranked batch, best first, each from the
     restored settled scene; stops at the first success.
 
     Each attempt's ``details`` name its place in the batch (``candidate_index``) and what the
     planner predicted for it (``predicted``: reachable, collision_free, clearance_m).
+    ``executed`` maps candidate ids to attempts already made from this settled scene (another
+    method's ranking of the same candidates): such a grasp is not simulated again, since from the
+    same restored state it would do the same; new attempts are added to it.
     """
     attempts: list[GraspAttempt] = []
     for index in range(min(config.execution.max_attempts, len(ranked))):
         grasp = ranked[index]
-        scene.restore_state()
-        attempt = execute_grasp(scene, config, grasp, record_frames=record_frames)
+        known = executed.get(grasp.candidate_id) if executed is not None else None
+        if known is not None:
+            attempt = dataclasses.replace(known, details=dict(known.details))
+        else:
+            scene.restore_state()
+            attempt = execute_grasp(scene, config, grasp, record_frames=record_frames)
+            if executed is not None:
+                executed[grasp.candidate_id] = attempt
         attempt.details["candidate_index"] = index
         # Planned candidates passed the motion and swept-hand checks; others only the grasp-pose IK.
         attempt.details["predicted"] = {

@@ -19,9 +19,9 @@ from .config import Config
 from .judging import judge_task, place_grasp
 from .methods import RankingInputs, get_method
 from .objects import ObjectSet, ObjectSpec
-from .rating.types import ZoneRating
+from .rating.types import ZoneRating, clipped, neutral_rating
 from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit, candidate_seed
-from .types import GraspCandidates, PerceivedCloud, PerceptionFailure
+from .types import GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
 
 
 class TrialTimeout(RuntimeError):
@@ -132,16 +132,30 @@ class TrialRunner:
 
         # Rated for every method, GO included: PZA and AC of GO are measured against the same zones.
         start = time.perf_counter()
-        # Only a ground-truth rater (the oracle, an upper bound) is handed the object's true pose.
-        zone_points = _zone_points_object(cloud, decomposition) if self.rater.uses_ground_truth else None
-        # What the model sees: the crop with the zones drawn on it (set-of-mark prompting), or the plain crop.
-        shown = rating_image(cloud, decomposition, config.rating)
-        rating = self.rater.rate(spec.id, spec.name, unit.task, shown, decomposition.describe(), zone_points)
+        rating_failure: tuple[str, str] | None = None  # (error, traceback) when the rater raised
+        try:
+            # Only a ground-truth rater (the oracle, an upper bound) is handed the object's true pose.
+            zone_points = _zone_points_object(cloud, decomposition) if self.rater.uses_ground_truth else None
+            # What the model sees: the crop with the zones drawn on it (set-of-mark prompting), or the plain crop.
+            shown = rating_image(cloud, decomposition, config.rating)
+            rating = self.rater.rate(spec.id, spec.name, unit.task, shown, decomposition.describe(), zone_points)
+        except TrialTimeout:
+            raise
+        except Exception as exc:  # fails the methods that rank by the rating only; the others run on
+            rating_failure = (f"rating failed: {type(exc).__name__}: {clipped(str(exc))}", traceback.format_exc(limit=8))
+            # Named after the rater where it was built (a failed build leaves the configured backend and model).
+            rater = self._rater
+            rating = neutral_rating(getattr(rater, "backend", config.rating.backend), getattr(rater, "model", config.rating.model),
+                                    getattr(rater, "prompt_version", ""), time.perf_counter() - start, rating_failure[0])
         rating_s = time.perf_counter() - start
 
         ranked_by_method: dict[str, GraspCandidates] = {}
         attempts_by_method: dict[str, list] = {}
+        executed: dict[int, GraspAttempt] = {}  # candidate id -> its attempt, shared by the methods that try it
         for method in unit.methods:
+            if rating_failure is not None and get_method(method).uses_rating:
+                emit(TrialRecord.build(spec, unit, method, config, error=rating_failure[0], traceback=rating_failure[1]))
+                continue
             method_start = time.perf_counter()
             ranked = get_method(method).rank(
                 RankingInputs(candidates, cloud, rating, decomposition, spec.name, unit.task, config, self._model_client)
@@ -153,9 +167,9 @@ class TrialRunner:
             if len(ranked) == 0:
                 emit(TrialRecord.build(spec, unit, method, config, plan=summary, failure_reason="no_candidates"))
                 continue
-            executed = self._execute(ranked, cloud, rating, unit, method)
-            attempts_by_method[method] = executed.attempts
-            emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=executed))
+            result = self._execute(ranked, cloud, rating, unit, method, executed)
+            attempts_by_method[method] = result.attempts
+            emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=result))
         if config.run.export_grasps:
             from .export import write_acronym
 
@@ -164,12 +178,13 @@ class TrialRunner:
             write_acronym(grasps_dir / f"{spec.id}_{unit.task}_{unit.trial:04d}.h5", spec, cloud, candidates,
                           ranked_by_method, attempts_by_method)
 
-    def _execute(self, ranked: GraspCandidates, cloud: PerceivedCloud, rating: ZoneRating, unit: TrialUnit, method: str) -> ExecutedGrasps:
-        """Execute the leading grasps of ``ranked`` and judge the last one tried."""
+    def _execute(self, ranked: GraspCandidates, cloud: PerceivedCloud, rating: ZoneRating, unit: TrialUnit, method: str,
+                 executed: dict[int, GraspAttempt]) -> ExecutedGrasps:
+        """Execute the leading grasps of ``ranked`` (reusing the unit's attempts in ``executed``) and judge the last one tried."""
         from .execution import execute_ranked
 
         config = self.config
-        attempts = execute_ranked(self.scene, config, ranked, record_frames=config.run.save_frames)
+        attempts = execute_ranked(self.scene, config, ranked, record_frames=config.run.save_frames, executed=executed)
         final_index = len(attempts) - 1
         final, final_grasp = attempts[-1], ranked[final_index]
         placement = place_grasp(unit.object_id, final_grasp, ranked[final_index:final_index + 1].transform(cloud.object_from_world)[0], rating)

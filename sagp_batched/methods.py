@@ -40,6 +40,9 @@ class Method:
     name: str
     label: str  # as tables print it
     needs_model: bool  # asks a vision-language model itself (not only through the zone rating)
+    # Ranks by the zone rating: a trial whose rater failed fails this method; one without it runs
+    # on (its record's rating, for judging, is then the neutral one).
+    uses_rating: bool
     rank: Callable[[RankingInputs], GraspCandidates]  # the candidates scored and ranked, best first
 
 
@@ -69,9 +72,10 @@ def _rank_vlm_direct(inputs: RankingInputs) -> GraspCandidates:
 REGISTRY: dict[str, Method] = {
     method.name: method
     for method in (
-        Method("go", "Geometry-Only", needs_model=False, rank=_rank_geometry_only),
-        Method("sagp", "SAGP", needs_model=False, rank=_rank_sagp),
-        Method("vd", "VLM-Direct", needs_model=True, rank=_rank_vlm_direct),
+        Method("go", "Geometry-Only", needs_model=False, uses_rating=False, rank=_rank_geometry_only),
+        Method("sagp", "SAGP", needs_model=False, uses_rating=True, rank=_rank_sagp),
+        # VLM-Direct's shortlist is drawn from the geometric ranking; the zone rating has no part in it.
+        Method("vd", "VLM-Direct", needs_model=True, uses_rating=False, rank=_rank_vlm_direct),
     )
 }
 assert tuple(REGISTRY) == METHODS, "every method name of the types layer has exactly one registered method"

@@ -9,7 +9,6 @@ geometric and marked ``fallback``.
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -19,7 +18,7 @@ import torch
 from PIL import Image, ImageDraw, ImageFont
 
 from .config import Config, RatingConfig
-from .rating.parse import extract_json_object
+from .rating.parse import MAX_NUMBER_CHARS, excerpt, extract_json_object, extract_json_value
 from .rating.prompt import checked_image, task_description
 from .rating.types import RatingError, VLMRequestError
 from .rating.vlm import VLMClient, get_vlm_client
@@ -109,15 +108,32 @@ def build_vd_prompt(object_name: str, task: str, n_candidates: int) -> str:
     )
 
 
-def parse_shortlist(text: str, n_candidates: int) -> tuple[list[int], list[str]]:
-    """Zero-based candidate positions from the model's answer, and why each rejected entry was dropped."""
+# Reasons kept for dropped ids; the rest are counted (an answer can list thousands).
+MAX_DROPPED_LISTED = 20
+
+
+def _shortlist_id(entry: object) -> float | None:
+    """``entry`` as a number: a JSON number, or a short string that spells one; else None."""
+    if isinstance(entry, bool) or not isinstance(entry, (int, str, float)):
+        return None
+    if isinstance(entry, str) and len(entry) > MAX_NUMBER_CHARS:
+        return None
+    try:
+        return float(entry)
+    except ValueError:
+        return None
+
+
+def parse_shortlist(text: object, n_candidates: int) -> tuple[list[int], list[str]]:
+    """Zero-based candidate positions from the model's answer (any value; read as untrusted as the
+    zone rater reads its answers), and why rejected entries were dropped (the first
+    ``MAX_DROPPED_LISTED``, then their count)."""
     data, issues = extract_json_object(text)
     if data is None:
-        stripped = text.strip().strip("`")
-        try:
-            listed = json.loads(stripped)
-        except json.JSONDecodeError:
-            listed = None
+        # A bare list is taken as the ranking only when it is the whole answer.
+        if not (isinstance(text, str) and text.strip().strip("`").startswith("[")):
+            return [], issues
+        listed, _ = extract_json_value(text, "[")
         if not isinstance(listed, list):
             return [], issues
         data = {"ranking": listed}
@@ -126,24 +142,25 @@ def parse_shortlist(text: str, n_candidates: int) -> tuple[list[int], list[str]]
         return [], issues + ["answer has no 'ranking' list"]
     chosen: list[int] = []
     dropped: list[str] = []
+    unlisted = 0
     for entry in ranking:
-        if isinstance(entry, bool) or not isinstance(entry, (int, str, float)):
-            dropped.append(f"id {entry!r} is not a number")
-            continue
-        try:
-            number = float(entry)
-        except ValueError:
-            dropped.append(f"id {entry!r} is not a number")
-            continue
-        if not number.is_integer():
-            dropped.append(f"id {entry!r} is not a whole number")
+        number = _shortlist_id(entry)
+        if number is None:
+            reason = "is not a number"
+        elif not number.is_integer():
+            reason = "is not a whole number"
         elif not 1 <= number <= n_candidates:
-            dropped.append(f"id {entry!r} is outside 1..{n_candidates}")
+            reason = f"is outside 1..{n_candidates}"
         elif int(number) - 1 in chosen:
-            dropped.append(f"id {entry!r} repeats")
+            reason = "repeats"
         else:
             chosen.append(int(number) - 1)
-    return chosen, dropped
+            continue
+        if len(dropped) < MAX_DROPPED_LISTED:
+            dropped.append(f"id {excerpt(entry)} {reason}")
+        else:
+            unlisted += 1
+    return chosen, dropped + ([f"{unlisted} more ids dropped"] if unlisted else [])
 
 
 def vlm_direct_rank(

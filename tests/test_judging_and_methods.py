@@ -35,12 +35,13 @@ def test_an_unknown_task_is_named():
         judge_task("t9", True, True, 0.0, 0.0, PUBLISHED)
 
 
-def test_every_method_name_has_one_registered_ranking_and_only_vlm_direct_asks_a_model_itself():
+def test_every_method_name_has_one_registered_ranking_only_vlm_direct_asks_a_model_itself_and_only_sagp_ranks_by_the_rating():
     from sagp_batched.methods import REGISTRY, get_method
     from sagp_batched.types import METHODS
 
     assert tuple(REGISTRY) == METHODS
     assert [name for name, method in REGISTRY.items() if method.needs_model] == ["vd"]
+    assert [name for name, method in REGISTRY.items() if method.uses_rating] == ["sagp"]
     with pytest.raises(ValueError, match="unknown method 'xx'"):
         get_method("xx")
 

@@ -31,7 +31,8 @@ STUDY_OBJECTS = (
     "011_banana", "040_large_marker", "003_cracker_box", "021_bleach_cleanser", "006_mustard_bottle",
     "002_master_chef_can", "007_tuna_fish_can", "010_potted_meat_can",
 )
-ZONES = {"top": "top: 30% of points", "middle": "middle: 40% of points", "protrusion": "protrusion: 5% of points"}
+ZONES = {"top": "top: 30% of points", "middle": "middle: 40% of points", "bottom": "bottom: 25% of points",
+         "protrusion": "protrusion: 5% of points"}
 CROP = (np.random.default_rng(0).random((60, 80, 3)) * 255).astype(np.uint8)
 GOOD_ANSWER = {
     "ratings": {"top": "dangerous", "middle": "acceptable", "bottom": "bad", "protrusion": "good"},
@@ -323,6 +324,55 @@ def test_cache_keys_separate_backends_models_and_prompt_versions(tmp_path):
     other = CachedRater(PriorRater(), tmp_path)
     other.model = "another-table.json"
     assert other._path("025_mug", "t1") != prior._path("025_mug", "t1")
+
+
+def test_a_rating_cached_from_one_endpoint_is_not_served_for_another(tmp_path):
+    good, garbage = ScriptedEndpoint(), ScriptedEndpoint()
+    try:
+        good.script = [("answer", json.dumps(GOOD_ANSWER))]
+        first = openai_rater(good, tmp_path, use_cache=True)
+        assert not first.rate("025_mug", "mug", "t2", CROP, ZONES).is_neutral and first.queries == 1
+
+        garbage.script = [("answer", "V]oB}l\"XoBg}l#e]oBg}")]
+        other = openai_rater(garbage, tmp_path, use_cache=True)
+        rating = other.rate("025_mug", "mug", "t2", CROP, ZONES)
+        assert other.queries == 1 and len(garbage.requests) == 1, "the other endpoint is asked itself"
+        assert rating.is_neutral and not rating.provenance.cached
+
+        good.url += "/"  # the same server, written with a trailing slash
+        trailing_slash = openai_rater(good, tmp_path, use_cache=True)
+        assert trailing_slash.rate("025_mug", "mug", "t2", CROP, ZONES).provenance.cached and trailing_slash.queries == 0
+    finally:
+        for server in (good, garbage):
+            server.server.shutdown()
+            server.server.server_close()
+
+
+class ScriptedZoneClient:
+    backend, model = "openai", "served-vlm"
+
+    def __init__(self, text: str):
+        self.text = text
+
+    def generate_json(self, image, prompt, schema_name, schema):
+        return ModelAnswer(self.text, "json_schema")
+
+
+def test_an_entry_is_served_only_for_the_key_it_records(tmp_path):
+    def rater(endpoint, text):
+        return CachedRater(VLMRater("openai", "served-vlm", 15.0, lambda: ScriptedZoneClient(text), endpoint=endpoint), tmp_path)
+
+    # An entry whose key names no endpoint (as an endpoint-less rater writes it) answers no endpoint's question.
+    rater("", json.dumps(GOOD_ANSWER)).rate("025_mug", "mug", "t2", CROP, ZONES)
+    served_b = rater("http://b.example/v1", "garbage")
+    assert served_b.rate("025_mug", "mug", "t2", CROP, ZONES).is_neutral and served_b.queries == 1
+
+    # Nor does an entry found at another key's path.
+    served_a = rater("http://a.example/v1", json.dumps(GOOD_ANSWER))
+    served_a.rate("025_mug", "mug", "t2", CROP, ZONES)
+    served_a._path("025_mug", "t2").replace(served_b._path("025_mug", "t2"))
+    assert served_b.rate("025_mug", "mug", "t2", CROP, ZONES).is_neutral and served_b.queries == 2
+    assert json.loads(served_b._path("025_mug", "t2").read_text())["key"]["endpoint"] == "http://a.example/v1"
 
 
 # --- VLM-Direct asks through the same generate primitive of both model backends.

@@ -6,6 +6,7 @@ import json
 import pytest
 
 from sagp_batched.rating import parse_zone_rating
+from sagp_batched.rating.prompt import answer_zone_names
 
 GOOD = {
     "ratings": {"top": "dangerous", "middle": "acceptable", "bottom": "bad", "protrusion": "good"},
@@ -15,10 +16,12 @@ GOOD = {
     "grasp_style": "hook",
     "max_tilt_deg": 15,
 }
+# The zones of a mug-like decomposition, as the rater hands them to the parser.
+KNOWN_ZONES = answer_zone_names({"top": "", "middle": "", "bottom": "", "left": "", "protrusion_1": ""})
 
 
 def parse(text: str):
-    return parse_zone_rating(text, "openai", "test-model", "v-test", 0.1, upright_max_tilt_deg=15.0)
+    return parse_zone_rating(text, "openai", "test-model", "v-test", 0.1, 15.0, KNOWN_ZONES)
 
 
 def test_a_clean_answer_validates_as_given():
@@ -51,8 +54,15 @@ def test_unknown_zone_names_and_levels_are_dropped_not_guessed():
     rating = parse(json.dumps(answer))
     assert "handle" not in rating.ratings and "middle" not in rating.ratings
     assert rating.preferred == {"protrusion"}
-    assert any("unknown zone 'handle'" in issue for issue in rating.issues)
-    assert any("unknown level 'excellent'" in issue for issue in rating.issues)
+    assert "unknown zones in 'ratings' dropped: 1 (first 'handle')" in rating.issues
+    assert "unknown zones in 'preferred' dropped: 1 (first 'handle')" in rating.issues
+    assert "unknown levels in 'ratings' dropped: 1 (first 'excellent')" in rating.issues
+
+
+def test_zones_outside_the_decomposition_are_dropped_though_in_the_vocabulary():
+    rating = parse(json.dumps({**GOOD, "ratings": {"protrusion_2": "good", "right": "bad", "protrusion_1": "good"}}))
+    assert rating.ratings == {"protrusion_1": "good"}
+    assert "unknown zones in 'ratings' dropped: 2 (first 'protrusion_2')" in rating.issues
 
 
 def test_missing_fields_take_their_neutral_values():

@@ -96,6 +96,34 @@ def test_ranked_execution_stops_at_the_first_success(can_scene):
     assert [a.details["candidate_index"] for a in attempts] == [0, 1]
 
 
+def test_a_grasp_two_rankings_share_is_simulated_once_and_each_keeps_its_place(can_scene, monkeypatch):
+    import sagp_batched.execution as execution
+
+    config = Config()
+    beside, quat = _top_down_on_can(can_scene, offset_world=(0.05, 0.0, 0.0))
+    on_can, _ = _top_down_on_can(can_scene)
+    centres = torch.tensor(np.stack([beside, on_can]), dtype=torch.float32)
+    half_width = torch.tensor([0.0, 0.034, 0.0])
+    candidates = GraspCandidates(
+        contacts_world=torch.stack([centres - half_width, centres + half_width], dim=1),
+        closing_axis=torch.tensor([[0.0, 1.0, 0.0]]).repeat(2, 1), width_m=torch.full((2,), 0.068), s_geom=torch.ones(2),
+        approach=torch.tensor(DOWN, dtype=torch.float32).repeat(2, 1),
+        rotation_world=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(2, 1, 1),
+        s_reach=torch.ones(2), ik_solution=torch.tensor(PANDA.ik_reference_joints, dtype=torch.float32).repeat(2, 1),
+        zone=torch.full((2,), -1), s_afford=torch.zeros(2), s_avoid=torch.zeros(2), s_task=torch.zeros(2), score=torch.ones(2),
+    )
+    simulated = []
+    real_execute = execution.execute_grasp
+    monkeypatch.setattr(execution, "execute_grasp", lambda *args, **kwargs: simulated.append(1) or real_execute(*args, **kwargs))
+    executed = {}
+    first = execute_ranked(can_scene, config, candidates, executed=executed)  # beside the can, then on it
+    second = execute_ranked(can_scene, config, candidates.select(torch.tensor([1, 0])), executed=executed)  # on it first
+    assert [a.success for a in first] == [False, True] and len(simulated) == 2
+    assert len(second) == 1 and second[0].success and len(simulated) == 2, "the grasp on the can is not simulated again"
+    assert second[0].details["candidate_index"] == 0 and first[1].details["candidate_index"] == 1
+    assert second[0].object_height_above_table_m == first[1].object_height_above_table_m
+
+
 def test_malformed_grasps_are_rejected_with_a_clear_error(can_scene):
     position, quat = _top_down_on_can(can_scene)
     with pytest.raises(InvalidGraspError, match="position_world"):

@@ -2,6 +2,14 @@
 
 Every deviation is logged and recorded in the rating's ``issues``; nothing is invented: a missing
 field takes its neutral value (no zone rated, empty sets, any approach, no constraint).
+
+Whatever the answer, reading it is bounded work and raises nothing: an answer longer than
+``MAX_ANSWER_CHARS`` is refused before it is read; one nested deeper than ``MAX_DEPTH`` is refused
+before ``json`` (which recurses once a level) decodes it; a number literal longer than
+``MAX_NUMBER_CHARS`` (Python refuses ``int`` of a long one), a float out of range and the NaN and
+Infinity JSON does not allow are refused while decoding; the repair of a cut-off answer is one pass
+over it and at most two decodes. Items the validation drops are counted, not listed, and what an
+issue quotes from the answer is clipped (``types.clipped``).
 """
 from __future__ import annotations
 
@@ -9,27 +17,75 @@ import json
 import logging
 import math
 import re
+from collections.abc import Collection
+from dataclasses import dataclass
 from typing import Any
 
-from ..types import is_zone_name
-from .types import APPROACH_NAMES, GRASP_STYLES, PHI, RatingProvenance, ZoneRating, neutral_rating
+from .types import APPROACH_NAMES, GRASP_STYLES, PHI, RatingProvenance, ZoneRating, clipped, neutral_rating
 
 log = logging.getLogger(__name__)
+
+# A full zone answer is ~600 characters; 16K leaves a model room to ramble around it.
+MAX_ANSWER_CHARS = 16_384
+# UTF-8 takes at most 4 bytes a character: more bytes cannot spell an answer within the limit.
+MAX_ANSWER_BYTES = 4 * MAX_ANSWER_CHARS
+# The zone answer nests two deep (the answer, its ratings or zone lists).
+MAX_DEPTH = 8
+# No field of an answer needs more digits than a tilt in degrees or a candidate's number.
+MAX_NUMBER_CHARS = 32
+EXCERPT_CHARS = 60
 
 _FENCE = re.compile(r"```(?:json|JSON)?\s*(.*?)(?:```|$)", re.DOTALL)
 _CLOSERS = {"{": "}", "[": "]"}
 
 
-def _close_truncated(text: str) -> str | None:
-    """``text`` (starting at '{') closed after its last complete member, or None if it cannot be.
+class _Unusable(Exception):
+    """The answer cannot be read within the limits, or is not JSON at all; the message says why."""
 
-    Hand-written because json has no partial parser: scan strings and brackets, cut at the last
-    comma outside a string (dropping the member being written when the answer was cut off), and
-    append the closers of the brackets still open there.
-    """
+
+def excerpt(value: object) -> str:
+    """A short printable quote of a value from an answer, for an issue: ASCII only, so no control,
+    bidirectional or unpaired surrogate character reaches a log or a record."""
+    if isinstance(value, (str, bytes, bytearray)):
+        return clipped(ascii(value[: EXCERPT_CHARS + 1]), EXCERPT_CHARS)
+    return clipped(ascii(value), EXCERPT_CHARS)
+
+
+def _answer_text(answer: object) -> str:
+    """``answer`` as text to read (bytes as UTF-8), refused when it is none or too long to read."""
+    if isinstance(answer, (bytes, bytearray)):
+        if len(answer) > MAX_ANSWER_BYTES:
+            raise _Unusable(f"answer is {len(answer)} bytes, over the limit of {MAX_ANSWER_BYTES}")
+        try:
+            answer = bytes(answer).decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise _Unusable(f"answer is bytes that are not UTF-8 text (byte {exc.start})") from None
+    if not isinstance(answer, str):
+        raise _Unusable(f"answer is of type {clipped(type(answer).__name__, EXCERPT_CHARS)}, not text")
+    if len(answer) > MAX_ANSWER_CHARS:
+        raise _Unusable(f"answer is {len(answer)} characters, over the limit of {MAX_ANSWER_CHARS}")
+    return answer
+
+
+@dataclass(frozen=True)
+class _Shape:
+    """What one pass over a JSON text says about the value it starts with."""
+
+    end: int | None  # where the first value closes; None if the text ends first (cut off)
+    broken: bool  # a closing bracket that closes nothing or the wrong bracket
+    in_string: bool  # the text ends inside a string
+    closers: str  # the brackets to append to close what is open where the text ends
+    last_cut: tuple[int, str] | None  # the last comma outside a string, and the closers there
+
+
+def _shape(text: str) -> _Shape:
+    """One pass over ``text`` (which starts with '{' or '['): strings, brackets and commas.
+
+    Refuses a value nested deeper than ``MAX_DEPTH``: that bound also keeps the closers copied at
+    each comma short, so the pass is linear in the text's length."""
     stack: list[str] = []
     in_string = escaped = False
-    last_cut: tuple[int, list[str]] | None = None
+    last_cut: tuple[int, str] | None = None
     for i, char in enumerate(text):
         if in_string:
             if escaped:
@@ -42,164 +98,312 @@ def _close_truncated(text: str) -> str | None:
         if char == '"':
             in_string = True
         elif char in _CLOSERS:
+            if len(stack) == MAX_DEPTH:
+                raise _Unusable(f"answer nests deeper than {MAX_DEPTH} levels")
             stack.append(_CLOSERS[char])
         elif char in "}]":
             if not stack or stack.pop() != char:
-                return None
+                return _Shape(None, True, False, "", None)
             if not stack:
-                return text[: i + 1]
+                return _Shape(i + 1, False, False, "", None)
         elif char == ",":
-            last_cut = (i, list(stack))
+            last_cut = (i, "".join(reversed(stack)))
+    return _Shape(None, False, in_string, "".join(reversed(stack)), last_cut)
+
+
+def _bounded_int(literal: str) -> int:
+    if len(literal) > MAX_NUMBER_CHARS:
+        raise _Unusable(f"answer holds a number of {len(literal)} digits (limit {MAX_NUMBER_CHARS})")
+    return int(literal)
+
+
+def _bounded_float(literal: str) -> float:
+    if len(literal) > MAX_NUMBER_CHARS:
+        raise _Unusable(f"answer holds a number of {len(literal)} characters (limit {MAX_NUMBER_CHARS})")
+    value = float(literal)
+    if not math.isfinite(value):
+        raise _Unusable(f"answer holds the number {literal}, beyond the range of a float")
+    return value
+
+
+def _refuse_constant(name: str) -> None:
+    raise _Unusable(f"answer holds {name}, which JSON does not allow")
+
+
+class _Decoder:
+    """``json`` decoding within the number limits; a key given twice with two values is ambiguous
+    and dropped (neither is taken), one given twice with the same value kept once. Both are counted."""
+
+    def __init__(self) -> None:
+        self._json = json.JSONDecoder(
+            object_pairs_hook=self._object, parse_int=_bounded_int, parse_float=_bounded_float,
+            parse_constant=_refuse_constant,
+        )
+        self.ambiguous = self.repeated = 0
+
+    def decode(self, text: str) -> Any:
+        self.ambiguous = self.repeated = 0
+        return self._json.decode(text)
+
+    def _object(self, pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        members: dict[str, Any] = {}
+        ambiguous: set[str] = set()
+        for key, value in pairs:
+            if key not in members:
+                members[key] = value
+            elif members[key] == value:
+                self.repeated += 1
+            else:
+                ambiguous.add(key)
+        for key in ambiguous:
+            del members[key]
+        self.ambiguous += len(ambiguous)
+        return members
+
+    def issues(self) -> list[str]:
+        return [
+            *([f"keys given twice with different values dropped as ambiguous: {self.ambiguous}"] if self.ambiguous else []),
+            *([f"keys given twice with the same value kept once: {self.repeated}"] if self.repeated else []),
+        ]
+
+
+def _decode_first_value(body: str) -> tuple[Any, int, list[str]]:
+    """The JSON value ``body`` starts with, where it ends in ``body``, and the repairs it needed.
+
+    ``json`` has no partial parser, so a cut-off value is closed by hand: as it stands (closing
+    the brackets still open), else cut at the last comma outside a string (dropping the member
+    being written when the answer was cut off)."""
+    shape = _shape(body)
+    decoder = _Decoder()
+    if shape.end is not None:
+        try:
+            return decoder.decode(body[: shape.end]), shape.end, decoder.issues()
+        except json.JSONDecodeError:
+            raise _Unusable("answer's JSON is malformed beyond repair") from None
     candidates = []
-    if not in_string:
-        candidates.append(text.rstrip() + "".join(reversed(stack)))
-    if last_cut is not None:
-        candidates.append(text[: last_cut[0]] + "".join(reversed(last_cut[1])))
+    # A value cut off in a string or a number (15 of 150) is not complete as it stands.
+    if not shape.broken and not shape.in_string and body.rstrip()[-1] not in "0123456789":
+        candidates.append(body.rstrip() + shape.closers)
+    if not shape.broken and shape.last_cut is not None:
+        candidates.append(body[: shape.last_cut[0]] + shape.last_cut[1])
     for candidate in candidates:
         try:
-            json.loads(candidate)
+            value = decoder.decode(candidate)
         except json.JSONDecodeError:
             continue
-        return candidate
-    return None
+        return value, len(body), ["truncated JSON was closed after its last complete member", *decoder.issues()]
+    raise _Unusable("answer's JSON is malformed beyond repair")
 
 
-def extract_json_object(text: str) -> tuple[dict[str, Any] | None, list[str]]:
-    """The first JSON object in a model's answer, and the repairs it needed (fences, prose, truncation)."""
+def extract_json_value(answer: object, opening: str) -> tuple[Any, list[str]]:
+    """The first JSON value starting with ``opening`` ('{' or '[') in a model's answer (text or
+    UTF-8 bytes), and the repairs it needed (fences, prose, truncation, repeated keys); None and why
+    when there is none, it is malformed, or the answer is not readable within the limits."""
     issues: list[str] = []
-    fenced = _FENCE.search(text)
-    if fenced:
-        issues.append("answer was wrapped in a code fence")
-        text = fenced.group(1)
-    start = text.find("{")
-    if start < 0:
-        return None, issues + ["answer holds no JSON object"]
-    if text[:start].strip():
-        issues.append("prose before the JSON object was ignored")
-    body = text[start:]
     try:
-        value, end = json.JSONDecoder().raw_decode(body)
-    except json.JSONDecodeError:
-        closed = _close_truncated(body)
-        if closed is None:
-            return None, issues + ["answer's JSON object is malformed beyond repair"]
-        issues.append("truncated JSON object was closed after its last complete member")
-        value, end = json.loads(closed), len(closed)
-    if body[end:].strip():
-        issues.append("text after the JSON object was ignored")
-    if not isinstance(value, dict):
+        text = _answer_text(answer)
+        fenced = _FENCE.search(text)
+        if fenced:
+            issues.append("answer was wrapped in a code fence")
+            text = fenced.group(1)
+        start = text.find(opening)
+        if start < 0:
+            return None, issues + [f"answer holds no JSON {'object' if opening == '{' else 'list'}"]
+        if text[:start].strip():
+            issues.append("prose before the JSON was ignored")
+        value, end, repairs = _decode_first_value(text[start:])
+    except _Unusable as unusable:
+        return None, issues + [str(unusable)]
+    issues += repairs
+    if text[start + end:].strip():
+        issues.append("text after the JSON was ignored")
+    return value, issues
+
+
+def extract_json_object(answer: object) -> tuple[dict[str, Any] | None, list[str]]:
+    """The first JSON object in a model's answer, and the repairs it needed (``extract_json_value``)."""
+    value, issues = extract_json_value(answer, "{")
+    if value is not None and not isinstance(value, dict):
         return None, issues + [f"answer's JSON is a {type(value).__name__}, not an object"]
     return value, issues
 
 
-def _zone_list(value: Any, field_name: str, issues: list[str]) -> set[str]:
+class _Issues:
+    """The deviations of one answer: each repair noted once (clipped), and each kind of dropped item
+    counted with its first example, since an answer can hold thousands of them."""
+
+    def __init__(self, repairs: list[str]):
+        self.notes = [clipped(note) for note in repairs]
+        self._dropped: dict[str, list[Any]] = {}
+
+    def note(self, text: str) -> None:
+        self.notes.append(clipped(text))
+
+    def drop(self, kind: str, example: object) -> None:
+        self._dropped.setdefault(kind, [0, excerpt(example)])[0] += 1
+
+    def all(self) -> list[str]:
+        return self.notes + [f"{kind} dropped: {count} (first {example})" for kind, (count, example) in self._dropped.items()]
+
+
+def _zone_name(value: object, known_zones: Collection[str]) -> str | None:
+    """``value`` as one of ``known_zones`` (case and surrounding blanks aside), else None."""
+    if not isinstance(value, str):
+        return None
+    name = value.strip().lower()
+    return name if name in known_zones else None
+
+
+def _zone_list(value: Any, field_name: str, known_zones: Collection[str], issues: _Issues) -> set[str]:
     if value is None:
-        issues.append(f"missing field '{field_name}', taken as empty")
+        issues.note(f"missing field '{field_name}', taken as empty")
         return set()
     if isinstance(value, str):
         value = [value]
-    if not isinstance(value, (list, tuple)):
-        issues.append(f"'{field_name}' is not a list of zone names, taken as empty")
+    if not isinstance(value, list):
+        issues.note(f"'{field_name}' is not a list of zone names, taken as empty")
         return set()
     zones = set()
     for item in value:
-        name = str(item).strip().lower()
-        if is_zone_name(name):
-            zones.add(name)
+        zone = _zone_name(item, known_zones)
+        if zone is None:
+            issues.drop(f"unknown zones in '{field_name}'", item)
         else:
-            issues.append(f"unknown zone '{item}' in '{field_name}' dropped")
+            zones.add(zone)
     return zones
 
 
-def _approach(value: Any, issues: list[str]) -> tuple[str, tuple[float, float, float] | None]:
-    if value is None:
-        issues.append("missing field 'approach', taken as any")
-        return "any", None
-    if isinstance(value, (list, tuple)):
+def _ratings(value: Any, known_zones: Collection[str], issues: _Issues) -> dict[str, str]:
+    if not isinstance(value, dict):
+        issues.note("missing or malformed field 'ratings', no zone rated")
+        return {}
+    ratings: dict[str, str] = {}
+    ambiguous: set[str] = set()
+    for zone, level in value.items():
+        zone_name = _zone_name(zone, known_zones)
+        level_name = level.strip().lower() if isinstance(level, str) else None
+        if zone_name is None:
+            issues.drop("unknown zones in 'ratings'", zone)
+        elif level_name not in PHI:
+            issues.drop("unknown levels in 'ratings'", level)
+        elif ratings.setdefault(zone_name, level_name) != level_name:
+            ambiguous.add(zone_name)
+    if ambiguous:
+        # Two levels for one zone (written in two cases) say nothing about it: it stays unrated.
+        issues.note(f"zones rated twice with different levels left unrated: {sorted(ambiguous)}")
+        for zone_name in ambiguous:
+            del ratings[zone_name]
+    return ratings
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _number(value: Any) -> float | None:
+    """``value`` as a float: a JSON number, or a short string that spells one; else None."""
+    if _is_number(value):
+        return float(value)
+    if isinstance(value, str) and len(value) <= MAX_NUMBER_CHARS:
         try:
-            vector = tuple(float(x) for x in value)
-        except (TypeError, ValueError):
-            vector = ()
-        norm = math.sqrt(sum(x * x for x in vector)) if len(vector) == 3 else 0.0
-        if len(vector) == 3 and math.isfinite(norm) and norm > 0.0:
-            return "vector", tuple(x / norm for x in vector)  # type: ignore[return-value]
-        issues.append(f"approach {value!r} is not a non-zero 3-vector, taken as any")
+            return float(value)
+        except ValueError:
+            return None
+    return None
+
+
+def _approach(value: Any, issues: _Issues) -> tuple[str, tuple[float, float, float] | None]:
+    if value is None:
+        issues.note("missing field 'approach', taken as any")
         return "any", None
-    name = str(value).strip().lower()
+    if isinstance(value, list):
+        vector = tuple(float(x) for x in value) if len(value) == 3 and all(map(_is_number, value)) else ()
+        norm = math.sqrt(sum(x * x for x in vector)) if vector else 0.0
+        if math.isfinite(norm) and norm > 0.0:
+            return "vector", tuple(x / norm for x in vector)  # type: ignore[return-value]
+        issues.note(f"approach {excerpt(value)} is not a non-zero 3-vector, taken as any")
+        return "any", None
+    name = value.strip().lower() if isinstance(value, str) else None
     if name in APPROACH_NAMES and name != "vector":
         return name, None
-    issues.append(f"unknown approach '{value}', taken as any")
+    issues.note(f"unknown approach {excerpt(value)}, taken as any")
     return "any", None
 
 
-def _max_tilt(data: dict[str, Any], upright_max_tilt_deg: float, issues: list[str]) -> float | None:
+def _max_tilt(data: dict[str, Any], upright_max_tilt_deg: float, issues: _Issues) -> float | None:
     if "max_tilt_deg" not in data:
         if data.get("keep_upright") is True:
             return upright_max_tilt_deg
-        issues.append("missing field 'max_tilt_deg', taken as unconstrained")
+        issues.note("missing field 'max_tilt_deg', taken as unconstrained")
         return None
     value = data["max_tilt_deg"]
-    if value is None or (isinstance(value, str) and value.strip().lower() in ("none", "null", "")):
+    words = value.strip().lower() if isinstance(value, str) else None
+    if value is None or words in ("none", "null", ""):
         return None
-    if isinstance(value, str) and value.strip().lower() in ("upright", "keep upright"):
+    if words in ("upright", "keep upright"):
         return upright_max_tilt_deg
-    try:
-        tilt = float(value)
-    except (TypeError, ValueError):
-        issues.append(f"max_tilt_deg {value!r} is not a number, taken as unconstrained")
+    tilt = _number(value)
+    if tilt is None:
+        issues.note(f"max_tilt_deg {excerpt(value)} is not a number, taken as unconstrained")
         return None
     if not math.isfinite(tilt) or not 0.0 <= tilt <= 180.0:
-        issues.append(f"max_tilt_deg {value!r} is outside [0, 180], taken as unconstrained")
+        issues.note(f"max_tilt_deg {excerpt(value)} is outside [0, 180], taken as unconstrained")
         return None
     return tilt
 
 
-def parse_zone_rating(
-    text: str, backend: str, model: str, prompt_version: str, latency_s: float, upright_max_tilt_deg: float
-) -> ZoneRating:
-    """A validated ``ZoneRating`` from a model's raw answer; neutral (marked so) when nothing is usable."""
-    data, issues = extract_json_object(text)
-    if data is None:
-        log.warning("%s/%s answer unusable (%s); neutral rating", backend, model, "; ".join(issues))
-        return neutral_rating(backend, model, prompt_version, latency_s, "; ".join(issues), raw_text=text)
+def _raw_text(answer: object) -> str:
+    """What a rating keeps of the answer it was read from: the text itself when it was readable,
+    else a short quote."""
+    if isinstance(answer, str) and len(answer) <= MAX_ANSWER_CHARS:
+        return answer
+    return excerpt(answer) if isinstance(answer, (str, bytes, bytearray)) else ""
 
-    ratings: dict[str, str] = {}
-    raw_ratings = data.get("ratings")
-    if not isinstance(raw_ratings, dict):
-        issues.append("missing or malformed field 'ratings', no zone rated")
-        raw_ratings = {}
-    for zone, level in raw_ratings.items():
-        zone_name, level_name = str(zone).strip().lower(), str(level).strip().lower()
-        if not is_zone_name(zone_name):
-            issues.append(f"unknown zone '{zone}' in 'ratings' dropped")
-        elif level_name not in PHI:
-            issues.append(f"unknown level '{level}' for zone '{zone_name}' dropped")
-        else:
-            ratings[zone_name] = level_name
-    preferred = _zone_list(data.get("preferred"), "preferred", issues)
-    avoid = _zone_list(data.get("avoid"), "avoid", issues)
+
+def parse_zone_rating(
+    answer: object, backend: str, model: str, prompt_version: str, latency_s: float, upright_max_tilt_deg: float,
+    known_zones: Collection[str],
+) -> ZoneRating:
+    """A validated ``ZoneRating`` from a model's raw answer (any value: text, bytes, None, ...);
+    neutral (marked so) when nothing is usable. Never raises.
+
+    ``known_zones``: the zone names the model was asked about (``prompt.answer_zone_names``);
+    any other name is dropped and counted."""
+    raw_text = _raw_text(answer)
+    data, repairs = extract_json_object(answer)
+    if data is None:
+        reason = "; ".join(repairs)
+        log.warning("%s/%s answer unusable (%s); neutral rating", backend, model, reason)
+        return neutral_rating(backend, model, prompt_version, latency_s, reason, raw_text=raw_text)
+
+    issues = _Issues(repairs)
+    ratings = _ratings(data.get("ratings"), known_zones, issues)
+    preferred = _zone_list(data.get("preferred"), "preferred", known_zones, issues)
+    avoid = _zone_list(data.get("avoid"), "avoid", known_zones, issues)
     contradictory = preferred & avoid
     if contradictory:
         # Avoiding is the safe reading of a contradiction: a preferred zone is a bonus, an avoid zone a hazard.
-        issues.append(f"zones both preferred and avoided kept as avoid only: {sorted(contradictory)}")
+        issues.note(f"zones both preferred and avoided kept as avoid only: {sorted(contradictory)}")
         preferred -= contradictory
     if not ratings and not preferred and not avoid:
-        reason = "; ".join(issues + ["no valid zone rating or zone set in the answer"])
+        reason = "; ".join(issues.all() + ["no valid zone rating or zone set in the answer"])
         log.warning("%s/%s answer unusable (%s); neutral rating", backend, model, reason)
-        return neutral_rating(backend, model, prompt_version, latency_s, reason, raw_text=text)
+        return neutral_rating(backend, model, prompt_version, latency_s, reason, raw_text=raw_text)
 
     approach, vector = _approach(data.get("approach"), issues)
-    style = str(data.get("grasp_style", "")).strip().lower()
+    style_value = data.get("grasp_style")
+    style = style_value.strip().lower() if isinstance(style_value, str) else None
     if style not in GRASP_STYLES:
-        issues.append(f"grasp style {data.get('grasp_style')!r} unknown or missing, taken as any")
+        issues.note(f"grasp style {excerpt(style_value)} unknown or missing, taken as any")
         style = "any"
     max_tilt = _max_tilt(data, upright_max_tilt_deg, issues)
-    outcome = "repaired" if issues else "ok"
-    if issues:
-        log.info("%s/%s answer repaired: %s", backend, model, "; ".join(issues))
+    found = issues.all()
+    outcome = "repaired" if found else "ok"
+    if found:
+        log.info("%s/%s answer repaired: %s", backend, model, "; ".join(found))
     return ZoneRating(
         ratings=ratings, preferred=frozenset(preferred), avoid=frozenset(avoid), approach=approach,
         grasp_style=style, max_tilt_deg=max_tilt,
         provenance=RatingProvenance(backend, model, prompt_version, latency_s, outcome),
-        approach_vector_world=vector, issues=tuple(issues), raw_text=text,
+        approach_vector_world=vector, issues=tuple(found), raw_text=raw_text,
     )

@@ -54,6 +54,15 @@ def zone_answer_schema() -> dict[str, Any]:
     }
 
 
+def answer_zone_names(zone_descriptions: Mapping[str, str]) -> list[str]:
+    """The zone names the prompt about ``zone_descriptions`` lets the model use: the described zones,
+    and ``protrusion`` (all of them at once) where a ``protrusion_<n>`` is described."""
+    names = list(zone_descriptions)
+    if any(name.startswith(f"{PROTRUSION}_") for name in names):
+        names.append(PROTRUSION)
+    return names
+
+
 def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[str, str], *, marked: bool = False) -> str:
     """The text sent beside the object crop: task, zones with their geometry, and the JSON to answer.
 
@@ -63,9 +72,7 @@ def build_zone_prompt(object_name: str, task: str, zone_descriptions: Mapping[st
     if unknown:
         raise RatingError(f"zone descriptions name unknown zones {unknown} (known: {', '.join(ZONE_NAMES)}, {PROTRUSION}_<n>)")
     zone_lines = "\n".join(f"- {description}" for description in zone_descriptions.values())
-    names = list(zone_descriptions)
-    if any(name.startswith(f"{PROTRUSION}_") for name in names):
-        names.append(PROTRUSION)
+    names = answer_zone_names(zone_descriptions)
     return (
         f"The image shows a {object_name} on a table, seen by a robot with a parallel-jaw gripper.\n"
         f"Task: {task_description(task)}.\n"

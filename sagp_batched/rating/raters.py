@@ -22,6 +22,7 @@ from ..types import SIDE_ZONES
 from .parse import parse_zone_rating
 from .prompt import (
     ZONE_ANSWER_SCHEMA_NAME,
+    answer_zone_names,
     build_zone_prompt,
     checked_image,
     prompt_version,
@@ -29,7 +30,7 @@ from .prompt import (
     zone_answer_schema,
 )
 from .types import RatingError, RatingProvenance, VLMRequestError, ZoneRating, neutral_rating
-from .vlm import VLMClient, get_vlm_client
+from .vlm import VLMClient, answer_endpoint, get_vlm_client
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +41,9 @@ class Rater(ABC):
     backend: str
     model: str
     prompt_version: str
+    # The server its answers come from where backend and model do not name the source (an
+    # OpenAI-compatible endpoint serves whatever it serves under a model's name); "" otherwise.
+    endpoint: str = ""
     # A rater that reads the simulation's ground truth (the object's pose) is an upper bound, never a model.
     uses_ground_truth: bool = False
 
@@ -67,14 +71,17 @@ class VLMRater(Rater):
 
     The client is built on the first question, so a run whose ratings are all cached never loads
     a model. ``zone_marks``: the images it is given carry the zones (``zone_marks.draw_zone_marks``),
-    so the prompt points at them and is versioned apart from the plain-crop prompt.
+    so the prompt points at them and is versioned apart from the plain-crop prompt. ``endpoint``:
+    the server ``connect`` reaches, if any (``vlm.answer_endpoint``).
     """
 
     def __init__(
-        self, backend: str, model: str, upright_max_tilt_deg: float, connect: Callable[[], VLMClient], zone_marks: bool = False
+        self, backend: str, model: str, upright_max_tilt_deg: float, connect: Callable[[], VLMClient], zone_marks: bool = False,
+        endpoint: str = "",
     ):
         self.backend = backend
         self.model = model
+        self.endpoint = endpoint
         self.upright_max_tilt_deg = upright_max_tilt_deg
         self.zone_marks = zone_marks
         self.prompt_version = prompt_version(zone_marks)
@@ -98,7 +105,8 @@ class VLMRater(Rater):
             log.warning("no rating for %s/%s from %s: %s", object_id, task, self.model, exc)
             return neutral_rating(self.backend, self.model, self.prompt_version, time.perf_counter() - start, f"no answer: {exc}")
         latency = time.perf_counter() - start
-        rating = parse_zone_rating(answer.text, self.backend, self.model, self.prompt_version, latency, self.upright_max_tilt_deg)
+        rating = parse_zone_rating(answer.text, self.backend, self.model, self.prompt_version, latency, self.upright_max_tilt_deg,
+                                   answer_zone_names(zone_descriptions))
         return dataclasses.replace(rating, provenance=dataclasses.replace(rating.provenance, output_mode=answer.output_mode))
 
 
@@ -149,7 +157,8 @@ class PriorRater(Rater):
 
 
 class CachedRater(Rater):
-    """Persistent cache around a rater, one JSON file per (object, task, backend, model, prompt version).
+    """Persistent cache around a rater, one JSON file per (object, task, backend, model, prompt version,
+    and endpoint where the rater has one); an entry is served only for the key it records.
 
     Files are written atomically (temporary file + rename) and carry a SHA-256 of their rating; an
     entry that fails to parse, to match its hash or to validate is logged and asked again. Neutral
@@ -161,29 +170,37 @@ class CachedRater(Rater):
 
     def __init__(self, inner: Rater, cache_dir: str | Path):
         self.inner = inner
-        self.backend, self.model, self.prompt_version = inner.backend, inner.model, inner.prompt_version
+        self.backend, self.model, self.prompt_version, self.endpoint = inner.backend, inner.model, inner.prompt_version, inner.endpoint
         self.cache_dir = Path(cache_dir).expanduser()
         self.queries = 0
 
+    def _key(self, object_id: str, task: str) -> dict[str, str]:
+        """What an entry answers; the endpoint joins it only where there is one, so the key of an
+        endpoint-less backend is its object, task, backend, model and prompt version alone."""
+        key = {"object_id": object_id, "task": task, "backend": self.backend, "model": self.model,
+               "prompt_version": self.prompt_version}
+        return {**key, "endpoint": self.endpoint} if self.endpoint else key
+
     def _path(self, object_id: str, task: str) -> Path:
-        key = json.dumps([object_id, task, self.backend, self.model, self.prompt_version])
-        digest = hashlib.sha256(key.encode()).hexdigest()[:24]
+        digest = hashlib.sha256(json.dumps(list(self._key(object_id, task).values())).encode()).hexdigest()[:24]
         return self.cache_dir / f"{object_id}__{task}__{self.backend}__{digest}.json"
 
     @staticmethod
     def _digest(rating: dict[str, Any]) -> str:
         return hashlib.sha256(json.dumps(rating, sort_keys=True).encode()).hexdigest()
 
-    def _load(self, path: Path) -> ZoneRating | None:
+    def _load(self, path: Path, key: dict[str, str]) -> ZoneRating | None:
         if not path.is_file():
             return None
         try:
             stored = json.loads(path.read_text())
             if stored["sha256"] != self._digest(stored["rating"]):
                 raise RatingError("hash mismatch")
+            if stored["key"] != key:
+                raise RatingError(f"entry answers {stored['key']!r:.300}, not {key!r}")
             return ZoneRating.from_dict(stored["rating"], cached=True)
         except (ValueError, KeyError, TypeError, RatingError) as exc:
-            log.warning("corrupt rating cache entry %s (%s); asking again", path, exc)
+            log.warning("unusable rating cache entry %s (%s); asking again", path, exc)
             return None
 
     def _write_atomically(self, path: Path, write: Callable[[Any], None]) -> None:
@@ -198,11 +215,9 @@ class CachedRater(Rater):
             Path(temporary).unlink(missing_ok=True)
             raise
 
-    def _store(self, path: Path, object_id: str, task: str, rating: ZoneRating, image: np.ndarray) -> None:
+    def _store(self, path: Path, key: dict[str, str], rating: ZoneRating, image: np.ndarray) -> None:
         record = rating.to_dict()
-        payload = {"key": {"object_id": object_id, "task": task, "backend": self.backend, "model": self.model,
-                           "prompt_version": self.prompt_version},
-                   "sha256": self._digest(record), "rating": record}
+        payload = {"key": key, "sha256": self._digest(record), "rating": record}
         # The image first: an entry on disk always has the picture it was rated from beside it.
         shown = Image.fromarray(checked_image(image))
         self._write_atomically(path.with_suffix(".png"), lambda handle: shown.save(handle, format="PNG"))
@@ -210,14 +225,14 @@ class CachedRater(Rater):
 
     def rate(self, object_id, object_name, task, crop_rgb, zone_descriptions, zone_points_object=None):
         task_description(task)
-        path = self._path(object_id, task)
-        cached = self._load(path)
+        key, path = self._key(object_id, task), self._path(object_id, task)
+        cached = self._load(path, key)
         if cached is not None:
             return cached
         self.queries += 1
         rating = self.inner.rate(object_id, object_name, task, crop_rgb, zone_descriptions)
         if not rating.is_neutral:
-            self._store(path, object_id, task, rating, crop_rgb)
+            self._store(path, key, rating, crop_rgb)
         return rating
 
 
@@ -292,7 +307,8 @@ def get_rater(config: RatingConfig) -> Rater:
         rater: Rater = PriorRater()
     elif config.backend in ("transformers", "openai"):
         rater = VLMRater(
-            config.backend, config.model, config.upright_max_tilt_deg, lambda: get_vlm_client(config), config.zone_marks
+            config.backend, config.model, config.upright_max_tilt_deg, lambda: get_vlm_client(config), config.zone_marks,
+            answer_endpoint(config),
         )
     else:
         raise RatingError(f"unknown rating backend '{config.backend}' (known: prior, transformers, openai, oracle)")

@@ -21,6 +21,16 @@ OUTCOMES: tuple[str, ...] = ("ok", "repaired", "neutral")
 # answer's JSON schema), "plain" (the prompt alone asked for JSON); "" when no model answer was read
 # (a prior, the oracle, no answer at all, or a rating cached before the mode was recorded).
 OUTPUT_MODES: tuple[str, ...] = ("json_schema", "plain", "")
+# Text that reaches a trial record or the cache from outside (a model's answer, a server's error) is
+# cut to this many characters: an issue quotes what was wrong, it does not carry it.
+MAX_ISSUE_CHARS = 200
+# A neutral rating's reason joins the issues of one answer, each of them clipped.
+MAX_REASON_CHARS = 1000
+
+
+def clipped(text: str, limit: int = MAX_ISSUE_CHARS) -> str:
+    """``text`` cut to ``limit`` characters, saying how long it was when cut."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 class RatingError(RuntimeError):
@@ -142,9 +152,11 @@ class ZoneRating:
 
 
 def neutral_rating(backend: str, model: str, prompt_version: str, latency_s: float, reason: str, raw_text: str = "") -> ZoneRating:
-    """The rating that says nothing: no zone rated, no sets, any approach, no orientation constraint."""
+    """The rating that says nothing: no zone rated, no sets, any approach, no orientation constraint.
+
+    ``reason`` is clipped to ``MAX_REASON_CHARS``: it may quote a server's or a model's words."""
     return ZoneRating(
         ratings={}, preferred=frozenset(), avoid=frozenset(), approach="any", grasp_style="any", max_tilt_deg=None,
         provenance=RatingProvenance(backend, model, prompt_version, latency_s, "neutral"),
-        issues=(reason,), raw_text=raw_text,
+        issues=(clipped(reason, MAX_REASON_CHARS),), raw_text=raw_text,
     )

@@ -248,6 +248,12 @@ class OpenAIVLM:
         return ModelAnswer(text, "plain")
 
 
+def answer_endpoint(config: RatingConfig) -> str:
+    """The server the answers of ``config.backend`` come from: the endpoint (without a trailing '/')
+    for ``openai``; "" for the other backends, whose model path or hub id names their weights."""
+    return config.endpoint.rstrip("/") if config.backend == "openai" else ""
+
+
 def get_vlm_client(config: RatingConfig) -> VLMClient:
     """The model client of ``config.backend``; the ``prior`` backend has none (``RatingError``)."""
     if config.backend == "transformers":
