@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .config import Config
+from .config import Config, ConfigError
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from .export import acronym_gripper_transforms_object
 from .objects import ObjectSpec
@@ -100,17 +100,25 @@ class ObjectLabeller:
     """Labels objects in one PyBullet client: a scene, a rater and the chosen simulation mode."""
 
     def __init__(self, config: Config):
-        from .labelling import GraspSimulator
         from .rating import get_rater
         from .scene import Scene
 
         self.config = config
         self.scene = Scene(config)
         self.rater = get_rater(config.rating)
-        self.simulator = GraspSimulator(self.scene, config, config.dataset.mode)
+        self._simulators = {}
+
+    def simulator(self, mode: str):
+        """The simulator of ``mode`` ("hand" or "arm"), built on first use and kept."""
+        from .labelling import GraspSimulator
+
+        if mode not in self._simulators:
+            self._simulators[mode] = GraspSimulator(self.scene, self.config, mode)
+        return self._simulators[mode]
 
     def close(self) -> None:
-        self.simulator.close()
+        for simulator in self._simulators.values():
+            simulator.close()
         self.scene.close()
 
     def label(self, spec: ObjectSpec, n_grasps: int) -> ObjectLabels:
@@ -135,10 +143,10 @@ class ObjectLabeller:
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
         return ObjectLabels(spec.id, grasps, untested_all, rater, neutral, skipped, times)
 
-    def _label_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float]):
+    def _capture_and_classify(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float]):
+        """Place ``spec`` for capture ``pose_index``, capture it and classify ``n_grasps`` of its grasps;
+        the reason instead where the capture failed."""
         from .perception import capture
-        from .zone_marks import rating_image
-        from .zones import assign_zones
 
         config, dataset = self.config, self.config.dataset
         clock = time.perf_counter()
@@ -152,13 +160,40 @@ class ObjectLabeller:
         times["capture"] += time.perf_counter() - clock
         clock = time.perf_counter()
         classified = classify_grasps(cloud, config, dataset.seed + pose_index, n_grasps)
+        times["plan"] += time.perf_counter() - clock
+        return cloud, classified
+
+    def compare_modes(self, spec: ObjectSpec, n_grasps: int) -> dict[str, int]:
+        """The same ``n_grasps`` grasps of ``spec``'s first capture simulated in hand and in arm mode:
+        how many were compared, executed in both, agreed, and held in each."""
+        captured = self._capture_and_classify(spec, 0, n_grasps, dict.fromkeys(("reset", "capture", "plan"), 0.0))
+        if isinstance(captured, str):
+            return {"compared": 0, "both_tested": 0, "agree": 0, "hand_held": 0, "arm_held": 0, "skipped": captured}
+        _, classified = captured
+        feasible = classified.verdict == 0
+        hand = self.simulator("hand").simulate(classified.candidates, feasible)
+        arm = self.simulator("arm").simulate(classified.candidates, feasible)
+        both = [(h, a) for h, a in zip(hand, arm) if isinstance(h, SimulatedGrasp) and isinstance(a, SimulatedGrasp)]
+        return {"compared": len(hand), "both_tested": len(both), "agree": sum(h.held == a.held for h, a in both),
+                "hand_held": sum(h.held for h, _ in both), "arm_held": sum(a.held for _, a in both)}
+
+    def _label_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float]):
+        from .zone_marks import rating_image
+        from .zones import assign_zones
+
+        config = self.config
+        captured = self._capture_and_classify(spec, pose_index, n_grasps, times)
+        if isinstance(captured, str):
+            return captured
+        cloud, classified = captured
+        clock = time.perf_counter()
         decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
         shown = rating_image(cloud, decomposition, config.rating)
         ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, decomposition.describe()) for task in DATASET_TASKS}
         neutral = {task: (rating.issues[0] if rating.issues else "neutral") for task, rating in ratings.items() if rating.is_neutral}
         times["plan"] += time.perf_counter() - clock
         clock = time.perf_counter()
-        outcomes = self.simulator.simulate(zoned, classified.verdict == 0)
+        outcomes = self.simulator(config.dataset.mode).simulate(zoned, classified.verdict == 0)
         times["simulate"] += time.perf_counter() - clock
         labelled, rejected = _pose_labels(cloud, zoned, classified, outcomes, ratings, pose_index)
         return labelled, rejected, neutral
@@ -255,6 +290,39 @@ def _labels_in_processes(config: Config, specs: list[ObjectSpec]):
             raise
 
 
+def _labels_on_ray(config: Config, specs: list[ObjectSpec]):
+    """One actor per worker, each holding one ``ObjectLabeller`` (one PyBullet client) for the whole run."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise ConfigError("--backend ray needs Ray: pip install 'sagp-batched[ray]'") from exc
+    from ray.util import ActorPool
+
+    started_here = not ray.is_initialized()
+    if started_here:
+        if config.run.ray_address:
+            ray.init(address=config.run.ray_address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=config.run.workers, include_dashboard=False, log_to_driver=False)
+    try:
+        labeller_actor = ray.remote(num_cpus=1)(_RayLabeller)
+        pool = ActorPool([labeller_actor.remote(config.to_dict()) for _ in range(config.run.workers)])
+        yield from pool.map_unordered(lambda actor, spec: actor.label.remote(spec, config.dataset.grasps_per_object), specs)
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+class _RayLabeller:
+    """An ``ObjectLabeller`` built inside a Ray worker from the config's plain dict."""
+
+    def __init__(self, config_dict: dict):
+        _init_worker(config_dict)
+
+    def label(self, spec: ObjectSpec, n_grasps: int) -> ObjectLabels:
+        return _label_in_worker(spec, n_grasps)
+
+
 def _labels_inline(config: Config, specs: list[ObjectSpec]):
     labeller = ObjectLabeller(config)
     try:
@@ -297,9 +365,23 @@ def _write_object(out_dir: Path, spec: ObjectSpec, labels: ObjectLabels, mode: s
 DISTINCT_CENTRE_OFFSET_M = 0.105
 
 
-def generate_dataset(config: Config, objects, out_dir: Path, *, progress: bool = True, on_note=None) -> DatasetResult:
+def measure_agreement(config: Config, objects, object_ids: list[str], n_grasps: int) -> dict:
+    """Hand-vs-arm agreement on ``n_grasps`` grasps of each object of ``object_ids`` (``ObjectLabeller.compare_modes``)."""
+    labeller = ObjectLabeller(config)
+    try:
+        by_object = {object_id: labeller.compare_modes(objects.get(object_id), n_grasps) for object_id in object_ids}
+    finally:
+        labeller.close()
+    totals = {key: sum(row[key] for row in by_object.values()) for key in ("compared", "both_tested", "agree", "hand_held", "arm_held")}
+    return {**totals, "grasps_per_object": n_grasps, "by_object": by_object}
+
+
+def generate_dataset(config: Config, objects, out_dir: Path, *, progress: bool = True, on_note=None,
+                     agreement_objects: list[str] | None = None, agreement_grasps: int = 0) -> DatasetResult:
     """Label ``config.dataset.grasps_per_object`` grasps of every object of ``config.run.objects`` into
-    ``out_dir``; a re-run into the same directory skips the objects already written."""
+    ``out_dir``; a re-run into the same directory skips the objects already written. With
+    ``agreement_grasps``, the hand-vs-arm agreement on that many grasps of each of
+    ``agreement_objects`` is measured too (``agreement.json``, in the report)."""
     from . import provenance
     from .dataset import read_progress
     from .dataset_report import write_dataset_report
@@ -327,7 +409,10 @@ def generate_dataset(config: Config, objects, out_dir: Path, *, progress: bool =
             from tqdm import tqdm
 
             bar = tqdm(total=len(pending), unit="object", file=sys.stderr, dynamic_ncols=True)
-        labels_of = _labels_inline if config.run.workers == 1 else _labels_in_processes
+        if config.run.backend == "ray":
+            labels_of = _labels_on_ray
+        else:
+            labels_of = _labels_inline if config.run.workers == 1 else _labels_in_processes
         new_objects, write_s = [], []
         try:
             for labels in labels_of(config, pending):
@@ -339,5 +424,9 @@ def generate_dataset(config: Config, objects, out_dir: Path, *, progress: bool =
         finally:
             if bar is not None:
                 bar.close()
+        if agreement_grasps:
+            from .dataset_report import AGREEMENT_FILE
+
+            write_json(out_dir / AGREEMENT_FILE, measure_agreement(config, objects, list(agreement_objects or []), agreement_grasps))
         manifest = write_dataset_report(out_dir, config, objects, object_ids)
     return DatasetResult(out_dir, new_objects, manifest)

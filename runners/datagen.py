@@ -1,0 +1,119 @@
+"""Make a labelled grasp dataset: ``python -m runners.datagen --objects-dir DIR --grasps-per-object N --out DATASET``.
+
+Every object of the set (a folder of meshes or URDFs, a YCB-layout folder, or the embedded YCB set)
+is captured on the table, planned once per capture, and N of its grasps, across the planner's
+verdicts, are labelled by simulation (``--mode hand``: the Panda hand alone; ``arm``: the Panda
+executing the planned motion). Each finished object is written at once; re-running the command
+resumes. ``--agreement N`` also simulates N grasps of each of the first five objects in both modes
+and reports how often the modes agree.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from sagp_batched.config import ConfigError, load_config
+from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
+from sagp_batched.preflight import PreflightError, preflight
+from sagp_batched.runtime import configure_torch
+
+# Flag -> (argparse dest, config section, config key).
+SETTING_FLAGS = {
+    "--objects": ("objects", "run", "objects"),
+    "--objects-dir": ("objects_dir", "run", "objects_dir"),
+    "--out": ("out", "run", "out"),
+    "--workers": ("workers", "run", "workers"),
+    "--backend": ("backend", "run", "backend"),
+    "--address": ("ray_address", "run", "ray_address"),
+    "--rater": ("rater", "rating", "backend"),
+    "--model": ("model", "rating", "model"),
+    "--endpoint": ("endpoint", "rating", "endpoint"),
+    "--pairs": ("n_pairs", "planner", "n_pairs"),
+    "--grasps-per-object": ("grasps_per_object", "dataset", "grasps_per_object"),
+    "--mode": ("mode", "dataset", "mode"),
+    "--captures": ("captures_per_object", "dataset", "captures_per_object"),
+}
+AGREEMENT_OBJECTS = 5
+
+
+def _csv(text: str) -> list[str]:
+    return [item.strip() for item in text.split(",") if item.strip()]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m runners.datagen", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--profile", default="dataset", help="profile name or a TOML path (default: dataset)")
+    parser.add_argument("--objects-dir", help="a folder of meshes (OBJ/STL/PLY/GLB) or URDFs, a YCB-layout folder, or 'pybullet_data'")
+    parser.add_argument("--objects", type=_csv, help="comma list of object ids, or 'all' (default)")
+    parser.add_argument("--grasps-per-object", type=int, help="labelled grasps per object")
+    parser.add_argument("--mode", choices=("hand", "arm"), help="hand: the Panda hand alone; arm: the Panda executes the planned motion")
+    parser.add_argument("--captures", type=int, dest="captures_per_object", help="captures (placements) per object")
+    parser.add_argument("--out", help="dataset directory (re-running into it resumes)")
+    parser.add_argument("--workers", type=int, help="worker processes, each with its own PyBullet client")
+    parser.add_argument("--backend", choices=("local", "ray"), help="where objects are labelled")
+    parser.add_argument("--address", dest="ray_address", help="Ray cluster address for --backend ray")
+    parser.add_argument("--rater", choices=("prior", "transformers", "openai"), help="zone-rating backend for the semantics")
+    parser.add_argument("--model", help="model id or local path (transformers) or served model name (openai)")
+    parser.add_argument("--endpoint", help="OpenAI-compatible base URL")
+    parser.add_argument("--pairs", type=int, dest="n_pairs", help="sampled point pairs per capture")
+    parser.add_argument("--agreement", type=int, default=0, metavar="N",
+                        help=f"also simulate N grasps of each of the first {AGREEMENT_OBJECTS} objects in both modes")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
+
+
+def _setting_error(exc: ConfigError, args: argparse.Namespace) -> str:
+    for flag, (dest, section, key) in SETTING_FLAGS.items():
+        if exc.setting == f"{section}.{key}" and getattr(args, dest) is not None:
+            return f"error: {flag}: {exc}"
+    return f"error: {exc}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from sagp_batched.datagen import dataset_object_ids, generate_dataset
+
+    args = build_parser().parse_args(argv)
+    overrides: dict[str, dict[str, Any]] = {}
+    for dest, section, key in SETTING_FLAGS.values():
+        overrides.setdefault(section, {})[key] = getattr(args, dest)
+    try:
+        config = load_config(args.profile, overrides=overrides)
+    except ConfigError as exc:
+        print(_setting_error(exc, args), file=sys.stderr)
+        return 2
+    if args.agreement < 0:
+        print(f"error: --agreement must be at least 0, got {args.agreement}", file=sys.stderr)
+        return 2
+    try:
+        objects = load_object_set(config.run.objects_dir)
+        object_ids = dataset_object_ids(config, objects)
+        preflight(config)
+    except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError, PreflightError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for path, reason in getattr(objects, "skipped", []):
+        print(f"note: skipped {path}: {reason}", file=sys.stderr)
+    print(f"objects: {objects.source} ({len(object_ids)} to label)", file=sys.stderr)
+    configure_torch()
+    out_dir = Path(config.run.out).expanduser()
+    try:
+        result = generate_dataset(config, objects, out_dir, progress=not args.no_progress,
+                                  on_note=lambda note: print(f"note: {note}", file=sys.stderr),
+                                  agreement_objects=object_ids[:AGREEMENT_OBJECTS], agreement_grasps=args.agreement)
+    except (ConfigError, ObjectSetError, UnknownObjectError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: finished objects are in {out_dir}; run the same command again to resume", file=sys.stderr)
+        return 130
+    summary = result.manifest["summary"]
+    print(f"{len(result.new_objects)} new objects; {summary['labelled']} labelled grasps, {summary['held']} held; "
+          f"report: {out_dir / 'report.md'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
