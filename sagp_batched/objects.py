@@ -1,12 +1,14 @@
 """The object registry: which objects exist, where their URDFs are, and what the study knows of them.
 
-Three sources:
+Four sources:
 - a YCB directory laid out like the project's ``shared/ycb`` (``objects.json`` + ``<id>/model.urdf``), chosen by
   argument or the ``SAGP_YCB_DIR`` environment variable;
 - without either, the embedded compact YCB set: the published study's 14 objects and 7 distractors, shipped inside
   the package (``sagp_batched/data/ycb``: decimated visual meshes and smaller textures, the same URDFs, collision
   decompositions and link frames as ``shared/ycb``; made by ``runners/compact_objects.py``);
-- by the name ``pybullet_data`` (``PYBULLET_DATA_SET``), a set of objects that ship inside ``pybullet_data``.
+- by the name ``pybullet_data`` (``PYBULLET_DATA_SET``), a set of objects that ship inside ``pybullet_data``;
+- any other folder of meshes (OBJ, STL, PLY, GLB) or URDFs, whose ``objects.json`` (optional) lists no ``urdf``:
+  each object's URDF, collision hulls, mass, inertia and resting poses are made by ``mesh_import``.
 """
 from __future__ import annotations
 
@@ -18,9 +20,13 @@ import os
 import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pybullet
 import pybullet_data
+
+if TYPE_CHECKING:
+    from .mesh_import import MeshImportSettings
 
 YCB_DIR_ENV = "SAGP_YCB_DIR"
 DISTRACTOR_CATEGORY = "distractor"
@@ -31,6 +37,7 @@ EMBEDDED_YCB_SOURCE = "embedded compact YCB"
 INDEX_METADATA_KEYS = frozenset({"compact"})
 
 # The published study's asymmetric objects: those with a functional region geometry alone does not reveal.
+# The flag of an ``objects.json`` entry without an ``asymmetric`` key (the YCB sets' entries have none).
 YCB_ASYMMETRIC_IDS = frozenset(
     {"025_mug", "019_pitcher_base", "035_power_drill", "037_scissors", "051_large_clamp", "011_banana", "040_large_marker"}
 )
@@ -73,6 +80,15 @@ class ObjectLoadError(RuntimeError):
 
 
 @dataclass(frozen=True)
+class RestingPose:
+    """One way the object comes to rest on a plane, and how likely a random drop ends in it (quasi-static)."""
+
+    probability: float
+    # (4, 4) rows: link frame -> a frame on the plane (z up, the pose's AABB bottom centre at the origin).
+    link_to_rest: tuple[tuple[float, ...], ...]
+
+
+@dataclass(frozen=True)
 class ObjectSpec:
     id: str
     name: str
@@ -81,14 +97,20 @@ class ObjectSpec:
     asymmetric: bool
     mass_kg: float
     extents_m: tuple[float, float, float]  # resting-pose extents in the object's link frame (x, y, z)
+    # Imported objects: their resting poses, most probable first; the first is the link frame's own (identity).
+    resting_poses: tuple[RestingPose, ...] = ()
 
 
 class ObjectSet:
-    """An ordered registry of objects; targets are every non-distractor object."""
+    """An ordered registry of objects; targets are every non-distractor object.
 
-    def __init__(self, source: str, specs: list[ObjectSpec]):
+    ``skipped`` lists the files of an imported folder that could not serve, each with its reason.
+    """
+
+    def __init__(self, source: str, specs: list[ObjectSpec], skipped: list[tuple[Path, str]] | None = None):
         self.source = source
         self._specs = {spec.id: spec for spec in specs}
+        self.skipped = list(skipped or [])
 
     @property
     def ids(self) -> tuple[str, ...]:
@@ -145,12 +167,13 @@ def embedded_ycb_dir() -> Path:
     return Path(str(importlib.resources.files("sagp_batched").joinpath("data", "ycb")))
 
 
-def _load_ycb_dir(objects_dir: Path, source_label: str = "ycb") -> ObjectSet:
+def _read_index(objects_dir: Path) -> dict[str, Any] | None:
+    """The directory's ``objects.json``, or None where it has none."""
     if not objects_dir.is_dir():
         raise ObjectSetError(f"objects directory {objects_dir} does not exist")
     index_path = objects_dir / "objects.json"
     if not index_path.is_file():
-        raise ObjectSetError(f"objects directory {objects_dir} has no objects.json")
+        return None
     try:
         index = json.loads(index_path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as exc:
@@ -159,7 +182,29 @@ def _load_ycb_dir(objects_dir: Path, source_label: str = "ycb") -> ObjectSet:
         raise ObjectSetError(f"cannot read {index_path}: {exc.strerror or exc}") from exc
     except json.JSONDecodeError as exc:
         raise ObjectSetError(f"{index_path} is not valid JSON: {exc}") from exc
-    if not isinstance(index, dict) or not index:
+    if not isinstance(index, dict):
+        raise ObjectSetError(f"{index_path} must map object ids to entries")
+    return index
+
+
+def _lists_urdfs(index: dict[str, Any]) -> bool:
+    """Whether an ``objects.json`` describes a YCB-layout set (entries with ``urdf``) rather than overrides."""
+    return any(isinstance(entry, dict) and "urdf" in entry for key, entry in index.items() if key not in INDEX_METADATA_KEYS)
+
+
+def _asymmetric_flag(object_id: str, entry: dict[str, Any]) -> bool:
+    flag = entry.get("asymmetric", object_id in YCB_ASYMMETRIC_IDS)
+    if not isinstance(flag, bool):
+        raise TypeError(f"asymmetric must be true or false, got {flag!r}")
+    return flag
+
+
+def _load_ycb_dir(objects_dir: Path, source_label: str = "ycb") -> ObjectSet:
+    index = _read_index(objects_dir)
+    index_path = objects_dir / "objects.json"
+    if index is None:
+        raise ObjectSetError(f"objects directory {objects_dir} has no objects.json")
+    if not index:
         raise ObjectSetError(f"{index_path} must map object ids to entries")
     specs = []
     for object_id, entry in index.items():
@@ -173,7 +218,7 @@ def _load_ycb_dir(objects_dir: Path, source_label: str = "ycb") -> ObjectSet:
                 name=str(entry.get("name", object_id)),
                 urdf_path=urdf_path,
                 category=str(entry["category"]),
-                asymmetric=object_id in YCB_ASYMMETRIC_IDS,
+                asymmetric=_asymmetric_flag(object_id, entry),
                 mass_kg=float(entry["mass_kg"]),
                 extents_m=extents,  # type: ignore[arg-type]
             )
@@ -213,16 +258,25 @@ def _load_builtin() -> ObjectSet:
     return ObjectSet(f"builtin:pybullet_data:{data_dir}", specs)
 
 
-def load_object_set(objects_dir: str | Path | None = None) -> ObjectSet:
+def load_object_set(objects_dir: str | Path | None = None, import_settings: MeshImportSettings | None = None) -> ObjectSet:
     """The object set from ``objects_dir``, else from env ``SAGP_YCB_DIR``, else the embedded compact YCB set.
 
     ``objects_dir`` (or ``SAGP_YCB_DIR``) equal to ``PYBULLET_DATA_SET`` (``"pybullet_data"``) selects the built-in
-    pybullet_data set. The set's ``source`` says which was used: ``ycb:<dir>``, ``embedded compact YCB:<dir>`` or
-    ``builtin:pybullet_data:<dir>``.
+    pybullet_data set. A directory whose ``objects.json`` lists URDFs is read as a YCB-layout set; any other is
+    imported mesh by mesh with ``import_settings`` (default ``MeshImportSettings()``; a YCB-layout set ignores them).
+    The set's ``source`` says which was used: ``ycb:<dir>``, ``embedded compact YCB:<dir>``,
+    ``builtin:pybullet_data:<dir>`` or ``mesh:<dir>``.
     """
     chosen = objects_dir if objects_dir is not None else os.environ.get(YCB_DIR_ENV) or None
     if chosen is None:
         return _load_ycb_dir(embedded_ycb_dir(), EMBEDDED_YCB_SOURCE)
     if str(chosen) == PYBULLET_DATA_SET:
         return _load_builtin()
-    return _load_ycb_dir(Path(chosen).expanduser())
+    directory = Path(chosen).expanduser()
+    index = _read_index(directory)
+    if index is not None and _lists_urdfs(index):
+        return _load_ycb_dir(directory)
+    # Imported lazily: trimesh and the decomposers are needed only by folders of meshes.
+    from .mesh_import import MeshImportSettings, import_object_folder
+
+    return import_object_folder(directory, index or {}, import_settings or MeshImportSettings())
