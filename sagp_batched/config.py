@@ -3,7 +3,8 @@
 Every number of the method lives here with the published value as default; a choice the method leaves
 open carries a one-line reason. A profile is a TOML file whose tables mirror these dataclasses
 (``[scene]``, ``[camera]``, ``[perception]``, ``[planner]``, ``[weights]``, ``[execution]``,
-``[zones]``, ``[rating]``, ``[run]``); command-line flags override profile values through ``override``.
+``[zones]``, ``[rating]``, ``[labelling]`` with ``[labelling.shake]``, ``[run]``, ``[dataset]``); command-line flags
+override profile values through ``override``.
 Each field declares the values it may hold (``setting``: bounds, shape, choices), checked whenever a
 section is made, so a profile value and a flag are refused by the same check, by name, before any work.
 """
@@ -463,6 +464,77 @@ class RatingConfig(_Section):
 
 
 @dataclass
+class ShakeConfig(_Section):
+    """The shake after the lift: the hand oscillates along, then about, each axis of the grasp frame
+    (x = closing x approach, y = closing axis, z = approach) in turn, rotations about the grasp
+    target. Each axis moves ``A (1 - cos 2 pi f t)`` for ``cycles`` cycles, ``A = peak / (2 pi f)^2``:
+    it starts and ends at rest on the lifted pose and its acceleration peaks at the given value."""
+
+    SECTION = "labelling.shake"
+
+    #: Franka's Cartesian acceleration limit (13 m/s^2, 1.3 g): a shake a real Panda can do, a
+    #: little harder than GraspDataGen's 1 g tugs.
+    linear_peak_acceleration_m_s2: tuple[float, float, float] = setting((13.0, 13.0, 13.0), at_least=0, shape=(3,))
+    #: Franka's rotational acceleration limit (25 rad/s^2): 1.3-2.5 m/s^2 more at a centre of mass
+    #: 5-10 cm from the fingers, on top of the torque gravity puts on the grip.
+    angular_peak_acceleration_rad_s2: tuple[float, float, float] = setting((25.0, 25.0, 25.0), at_least=0, shape=(3,))
+    #: 5 Hz: the peaks above move the hand 2.6 cm and 2.9 deg, a cycle is 48 steps at 240 Hz. A
+    #: higher frequency is cheaper but gentler, its smaller strokes let marginal pinches hold (a
+    #: bleach bottle pinched by its cap that 5 Hz drops keeps its hold at 8 and 10 Hz).
+    frequency_hz: float = setting(5.0, above=0, at_most=120)
+    #: One cycle reverses each axis' acceleration twice, enough for a marginal grip to let go.
+    cycles: int = setting(1, at_least=1, at_most=100)
+    #: Along and about one axis in the same window: half the steps, but a weaker test (it dropped
+    #: 4 of the 7 cap pinches the six windows drop).
+    linear_with_angular: bool = False
+
+    @property
+    def duration_s(self) -> float:
+        """Simulated time of the whole shake: ``cycles`` cycles for each axis with a non-zero peak."""
+        linear, angular = self.linear_peak_acceleration_m_s2, self.angular_peak_acceleration_rad_s2
+        if self.linear_with_angular:
+            windows = sum(1 for axis in range(3) if linear[axis] > 0.0 or angular[axis] > 0.0)
+        else:
+            windows = sum(1 for peak in (*linear, *angular) if peak > 0.0)
+        return windows * self.cycles / self.frequency_hz
+
+
+@dataclass
+class LabellingConfig(_Section):
+    """Grasp labels from simulation: the shake both modes end with, and the floating hand's motion.
+
+    Hand mode (``sagp_batched.labelling``) uses the study's pre-grasp offset, lift height, grip
+    force, finger friction, collision thresholds and success test from ``[execution]``; how long
+    the floating hand takes for each phase is set here."""
+
+    SECTION = "labelling"
+
+    shake: ShakeConfig = field(default_factory=ShakeConfig)
+    #: The object is put down at its settled pose in a fresh world: a few steps let its contacts
+    #: with the table form before the hand moves.
+    hand_settle_steps: int = setting(12, at_least=0, at_most=10_000)
+    #: Pre-grasp to grasp (10 cm) on a half-cosine in 0.2 s: peak speed 0.8 m/s, at rest at the grasp.
+    hand_approach_steps: int = setting(48, at_least=1, at_most=10_000)
+    #: The study's fingers close 10 % of their remaining travel a step, onto a 5 mm object in 26
+    #: steps; 48 (0.2 s) leave the grip time to settle, and agree with the arm as often as the
+    #: study's 120 close steps do.
+    hand_close_steps: int = setting(48, at_least=1, at_most=10_000)
+    #: The 20 cm lift on a half-cosine in 0.3 s: peak acceleration 11 m/s^2, below the shake's.
+    hand_lift_steps: int = setting(72, at_least=1, at_most=10_000)
+    #: Held still for 0.1 s after the lift, then judged before the shake starts.
+    hand_hold_steps: int = setting(24, at_least=0, at_most=10_000)
+    #: Error reduction of the fixed constraint that carries the hand (PyBullet's ``erp``, set in the
+    #: hand's world): PyBullet's 0.2 lets the hand trail its target by ~4 steps, short of the
+    #: shake's peaks by a tenth; 0.8 follows within a step.
+    hand_constraint_erp: float = setting(0.8, above=0, at_most=1)
+    #: Force the fixed constraint that carries the hand may apply: many times what moving hand
+    #: (1 kg) and object (up to 1.1 kg) at the shake's accelerations takes.
+    hand_constraint_max_force_n: float = setting(1000.0, above=0)
+    #: Where the floating hand's URDF (built from the robot's, with absolute mesh paths) is written.
+    hand_urdf_cache_dir: str = setting("~/.cache/sagp_batched/hand", non_empty=True)
+
+
+@dataclass
 class TaskConfig(_Section):
     SECTION = "tasks"
 
@@ -529,6 +601,7 @@ class Config:
     execution: ExecutionConfig = field(default_factory=ExecutionConfig)
     zones: ZonesConfig = field(default_factory=ZonesConfig)
     rating: RatingConfig = field(default_factory=RatingConfig)
+    labelling: LabellingConfig = field(default_factory=LabellingConfig)
     tasks: TaskConfig = field(default_factory=TaskConfig)
     run: RunConfig = field(default_factory=RunConfig)
     dataset: DatasetConfig = field(default_factory=DatasetConfig)

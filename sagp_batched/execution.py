@@ -14,18 +14,24 @@ by the planner's joints, then Franka's ready pose, mid-limits and seeded random 
 solution checked against the limits and by forward kinematics; the batched ``PandaIK`` where
 PyBullet fails. Those waypoints are each seeded by their neighbour and must stay on the grasp
 solution's IK branch.
+
+Labelling (opt-in, ``execute_grasp(..., shake=ShakeConfig)``): the object's motion while the fingers
+close is recorded, and a held grasp is shaken by the arm after the hold (``shake_profile``) and
+judged again; without ``shake`` nothing of this runs and an attempt is the study's.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 import pybullet
 import torch
+from scipy.spatial.transform import Rotation
 
-from .config import Config, ExecutionConfig
+from .config import Config, ExecutionConfig, ShakeConfig
 from .ik import panda_ik
 from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
@@ -42,6 +48,13 @@ def _quat_angle_deg(quat_a: Sequence[float], quat_b: Sequence[float]) -> float:
     return math.degrees(2.0 * math.acos(min(1.0, dot)))
 
 
+def _movable_joints(scene: Scene) -> list[int]:
+    """Indices of the robot's non-fixed joints, the order PyBullet's IK and Jacobian use."""
+    client, robot = scene.client, scene.robot_id
+    return [j for j in range(pybullet.getNumJoints(robot, physicsClientId=client))
+            if pybullet.getJointInfo(robot, j, physicsClientId=client)[2] != pybullet.JOINT_FIXED]
+
+
 class _ArmIK:
     """Validated IK for ``panda_grasptarget`` in one scene (teleports the arm; call before stepping)."""
 
@@ -49,8 +62,7 @@ class _ArmIK:
         self.scene = scene
         self.config = config
         client, robot = scene.client, scene.robot_id
-        movable = [j for j in range(pybullet.getNumJoints(robot, physicsClientId=client))
-                   if pybullet.getJointInfo(robot, j, physicsClientId=client)[2] != pybullet.JOINT_FIXED]
+        movable = _movable_joints(scene)
         info = [pybullet.getJointInfo(robot, j, physicsClientId=client) for j in movable]
         self.movable = movable
         self.lower = np.array([i[8] for i in info])
@@ -158,9 +170,9 @@ def _robot_contacts(scene: Scene, other_body: int) -> list[tuple]:
     return [contact for contact in contacts if contact[3] != -1]
 
 
-def _robot_push_n(scene: Scene, other_body: int) -> float:
-    """Total normal force (N) of the last step's contacts between robot links and ``other_body``."""
-    return float(sum(contact[9] for contact in _robot_contacts(scene, other_body)))
+def push_n(contacts: Sequence[tuple]) -> float:
+    """Total normal force (N) of PyBullet contact points."""
+    return float(sum(contact[9] for contact in contacts))
 
 
 def _touching_links(scene: Scene, bodies: Sequence[int]) -> list[str]:
@@ -174,11 +186,110 @@ def _touching_links(scene: Scene, bodies: Sequence[int]) -> list[str]:
     return sorted(touching)
 
 
-def _fingers_holding(scene: Scene) -> bool:
+def fingers_touching(client: int, gripper_id: int, finger_links: Sequence[int], target_id: int) -> bool:
+    """Whether every finger link of the gripper body touches the target (the last step's contacts)."""
     return all(
-        pybullet.getContactPoints(bodyA=scene.robot_id, bodyB=scene.target_id, linkIndexA=finger, physicsClientId=scene.client)
-        for finger in scene.robot_indices.finger_joints
+        pybullet.getContactPoints(bodyA=gripper_id, bodyB=target_id, linkIndexA=finger, physicsClientId=client)
+        for finger in finger_links
     )
+
+
+def object_held(client: int, gripper_id: int, finger_links: Sequence[int], target_id: int, config: Config) -> bool:
+    """The study's success test: the target's centre of mass ``success_height_above_table_m`` above
+    the table and both fingers touching it."""
+    com = pybullet.getBasePositionAndOrientation(target_id, physicsClientId=client)[0]
+    high_enough = com[2] - config.scene.table_top_z_m >= config.execution.success_height_above_table_m
+    return high_enough and fingers_touching(client, gripper_id, finger_links, target_id)
+
+
+def lift_failure(highest_rise_m: float, fingers_touching_after_close: bool, execution: ExecutionConfig) -> tuple[str, str]:
+    """(reason, phase) of a grasp not held after the lift: "slipped" when the object rose at least
+    ``lifted_detect_height_m`` before it fell, else "not_lifted"; in the lift when the fingers
+    held it after closing, else already in the close."""
+    phase = "lift" if fingers_touching_after_close else "close"
+    return ("slipped" if highest_rise_m >= execution.lifted_detect_height_m else "not_lifted"), phase
+
+
+def pose_change(before: tuple[Any, Any], after: tuple[Any, Any]) -> tuple[float, float]:
+    """(distance m, rotation angle rad) between two poses (position, xyzw quaternion)."""
+    return float(np.linalg.norm(np.subtract(after[0], before[0]))), math.radians(_quat_angle_deg(before[1], after[1]))
+
+
+def relative_pose(frame: tuple[Any, Any], body: tuple[Any, Any]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The pose ``body`` (world) expressed in the frame ``frame`` (world pose)."""
+    inverse_position, inverse_quat = pybullet.invertTransform(frame[0], frame[1])
+    return pybullet.multiplyTransforms(inverse_position, inverse_quat, body[0], body[1])
+
+
+@dataclass(frozen=True)
+class ShakeProfile:
+    """The shake of ``ShakeConfig`` sampled at every physics step.
+
+    ``offsets`` and ``velocities`` (T, 6): displacement (m) and rotation vector (rad) of the grasp
+    target from its lifted pose, in the lifted grasp frame (x, y, z, then about x, y, z), and
+    their rates; ``segments``: (axis, first step, end step) of each shaken axis; ``angular_frequency``
+    in rad/s."""
+
+    offsets: np.ndarray
+    velocities: np.ndarray
+    segments: tuple[tuple[int, int, int], ...]
+    angular_frequency: float
+    time_step_s: float
+
+    @property
+    def steps(self) -> int:
+        return int(self.offsets.shape[0])
+
+
+def shake_profile(shake: ShakeConfig, time_step_s: float) -> ShakeProfile:
+    """Every step of the shake: one window after another, ``A (1 - cos wt)`` on each of the window's
+    axes for ``cycles`` whole cycles, ``A = peak / w^2``. A window is one axis with a non-zero peak,
+    or, with ``shake.linear_with_angular``, the motion along and the rotation about one axis at once."""
+    omega = 2.0 * math.pi * shake.frequency_hz
+    peaks = (*shake.linear_peak_acceleration_m_s2, *shake.angular_peak_acceleration_rad_s2)
+    windows = [(axis, axis + 3) for axis in range(3)] if shake.linear_with_angular else [(axis,) for axis in range(6)]
+    windows = [tuple(axis for axis in window if peaks[axis] > 0.0) for window in windows]
+    windows = [window for window in windows if window]
+    steps_per_window = max(1, round(shake.cycles / shake.frequency_hz / time_step_s))
+    # Samples at the end of each step, the whole cycles ending exactly at rest on the lifted pose.
+    times = np.arange(1, steps_per_window + 1) * (shake.cycles / shake.frequency_hz / steps_per_window)
+    offsets = np.zeros((steps_per_window * len(windows), 6))
+    velocities = np.zeros_like(offsets)
+    segments = []
+    for index, window in enumerate(windows):
+        start = index * steps_per_window
+        for axis in window:
+            amplitude = peaks[axis] / omega**2
+            offsets[start : start + steps_per_window, axis] = amplitude * (1.0 - np.cos(omega * times))
+            velocities[start : start + steps_per_window, axis] = amplitude * omega * np.sin(omega * times)
+            segments.append((axis, start, start + steps_per_window))
+    return ShakeProfile(offsets=offsets, velocities=velocities, segments=tuple(segments), angular_frequency=omega, time_step_s=time_step_s)
+
+
+def frame_offsets(start: tuple[Any, Any], poses: Sequence[tuple[Any, Any]]) -> np.ndarray:
+    """(T, 6) displacement and rotation vector of each pose from ``start``, in ``start``'s frame:
+    the coordinates ``ShakeProfile.offsets`` are written in."""
+    start_rotation = Rotation.from_quat(start[1])
+    positions = np.array([pose[0] for pose in poses]).reshape(-1, 3)
+    rotations = Rotation.from_quat(np.array([pose[1] for pose in poses]).reshape(-1, 4))
+    linear = start_rotation.inv().apply(positions - np.asarray(start[0]))
+    angular = (start_rotation.inv() * rotations).as_rotvec().reshape(-1, 3)
+    return np.concatenate([linear.reshape(-1, 3), angular], axis=1)
+
+
+def achieved_shake_peaks(profile: ShakeProfile, measured_offsets: np.ndarray) -> tuple[float, ...]:
+    """Peak acceleration (m/s^2, then rad/s^2) the hand reached along and about each axis, 0 where
+    not shaken: per segment, the measured offset is fitted by ``c0 + c1 cos wt + c2 sin wt`` and
+    the peak is ``w^2 |(c1, c2)|``, which ignores the controller's phase lag and the jitter a
+    finite difference of contacts would add."""
+    peaks = [0.0] * 6
+    for axis, start, end in profile.segments:
+        times = np.arange(1, end - start + 1) * profile.time_step_s
+        omega = profile.angular_frequency
+        basis = np.stack([np.ones_like(times), np.cos(omega * times), np.sin(omega * times)], axis=1)
+        coefficients = np.linalg.lstsq(basis, measured_offsets[start:end, axis], rcond=None)[0]
+        peaks[axis] = float(omega**2 * np.hypot(coefficients[1], coefficients[2]))
+    return tuple(peaks)
 
 
 def _step(scene: Scene, steps: int) -> None:
@@ -200,7 +311,7 @@ def _track(scene: Scene, config: Config, joint_path: np.ndarray, after_each=None
     return deviation
 
 
-def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: bool = False) -> GraspAttempt:
+def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: bool = False, shake: ShakeConfig | None = None) -> GraspAttempt:
     """Execute one grasp from the scene's current state and judge it.
 
     The gripper opens fully whatever ``grasp.width_m`` (published sequence). ``grasp.joint_path``,
@@ -211,18 +322,25 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     puts RGB images at contact and after the lift (or when the attempt failed) in
     ``details["frames"]``. A grasp built by hand comes from ``Grasp.from_pose``.
 
+    With ``shake`` (labelling), ``details`` also hold ``object_motion_during_closing_linear`` (m)
+    and ``_angular`` (rad), the object's world motion from just before the close to its end (the
+    arm holds still); a grasp held after the hold is shaken by the arm (``_shake_arm``), and
+    ``object_motion_during_shaking_linear``/``_angular`` give the object's motion in the hand's
+    frame over the shake and ``shake_achieved_peak_accelerations`` what the hand reached. It
+    succeeds if it is still held after the shake, else fails as "slipped" at "shake".
+
     Returns a ``GraspAttempt`` whose ``failure_reason`` is None, "unreachable", "collision",
     "slipped" or "not_lifted", and whose ``details["failed_at"]`` says in which phase ("plan",
-    "pregrasp", "descent", "close", "lift").
+    "pregrasp", "descent", "close", "lift", "shake").
     """
     execution = config.execution
-    quat, waypoints, joint_path = _checked_grasp(grasp, execution)
+    quat, waypoints, joint_path = checked_grasp(grasp, execution)
     width_m = grasp.width_m
     grasp_index = grasp_waypoint_index(execution)
     client, target = scene.client, scene.target_id
     outcome = _AttemptOutcome(scene, config, record_frames)
     details, finish, rest_com = outcome.details, outcome.finish, outcome.rest_com
-    _set_finger_friction(scene, execution)
+    set_finger_friction(client, scene.robot_id, scene.robot_indices.finger_joints, execution)
 
     # Every joint is known before stepping: IK and checks teleport the arm, harmless while time stands still.
     start_joints = scene.arm_joints()
@@ -240,13 +358,17 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
 
     def descent_blocked() -> bool:
         knocked = np.linalg.norm(scene.centre_of_mass(target)[0] - rest_com) > execution.knock_tolerance_m
-        return knocked or _robot_push_n(scene, scene.table_id) > execution.table_contact_max_force_n
+        return knocked or push_n(_robot_contacts(scene, scene.table_id)) > execution.table_contact_max_force_n
 
     details["descent_tracking_error_rad"] = _track(scene, config, joint_path[1 : grasp_index + 1], descent_blocked)
     if descent_blocked():
         return finish(False, "collision", "descent")
 
+    before_close = scene.centre_of_mass(target)
     _close_fingers(scene, execution, width_m, details)
+    if shake is not None:
+        closing = pose_change(before_close, scene.centre_of_mass(target))
+        details["object_motion_during_closing_linear"], details["object_motion_during_closing_angular"] = closing
     outcome.record_frame("contact")
 
     highest_rise = [0.0]
@@ -258,15 +380,57 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     details["lift_tracking_error_rad"] = _track(scene, config, joint_path[grasp_index + 1 :], note_rise)
     _step(scene, execution.hold_steps)
 
-    com = scene.centre_of_mass(target)[0]
-    high_enough = com[2] - config.scene.table_top_z_m >= execution.success_height_above_table_m
-    if high_enough and _fingers_holding(scene):
+    fingers = scene.robot_indices.finger_joints
+    if not object_held(client, scene.robot_id, fingers, target, config):
+        return finish(False, *lift_failure(highest_rise[0], details["fingers_touching_after_close"], execution))
+    if shake is None:
         return finish(True, None, None)
-    phase = "lift" if details["fingers_touching_after_close"] else "close"
-    return finish(False, "slipped" if highest_rise[0] >= execution.lifted_detect_height_m else "not_lifted", phase)
+    _shake_arm(scene, config, shake, joint_path[-1], details)
+    if object_held(client, scene.robot_id, fingers, target, config):
+        return finish(True, None, None)
+    return finish(False, "slipped", "shake")
 
 
-def _checked_grasp(grasp: Grasp, execution: ExecutionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: np.ndarray, details: dict[str, Any]) -> None:
+    """Shake the grasp target around its lifted pose with the arm and record the object's motion
+    relative to the hand over the shake (``details``).
+
+    The Cartesian offsets of ``shake_profile`` are small (centimetres, degrees), so one Jacobian of
+    ``panda_grasptarget`` at the lifted joints maps them to joint offsets (damped least squares):
+    each step commands the lifted joints plus the mapped offset as position target and the mapped
+    offset rate as the motors' target velocity, which makes the position-controlled joints follow
+    the sinusoid with little lag. What the hand reached is measured, not assumed: its offsets at
+    every step, fitted per axis (``achieved_shake_peaks``), go to ``shake_achieved_peak_accelerations``.
+    """
+    client, robot = scene.client, scene.robot_id
+    profile = shake_profile(shake, config.scene.time_step_s)
+    movable = _movable_joints(scene)
+    positions = [state[0] for state in pybullet.getJointStates(robot, movable, physicsClientId=client)]
+    rest = [0.0] * len(movable)
+    linear, angular = pybullet.calculateJacobian(
+        robot, scene.robot_indices.grasp_target_link, [0.0, 0.0, 0.0], positions, rest, rest, physicsClientId=client
+    )
+    arm_columns = [movable.index(joint) for joint in scene.robot_indices.arm_joints]
+    jacobian = np.vstack([np.asarray(linear)[:, arm_columns], np.asarray(angular)[:, arm_columns]])  # (6, 7), world
+    start = scene.grasptarget_pose()
+    rotation = Rotation.from_quat(start[1]).as_matrix()
+    hand_to_world = np.kron(np.eye(2), rotation)  # twist in the lifted grasp frame -> world
+    # Damping of the planner's damped-least-squares steps: bounded joint offsets near a singular wrist.
+    damping = config.planner.ik_damping
+    joint_offsets = jacobian.T @ np.linalg.solve(jacobian @ jacobian.T + damping**2 * np.eye(6), hand_to_world)  # (7, 6)
+    object_start = relative_pose(start, scene.centre_of_mass(scene.target_id))
+    hand_poses = []
+    for offset, rate in zip(profile.offsets, profile.velocities):
+        scene.command_arm(lifted_joints + joint_offsets @ offset, joint_offsets @ rate)
+        _step(scene, 1)
+        hand_poses.append(scene.grasptarget_pose())
+    end = scene.grasptarget_pose()
+    shaking = pose_change(object_start, relative_pose(end, scene.centre_of_mass(scene.target_id)))
+    details["object_motion_during_shaking_linear"], details["object_motion_during_shaking_angular"] = shaking
+    details["shake_achieved_peak_accelerations"] = achieved_shake_peaks(profile, frame_offsets(start, hand_poses))
+
+
+def checked_grasp(grasp: Grasp, execution: ExecutionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(unit quaternion, (W, 3) motion waypoints, (W, 7) planned joints or None) of a grasp, or
     ``InvalidGraspError`` naming what is malformed."""
     position = as_finite_vector(grasp.position_world, 3, "position_world")
@@ -329,21 +493,22 @@ class _AttemptOutcome:
 def _close_fingers(scene: Scene, execution: ExecutionConfig, planned_width_m: float, details: dict[str, Any]) -> None:
     scene.command_fingers(0.0)
     _step(scene, execution.close_steps)
-    details["fingers_touching_after_close"] = _fingers_holding(scene)
+    details["fingers_touching_after_close"] = fingers_touching(scene.client, scene.robot_id, scene.robot_indices.finger_joints, scene.target_id)
     # Against the planned contact width this tells a squeeze from fingers stopped by a wider
     # collision shape than the cloud showed.
     details["finger_width_after_close_m"] = scene.finger_width()
     details["planned_width_m"] = float(planned_width_m)
 
 
-def _set_finger_friction(scene: Scene, execution: ExecutionConfig) -> None:
-    for finger in scene.robot_indices.finger_joints:
+def set_finger_friction(client: int, gripper_id: int, finger_links: Sequence[int], execution: ExecutionConfig) -> None:
+    """The study's finger-pad friction on the gripper's finger links."""
+    for finger in finger_links:
         pybullet.changeDynamics(
-            scene.robot_id,
+            gripper_id,
             finger,
             lateralFriction=execution.finger_lateral_friction,
             spinningFriction=execution.finger_spinning_friction,
-            physicsClientId=scene.client,
+            physicsClientId=client,
         )
 
 

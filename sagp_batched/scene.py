@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 import pybullet
 
-from .config import Config
+from .config import Config, SceneConfig
 from .objects import ObjectLoadError, ObjectSpec
 from .robot import PANDA, body_indices
 
@@ -32,6 +32,36 @@ def _footprint_gap(a: np.ndarray, b: np.ndarray) -> float:
     dx = max(0.0, b[0] - a[2], a[0] - b[2])
     dy = max(0.0, b[1] - a[3], a[1] - b[3])
     return math.hypot(dx, dy)
+
+
+def configure_physics(client: int, scene_config: SceneConfig) -> None:
+    """Time step, gravity and solver settings every world of the study (and its labelling) steps with."""
+    pybullet.setTimeStep(scene_config.time_step_s, physicsClientId=client)
+    pybullet.setGravity(0.0, 0.0, scene_config.gravity_m_s2, physicsClientId=client)
+    pybullet.setPhysicsEngineParameter(
+        numSolverIterations=scene_config.solver_iterations, deterministicOverlappingPairs=1, physicsClientId=client
+    )
+
+
+def create_table(client: int, scene_config: SceneConfig) -> int:
+    """A box with exactly the table's footprint whose top face is at ``table_top_z_m``."""
+    half_extents = (scene_config.table_size_m[0] / 2.0, scene_config.table_size_m[1] / 2.0, scene_config.table_top_z_m / 2.0)
+    collision = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half_extents, physicsClientId=client)
+    visual = pybullet.createVisualShape(pybullet.GEOM_BOX, halfExtents=half_extents, rgbaColor=scene_config.table_rgba, physicsClientId=client)
+    centre = (*scene_config.table_center_xy_m, scene_config.table_top_z_m / 2.0)
+    return pybullet.createMultiBody(0.0, collision, visual, basePosition=centre, physicsClientId=client)
+
+
+def command_fingers(client: int, body_id: int, finger_joints: Sequence[int], width_m: float, force_n: float) -> None:
+    """Position-control a parallel gripper's two finger joints (each half of ``width_m``) with ``force_n`` each."""
+    pybullet.setJointMotorControlArray(
+        body_id,
+        list(finger_joints),
+        pybullet.POSITION_CONTROL,
+        targetPositions=[width_m / 2.0] * 2,
+        forces=[force_n] * 2,
+        physicsClientId=client,
+    )
 
 
 class Scene:
@@ -72,15 +102,11 @@ class Scene:
         scene_config = self.config.scene
         client = self.client
         pybullet.resetSimulation(physicsClientId=client)
-        pybullet.setTimeStep(scene_config.time_step_s, physicsClientId=client)
-        pybullet.setGravity(0.0, 0.0, scene_config.gravity_m_s2, physicsClientId=client)
-        pybullet.setPhysicsEngineParameter(
-            numSolverIterations=scene_config.solver_iterations, deterministicOverlappingPairs=1, physicsClientId=client
-        )
+        configure_physics(client, scene_config)
         self._state_id = None
         self.trial = trial
         self.target_spec = target
-        self.table_id = self._create_table()
+        self.table_id = create_table(client, scene_config)
         self.robot_id = pybullet.loadURDF(
             str(PANDA.urdf_path), basePosition=scene_config.robot_base_xyz_m, useFixedBase=True, physicsClientId=client
         )
@@ -139,8 +165,11 @@ class Scene:
             pybullet.resetJointState(self.robot_id, joint, width_m / 2.0, physicsClientId=self.client)
         self.command_fingers(width_m)
 
-    def command_arm(self, joints: Sequence[float]) -> None:
+    def command_arm(self, joints: Sequence[float], velocities: Sequence[float] | None = None) -> None:
+        """Position-control the arm to ``joints``; ``velocities`` (rad/s), when given, are the motors'
+        target velocities along a moving trajectory (PyBullet's default target is rest)."""
         gain = self.config.execution.arm_position_gain
+        moving = {} if velocities is None else {"targetVelocities": [float(v) for v in velocities]}
         pybullet.setJointMotorControlArray(
             self.robot_id,
             self.robot_indices.arm_joints,
@@ -149,18 +178,12 @@ class Scene:
             forces=self._arm_max_forces,
             positionGains=[gain] * len(self.robot_indices.arm_joints),
             physicsClientId=self.client,
+            **moving,
         )
 
     def command_fingers(self, width_m: float, force_n: float | None = None) -> None:
         force = self.config.execution.gripper_force_n if force_n is None else force_n
-        pybullet.setJointMotorControlArray(
-            self.robot_id,
-            self.robot_indices.finger_joints,
-            pybullet.POSITION_CONTROL,
-            targetPositions=[width_m / 2.0] * 2,
-            forces=[force] * 2,
-            physicsClientId=self.client,
-        )
+        command_fingers(self.client, self.robot_id, self.robot_indices.finger_joints, width_m, force)
 
     def grasptarget_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """World position and xyzw quaternion of ``panda_grasptarget`` from forward kinematics."""
@@ -185,17 +208,6 @@ class Scene:
     def centre_of_mass(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:
         position, quat = pybullet.getBasePositionAndOrientation(body_id, physicsClientId=self.client)
         return np.array(position), np.array(quat)
-
-    def _create_table(self) -> int:
-        """A box with exactly the table's footprint whose top face is at ``table_top_z_m``."""
-        scene_config = self.config.scene
-        half_extents = (scene_config.table_size_m[0] / 2.0, scene_config.table_size_m[1] / 2.0, scene_config.table_top_z_m / 2.0)
-        collision = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half_extents, physicsClientId=self.client)
-        visual = pybullet.createVisualShape(
-            pybullet.GEOM_BOX, halfExtents=half_extents, rgbaColor=scene_config.table_rgba, physicsClientId=self.client
-        )
-        centre = (*scene_config.table_center_xy_m, scene_config.table_top_z_m / 2.0)
-        return pybullet.createMultiBody(0.0, collision, visual, basePosition=centre, physicsClientId=self.client)
 
     def _load_on_table(self, spec: ObjectSpec, x: float, y: float, yaw: float) -> int:
         quat = pybullet.getQuaternionFromEuler((0.0, 0.0, yaw))
