@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import torch
 
 # Signs that turn trace(R_a^T R_b) into trace(R_a^T R_b Rz(pi)): the flip negates the frames' x and y columns.
@@ -22,6 +21,24 @@ _FLIP_SIGNS = torch.tensor([-1.0, -1.0, 1.0])
 def _frame_features(rotations: torch.Tensor) -> torch.Tensor:
     """(N, 9) columns of (N, 3, 3) frames laid end to end, so trace(R_a^T R_b) is a dot product of rows."""
     return rotations.transpose(1, 2).reshape(-1, 9)
+
+
+def _same(positions_a, features_a, positions_b, features_b, flipped_b, translation_m: float, cos_rotation: float) -> torch.Tensor:
+    """(A, B) bool ``same_grasp`` on precomputed frame features (``_frame_features``) of both sides."""
+    near = torch.cdist(positions_a, positions_b) < translation_m
+    a, b = near.nonzero(as_tuple=True)
+    # Frames are compared only where centres are near: a few pairs of the (A, B) grid.
+    trace = torch.maximum((features_a[a] * features_b[b]).sum(dim=1), (features_a[a] * flipped_b[b]).sum(dim=1))
+    same = torch.zeros_like(near)
+    # angle < threshold  <=>  cos(angle) = (trace - 1) / 2 > cos(threshold)
+    same[a, b] = (trace - 1.0) / 2.0 > cos_rotation
+    return same
+
+
+def _sides(positions: torch.Tensor, rotations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Centres in float32 (millimetre thresholds, metre coordinates), frame features and those of the flipped frames in float64."""
+    rotations = rotations.double()
+    return positions.float(), _frame_features(rotations), _frame_features(rotations * _FLIP_SIGNS.double())
 
 
 def same_grasp(
@@ -34,24 +51,13 @@ def same_grasp(
 ) -> torch.Tensor:
     """(A, B) bool: grasp a is the same grasp as grasp b.
 
-    Centres are compared in float32 (millimetre thresholds, metre coordinates), frames in float64.
-
     positions: (A, 3) / (B, 3) grasp centres (m); rotations: (A, 3, 3) / (B, 3, 3) grasp frames whose
     z column is the approach (any frame convention works as long as both sides share it), same frame.
     Same: centres closer than ``translation_m`` and frames, or one of them flipped half a turn about
     its z axis, closer than ``rotation_rad`` (geodesic angle).
     """
-    near = torch.cdist(positions_a.float(), positions_b.float()) < translation_m
-    a, b = near.nonzero(as_tuple=True)
-    # Frames are compared only where centres are near: a few pairs of the (A, B) grid.
-    features_a = _frame_features(rotations_a.double()[a])
-    features_b = _frame_features(rotations_b.double()[b])
-    flipped_b = _frame_features(rotations_b.double()[b] * _FLIP_SIGNS.double())
-    trace = torch.maximum((features_a * features_b).sum(dim=1), (features_a * flipped_b).sum(dim=1))
-    # angle < threshold  <=>  cos(angle) = (trace - 1) / 2 > cos(threshold)
-    same = torch.zeros_like(near)
-    same[a, b] = (trace - 1.0) / 2.0 > math.cos(rotation_rad)
-    return same
+    side_a, side_b = _sides(positions_a, rotations_a), _sides(positions_b, rotations_b)
+    return _same(side_a[0], side_a[1], *side_b, translation_m, math.cos(rotation_rad))
 
 
 def pose_nms(
@@ -67,26 +73,21 @@ def pose_nms(
     kept unless it is the same grasp (``same_grasp``) as one kept before it. Blocks of ``block``
     grasps are compared against every kept grasp at once; only inside a block is the sweep sequential.
     """
-    n = positions.shape[0]
-    kept: list[int] = []
-    kept_positions = positions[:0]
-    kept_rotations = rotations[:0]
-    for start in range(0, n, block):
-        stop = min(n, start + block)
-        block_positions, block_rotations = positions[start:stop], rotations[start:stop]
-        free = ~same_grasp(block_positions, block_rotations, kept_positions, kept_rotations, translation_m, rotation_rad).any(dim=1)
-        inside = same_grasp(block_positions, block_rotations, block_positions, block_rotations, translation_m, rotation_rad).numpy()
+    centres, features, flipped = _sides(positions, rotations)
+    cos_rotation = math.cos(rotation_rad)
+    kept = torch.zeros(0, dtype=torch.int64)
+    for start in range(0, centres.shape[0], block):
+        rows = torch.arange(start, min(centres.shape[0], start + block))
+        free = ~_same(centres[rows], features[rows], centres[kept], features[kept], flipped[kept], translation_m, cos_rotation).any(dim=1)
+        inside = _same(centres[rows], features[rows], centres[rows], features[rows], flipped[rows], translation_m, cos_rotation).numpy()
         free_np = free.numpy().copy()
         chosen = []
-        for i in range(stop - start):
+        for i in range(len(rows)):
             if free_np[i]:
                 chosen.append(i)
                 free_np &= ~inside[i]
-        chosen_index = torch.as_tensor(np.asarray(chosen, dtype=np.int64))
-        kept.extend((chosen_index + start).tolist())
-        kept_positions = torch.cat((kept_positions, block_positions[chosen_index]))
-        kept_rotations = torch.cat((kept_rotations, block_rotations[chosen_index]))
-    return torch.as_tensor(kept, dtype=torch.int64)
+        kept = torch.cat((kept, rows[torch.as_tensor(chosen, dtype=torch.int64)]))
+    return kept
 
 
 def distinct_grasp_count(positions: torch.Tensor, rotations: torch.Tensor, translation_m: float, rotation_rad: float) -> int:

@@ -38,8 +38,22 @@ PYBULLET_DEFAULT_FRICTION = 0.5
 
 
 def object_physics(spec: ObjectSpec) -> ObjectPhysics:
-    """Mass, COM, inertia and friction as the URDF gives them to PyBullet; volume from its collision
-    mesh (the sum of its convex parts, the solid PyBullet collides), density = mass / volume."""
+    """What the simulator was given for ``spec``: an imported object's figures from its import
+    metadata (the solid's volume and full inertia, the density that made its mass), else the
+    URDF's mass, COM, inertia and friction with the volume of its collision hulls (the solid
+    PyBullet collides) and density = mass / volume."""
+    metadata_path = Path(spec.urdf_path).with_name("metadata.json")
+    if metadata_path.is_file():
+        import json
+
+        metadata = json.loads(metadata_path.read_text())
+        return ObjectPhysics(float(metadata["mass_kg"]), float(metadata["density_kg_m3"]), float(metadata["friction"]),
+                             tuple(metadata["com_m"]), tuple(tuple(row) for row in metadata["inertia_kg_m2"]),
+                             float(metadata["volume_m3"]))
+    return _urdf_physics(spec)
+
+
+def _urdf_physics(spec: ObjectSpec) -> ObjectPhysics:
     import trimesh
 
     link = ElementTree.parse(spec.urdf_path).getroot().find("link")
@@ -78,16 +92,33 @@ class ObjectLabels:
     times_s: dict[str, float] = field(default_factory=dict)  # reset, capture, plan, simulate
 
 
-@dataclass(frozen=True)
-class SimulatedGrasp:
-    """A grasp's simulated outcome in the dataset's terms."""
+class GraspSimulator:
+    """Simulates grasps on a reset ``Scene`` in one mode: ``hand`` (``labelling.label_grasps_hand``:
+    the hand alone, each grasp in a world of its own with the object where it settled) or ``arm``
+    (``labelling.label_grasps_arm``: the Panda from the scene's settled state; a grasp the planner
+    rejected runs without its plan, as execution solves it, and one the arm cannot reach is untested)."""
 
-    held: bool
-    failure_reason: str
-    motion_closing_linear_m: float
-    motion_closing_angular_rad: float
-    motion_shaking_linear_m: float
-    motion_shaking_angular_rad: float
+    def __init__(self, scene, config: Config, mode: str):
+        self.scene, self.config, self.mode = scene, config, mode
+
+    def simulate(self, candidates: GraspCandidates, feasible: torch.Tensor) -> list:
+        """A ``GraspLabel`` per grasp of ``candidates``, or the reason it could not be simulated."""
+        from .labelling import label_grasps_arm, label_grasps_hand
+
+        if self.mode == "hand":
+            return list(label_grasps_hand(self.scene, candidates, self.config))
+        grasps = [candidates[i] if bool(feasible[i]) else dataclasses.replace(candidates[i], joint_path=None) for i in range(len(candidates))]
+        labels = label_grasps_arm(self.scene, grasps, self.config)
+        return [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
+
+
+def _failure(label) -> str:
+    return "" if label.held else f"{label.failure_reason}@{label.failed_at}"
+
+
+def _motion(value: float | None) -> float:
+    """A motion the grasp never reached (it failed before that phase) is NaN, not 0."""
+    return math.nan if value is None else float(value)
 
 
 def _zone_levels(candidates: GraspCandidates, ratings: dict) -> tuple[list[str], dict[str, list[str]]]:
@@ -108,17 +139,13 @@ class ObjectLabeller:
         self.rater = get_rater(config.rating)
         self._simulators = {}
 
-    def simulator(self, mode: str):
+    def simulator(self, mode: str) -> GraspSimulator:
         """The simulator of ``mode`` ("hand" or "arm"), built on first use and kept."""
-        from .labelling import GraspSimulator
-
         if mode not in self._simulators:
             self._simulators[mode] = GraspSimulator(self.scene, self.config, mode)
         return self._simulators[mode]
 
     def close(self) -> None:
-        for simulator in self._simulators.values():
-            simulator.close()
         self.scene.close()
 
     def label(self, spec: ObjectSpec, n_grasps: int) -> ObjectLabels:
@@ -150,7 +177,8 @@ class ObjectLabeller:
 
         config, dataset = self.config, self.config.dataset
         clock = time.perf_counter()
-        self.scene.reset(spec, trial=dataset.seed + pose_index)
+        # Capture k places the object in its k-th stable resting pose, where it lists several.
+        self.scene.reset(spec, trial=dataset.seed + pose_index, resting_pose=pose_index % max(1, len(spec.resting_poses)))
         times["reset"] += time.perf_counter() - clock
         clock = time.perf_counter()
         try:
@@ -173,7 +201,7 @@ class ObjectLabeller:
         feasible = classified.verdict == 0
         hand = self.simulator("hand").simulate(classified.candidates, feasible)
         arm = self.simulator("arm").simulate(classified.candidates, feasible)
-        both = [(h, a) for h, a in zip(hand, arm) if isinstance(h, SimulatedGrasp) and isinstance(a, SimulatedGrasp)]
+        both = [(h, a) for h, a in zip(hand, arm) if not isinstance(h, str) and not isinstance(a, str)]
         return {"compared": len(hand), "both_tested": len(both), "agree": sum(h.held == a.held for h, a in both),
                 "hand_held": sum(h.held for h, _ in both), "arm_held": sum(a.held for _, a in both)}
 
@@ -207,7 +235,7 @@ def _empty_labels(tasks: tuple[str, ...]) -> LabelledGrasps:
 
 def _pose_labels(cloud, zoned: GraspCandidates, classified: ClassifiedGrasps, outcomes: list, ratings: dict, pose_index: int):
     """The pose's simulated grasps as labels in the object frame, and the grasps whose simulation could not run."""
-    tested = [i for i, outcome in enumerate(outcomes) if isinstance(outcome, SimulatedGrasp)]
+    tested = [i for i, outcome in enumerate(outcomes) if not isinstance(outcome, str)]
     object_frame = zoned.transform(cloud.object_from_world)
     transforms = acronym_gripper_transforms_object(object_frame)
     untested = [i for i in range(len(outcomes)) if i not in set(tested)]
@@ -224,11 +252,11 @@ def _pose_labels(cloud, zoned: GraspCandidates, classified: ClassifiedGrasps, ou
         verdict=[verdicts[i] for i in tested],
         verdict_reason=[classified.reasons[i] for i in tested],
         held=np.array([o.held for o in simulated], dtype=bool),
-        failure_reason=[o.failure_reason for o in simulated],
-        motion_closing_linear_m=np.array([o.motion_closing_linear_m for o in simulated]),
-        motion_closing_angular_rad=np.array([o.motion_closing_angular_rad for o in simulated]),
-        motion_shaking_linear_m=np.array([o.motion_shaking_linear_m for o in simulated]),
-        motion_shaking_angular_rad=np.array([o.motion_shaking_angular_rad for o in simulated]),
+        failure_reason=[_failure(o) for o in simulated],
+        motion_closing_linear_m=np.array([_motion(o.object_motion_during_closing_linear) for o in simulated]),
+        motion_closing_angular_rad=np.array([_motion(o.object_motion_during_closing_angular) for o in simulated]),
+        motion_shaking_linear_m=np.array([_motion(o.object_motion_during_shaking_linear) for o in simulated]),
+        motion_shaking_angular_rad=np.array([_motion(o.object_motion_during_shaking_angular) for o in simulated]),
         s_geom=chosen.s_geom.double().numpy(),
         s_reach=chosen.s_reach.double().numpy(),
         zone=zone_names,

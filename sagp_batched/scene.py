@@ -12,6 +12,7 @@ from typing import Sequence
 
 import numpy as np
 import pybullet
+from scipy.spatial.transform import Rotation
 
 from .config import Config, SceneConfig
 from .objects import ObjectLoadError, ObjectSpec
@@ -64,6 +65,15 @@ def command_fingers(client: int, body_id: int, finger_joints: Sequence[int], wid
     )
 
 
+def _resting_rotation(spec: ObjectSpec, index: int) -> np.ndarray | None:
+    """(3, 3) rotation from the link frame onto resting pose ``index`` of ``spec``; None for the upright link frame."""
+    if index == 0:
+        return None
+    if not 0 <= index < len(spec.resting_poses):
+        raise ValueError(f"object '{spec.id}' has {max(1, len(spec.resting_poses))} resting pose(s), not a pose {index}")
+    return np.asarray(spec.resting_poses[index].link_to_rest, dtype=float)[:3, :3]
+
+
 class Scene:
     """Table, Panda and objects in one PyBullet client; ``reset`` builds a trial's settled scene."""
 
@@ -92,8 +102,11 @@ class Scene:
     def __exit__(self, *exc_info: object) -> None:
         self.close()
 
-    def reset(self, target: ObjectSpec, trial: int, distractors: Sequence[ObjectSpec] = ()) -> None:
+    def reset(self, target: ObjectSpec, trial: int, distractors: Sequence[ObjectSpec] = (), resting_pose: int = 0) -> None:
         """Rebuild the world for ``trial``: target at a seeded (x, y, yaw), seeded distractors, settled.
+
+        The target rests in its link frame's upright pose, or in ``target.resting_poses[resting_pose]``
+        where the object lists its stable poses (an imported mesh; pose 0 is the upright link frame).
 
         With ``distractors`` given, 3-4 of them (count seeded) are placed within
         ``distractor_max_distance_m`` of the target without footprint overlap. The arm waits in its
@@ -119,7 +132,7 @@ class Scene:
         x = rng.uniform(*scene_config.object_x_range_m)
         y = rng.uniform(*scene_config.object_y_range_m)
         yaw = rng.uniform(*scene_config.object_yaw_range_rad)
-        self.target_id = self._load_on_table(target, x, y, yaw)
+        self.target_id = self._load_on_table(target, x, y, yaw, _resting_rotation(target, resting_pose))
         self.distractor_ids = []
         self.distractor_specs = []
         if distractors:
@@ -209,8 +222,11 @@ class Scene:
         position, quat = pybullet.getBasePositionAndOrientation(body_id, physicsClientId=self.client)
         return np.array(position), np.array(quat)
 
-    def _load_on_table(self, spec: ObjectSpec, x: float, y: float, yaw: float) -> int:
+    def _load_on_table(self, spec: ObjectSpec, x: float, y: float, yaw: float, resting: np.ndarray | None = None) -> int:
+        """Load ``spec`` turned by ``resting`` (3, 3) onto its resting pose, then by ``yaw`` about the vertical."""
         quat = pybullet.getQuaternionFromEuler((0.0, 0.0, yaw))
+        if resting is not None:
+            quat = (Rotation.from_quat(quat) * Rotation.from_matrix(resting)).as_quat()
         try:
             body = pybullet.loadURDF(
                 str(spec.urdf_path),

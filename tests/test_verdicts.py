@@ -1,0 +1,54 @@
+"""Every antipodal grasp with the planner's verdict: the verdicts are the planner's own checks, the
+picked set covers the object (no two the same grasp) and spans the verdicts."""
+import dataclasses
+import math
+
+import pytest
+import torch
+
+from sagp_batched import Scene, capture, load_config, load_object_set, plan
+from sagp_batched.verdicts import VERDICTS, _verdict_quotas, classify_grasps
+from sagp_batched_kernels.pose_nms import same_grasp
+
+
+@pytest.fixture(scope="module")
+def can_cloud():
+    config = load_config("paper", overrides={"planner": {"n_pairs": 1500}})
+    with Scene(config) as scene:
+        scene.reset(load_object_set(None).get("005_tomato_soup_can"), trial=3)
+        return config, capture(scene, config)
+
+
+def test_quotas_give_the_feasible_share_and_spread_the_rest_over_the_rejections():
+    assert _verdict_quotas({0: 100, 1: 100, 2: 100}, 40, 0.5) == {0: 20, 1: 10, 2: 10}
+    # A verdict short of its share passes the remainder on.
+    assert _verdict_quotas({0: 5, 1: 100, 2: 3}, 40, 0.5) == {0: 5, 1: 32, 2: 3}
+    assert sum(_verdict_quotas({0: 2, 3: 1}, 40, 0.5).values()) == 3
+
+
+def test_every_grasp_the_planner_returns_is_classified_feasible(can_cloud):
+    config, cloud = can_cloud
+    config = dataclasses.replace(config, dataset=dataclasses.replace(config.dataset, nms_translation_m=0.0, feasible_fraction=1.0))
+    classified = classify_grasps(cloud, config, seed=7, n_grasps=100_000)
+    planned = plan(cloud, config, seed=7)
+    assert len(planned) > 0 and classified.covering_size == classified.pool_size
+    feasible = classified.candidates.select(classified.verdict == VERDICTS.index("feasible"))
+    for i in range(len(planned)):
+        close = (feasible.position_world - planned.position_world[i]).norm(dim=1) < 1e-6
+        aligned = (feasible.approach * planned.approach[i]).sum(dim=1) > 1 - 1e-6
+        assert (close & aligned).any(), f"planned grasp {i} is not among the feasible ones"
+
+
+def test_picked_grasps_are_distinct_span_the_verdicts_and_each_says_why(can_cloud):
+    config, cloud = can_cloud
+    classified = classify_grasps(cloud, config, seed=7, n_grasps=60)
+    names = classified.verdict_names()
+    assert len(classified) == 60 and "feasible" in names and len(set(names)) >= 3
+    assert all(reason.startswith(name) for reason, name in zip(classified.reasons, names))
+    grasps = classified.candidates
+    same = same_grasp(grasps.position_world, grasps.rotation_world.double(), grasps.position_world, grasps.rotation_world.double(),
+                      config.dataset.nms_translation_m, math.radians(config.dataset.nms_rotation_deg))
+    assert torch.equal(same, torch.eye(len(grasps), dtype=torch.bool)), "no two picked grasps are the same grasp"
+    feasible = classified.verdict == 0
+    assert (grasps.joint_path[feasible].abs().sum(dim=(1, 2)) > 0).all() and (grasps.s_reach[feasible] > 0).all()
+    assert (grasps.joint_path[~feasible] == 0).all()
