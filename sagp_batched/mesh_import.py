@@ -186,7 +186,7 @@ def import_object_folder(directory: Path, index: dict[str, Any], settings: MeshI
                 raise _Unusable(source.problem)
             metadata, urdf_path = _cached_or_built(source, _parameters(source, entry, settings), settings, decomposer, cache_root)
         except _Unusable as reason:
-            log.warning("skipping %s: %s", source.path, reason)
+            log.info("skipping %s: %s", source.path, reason)  # the set lists it in ``skipped``; runners report it
             skipped.append((source.path, str(reason)))
             continue
         specs.append(
