@@ -1,0 +1,96 @@
+"""Your objects in, a labelled grasp dataset out: a folder of meshes (one broken) becomes ACRONYM / GraspGen
+files with both classes, every row simulated, a report, and a run that resumes per object."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from runners import datagen
+
+h5py = pytest.importorskip("h5py")
+
+SMALL_RUN = ["--grasps-per-object", "16", "--captures", "1", "--pairs", "3000", "--no-progress"]
+
+
+def _mesh_folder(tmp_path):
+    folder = tmp_path / "meshes"
+    folder.mkdir()
+    trimesh.creation.box((0.05, 0.04, 0.08)).export(folder / "box.stl")
+    handle = trimesh.creation.box((0.05, 0.012, 0.05))
+    handle.apply_translation((0.05, 0.0, 0.05))
+    mug = trimesh.util.concatenate([trimesh.creation.cylinder(0.035, 0.1, sections=32, transform=trimesh.transformations.translation_matrix((0, 0, 0.05))), handle])
+    mug.export(folder / "mug_like.obj")
+    (folder / "broken.obj").write_text("v 0 0 0\nthis is not a mesh\n")
+    return folder
+
+
+def _errors(capsys):
+    return [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+
+
+@pytest.mark.slow
+def test_a_folder_of_meshes_becomes_a_labelled_dataset_that_resumes_per_object(tmp_path, capsys):
+    folder, out = _mesh_folder(tmp_path), tmp_path / "dataset"
+    argv = ["--objects-dir", str(folder), "--out", str(out), *SMALL_RUN]
+    assert datagen.main(argv) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert sorted(o["id"] for o in manifest["objects"]) == ["box", "mug_like"]
+    assert [Path(p).name for p, _ in manifest["skipped_objects"]] == ["broken.obj"]
+    assert "broken.obj" in (out / "report.md").read_text()
+    held_total, labelled_total = 0, 0
+    for entry in manifest["objects"]:
+        with h5py.File(out / entry["grasps"], "r") as f:
+            held = f["grasps/qualities/flex/object_in_gripper"][()]
+            assert f["grasps/transforms"].shape == (len(held), 4, 4) and set(held.tolist()) <= {0, 1}
+            assert len(held) + len(f["untested/reason"]) == 16, "every chosen grasp is labelled or kept apart as untested"
+            verdicts = {v.decode() for v in f["grasps/verdict"][()]}
+            assert "feasible" in verdicts and len(verdicts) >= 2
+            assert f["object/density"][()] == pytest.approx(150.0)
+        graspgen = json.loads((out / entry["graspgen"]).read_text())
+        assert np.array_equal(np.array(graspgen["grasps"]["object_in_gripper"]), held.astype(bool))
+        held_total, labelled_total = held_total + int(held.sum()), labelled_total + len(held)
+    assert 0 < held_total < labelled_total, "both classes are present"
+    listed = (out / "splits" / "train.txt").read_text().split() + (out / "splits" / "valid.txt").read_text().split()
+    assert sorted(listed) == sorted(o["mesh"] for o in manifest["objects"])
+    assert (out / "pictures" / "box.png").stat().st_size > 0
+
+    # A run stopped after the box: the mug's line is gone, so only the mug is labelled again.
+    lines = (out / "objects.jsonl").read_text().splitlines()
+    (out / "objects.jsonl").write_text("".join(line + "\n" for line in lines if json.loads(line)["object"] == "box"))
+    box_file = (out / "grasps" / "box.h5").read_bytes()
+    capsys.readouterr()
+    assert datagen.main(argv) == 0
+    assert "1 object(s) already in" in capsys.readouterr().err
+    assert (out / "grasps" / "box.h5").read_bytes() == box_file
+    assert len((out / "objects.jsonl").read_text().splitlines()) == 2
+
+
+@pytest.mark.slow
+def test_arm_mode_executes_the_plan_and_agreement_compares_both_modes(tmp_path):
+    out = tmp_path / "arm"
+    assert datagen.main(["--objects", "005_tomato_soup_can", "--mode", "arm", "--out", str(out), "--agreement", "6", *SMALL_RUN]) == 0
+    with h5py.File(out / "grasps" / "005_tomato_soup_can.h5", "r") as f:
+        assert f["mode"][()].decode() == "arm"
+        held = f["grasps/qualities/flex/object_in_gripper"][()]
+        feasible = np.array([v.decode() == "feasible" for v in f["grasps/verdict"][()]])
+        assert feasible.any() and held[feasible].mean() >= 0.5
+    agreement = json.loads((out / "agreement.json").read_text())
+    assert agreement["compared"] == 6 and agreement["both_tested"] <= 6 and agreement["agree"] <= agreement["both_tested"]
+    assert "Hand-vs-arm agreement" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--grasps-per-object", "0"], "--grasps-per-object"),
+    (["--captures", "0"], "--captures"),
+    (["--agreement", "-1"], "--agreement"),
+    (["--objects-dir", "/no/such/folder"], "/no/such/folder"),
+    (["--objects", "no_such_object"], "no_such_object"),
+])
+def test_bad_dataset_input_is_one_error_line_and_writes_nothing(tmp_path, capsys, argv, named):
+    out = tmp_path / "dataset"
+    assert datagen.main([*argv, "--out", str(out), "--no-progress"]) == 2
+    errors = _errors(capsys)
+    assert len(errors) == 1 and named in errors[0]
+    assert not out.exists() or not any(out.iterdir())
