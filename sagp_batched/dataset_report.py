@@ -31,6 +31,7 @@ _MARKER_SEGMENTS = np.array([
 ])
 PICTURE_MAX_GRASPS = 120
 PICTURE_MAX_FACES = 4000
+PICTURE_MARGIN_M = 0.06
 
 
 def _rate(held: int, total: int) -> str:
@@ -201,16 +202,18 @@ def draw_object_grasps(h5_path: Path, meshes_dir: Path, picture: Path) -> Path:
     shown = rng.permutation(len(transforms))[:PICTURE_MAX_GRASPS]
     segments = np.einsum("nij,skj->nski", transforms[shown, :3, :3], _MARKER_SEGMENTS) + transforms[shown, None, None, :3, 3]
     colours = np.repeat(np.where(held[shown, None], [[0.1, 0.7, 0.2, 0.8]], [[0.85, 0.1, 0.1, 0.8]]), len(_MARKER_SEGMENTS), axis=0)
-    figure = plt.figure(figsize=(5, 5))
+    figure = plt.figure(figsize=(6, 6))
     axis = figure.add_subplot(projection="3d")
     axis.add_collection3d(Poly3DCollection(mesh.vertices[faces], facecolor=(0.7, 0.7, 0.75, 0.35), edgecolor="none"))
     axis.add_collection3d(Line3DCollection(segments.reshape(-1, 2, 3), colors=colours, linewidths=0.8))
-    every = np.concatenate([mesh.vertices, segments.reshape(-1, 3)]) if len(segments) else mesh.vertices
-    centre, half = every.mean(axis=0), (every.max(axis=0) - every.min(axis=0)).max() / 2
+    # Framed on the object with a gripper's length around it: markers reaching further are cut, not the object shrunk.
+    centre, half = mesh.bounds.mean(axis=0), mesh.extents.max() / 2 + PICTURE_MARGIN_M
     for setter, c in zip((axis.set_xlim, axis.set_ylim, axis.set_zlim), centre):
         setter(c - half, c + half)
+    axis.view_init(elev=30, azim=-60)
     axis.set_title(f"{h5_path.stem}: {int(held.sum())} held, {int((~held).sum())} dropped (of {len(held)}; {len(shown)} drawn)", fontsize=8)
     axis.set_axis_off()
+    figure.subplots_adjust(left=0, right=1, bottom=0, top=0.95)
     figure.savefig(picture, dpi=100)
     plt.close(figure)
     return picture
