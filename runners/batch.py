@@ -8,14 +8,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
 
-from sagp_batched.config import RATING_BACKENDS, RUN_BACKENDS, ConfigError, load_config
+from sagp_batched.config import RATING_BACKENDS, RUN_BACKENDS, ConfigError
 from sagp_batched.methods import REGISTRY
 from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 from sagp_batched.study import plan_units, run_study
+
+from .cli import config_from_flags, setting_error
 
 MODEL_BACKENDS = ("transformers", "openai")
 # The flags that set a config value: flag -> (argparse dest, section, field).
@@ -74,23 +75,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _setting_error(exc: ConfigError, args: argparse.Namespace) -> str:
-    """The error line of a refused setting, naming the flag when a flag gave it its value."""
-    for flag, (dest, section, key) in SETTING_FLAGS.items():
-        if exc.setting == f"{section}.{key}" and getattr(args, dest) is not None:
-            return f"error: {flag}: {exc}"
-    return f"error: {exc}"
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    overrides: dict[str, dict[str, Any]] = {}
-    for dest, section, key in SETTING_FLAGS.values():
-        overrides.setdefault(section, {})[key] = getattr(args, dest)
     try:
-        config = load_config(args.profile, overrides=overrides)
+        config = config_from_flags(args, SETTING_FLAGS)
     except ConfigError as exc:
-        print(_setting_error(exc, args), file=sys.stderr)
+        print(setting_error(exc, args, SETTING_FLAGS), file=sys.stderr)
         return 2
     try:
         objects = load_object_set(config.run.objects_dir)

@@ -12,12 +12,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
 
-from sagp_batched.config import ConfigError, load_config
+from sagp_batched.config import ConfigError
 from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
+
+from .cli import config_from_flags, setting_error
 
 # Flag -> (argparse dest, config section, config key).
 SETTING_FLAGS = {
@@ -65,24 +66,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _setting_error(exc: ConfigError, args: argparse.Namespace) -> str:
-    for flag, (dest, section, key) in SETTING_FLAGS.items():
-        if exc.setting == f"{section}.{key}" and getattr(args, dest) is not None:
-            return f"error: {flag}: {exc}"
-    return f"error: {exc}"
-
-
 def main(argv: list[str] | None = None) -> int:
     from sagp_batched.datagen import dataset_object_ids, generate_dataset
 
     args = build_parser().parse_args(argv)
-    overrides: dict[str, dict[str, Any]] = {}
-    for dest, section, key in SETTING_FLAGS.values():
-        overrides.setdefault(section, {})[key] = getattr(args, dest)
     try:
-        config = load_config(args.profile, overrides=overrides)
+        config = config_from_flags(args, SETTING_FLAGS)
     except ConfigError as exc:
-        print(_setting_error(exc, args), file=sys.stderr)
+        print(setting_error(exc, args, SETTING_FLAGS), file=sys.stderr)
         return 2
     if args.agreement < 0:
         print(f"error: --agreement must be at least 0, got {args.agreement}", file=sys.stderr)

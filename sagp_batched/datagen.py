@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .config import Config, ConfigError
+from .config import Config
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from .export import acronym_gripper_transforms_object
 from .objects import ObjectSpec
@@ -320,25 +320,15 @@ def _labels_in_processes(config: Config, specs: list[ObjectSpec]):
 
 def _labels_on_ray(config: Config, specs: list[ObjectSpec]):
     """One actor per worker, each holding one ``ObjectLabeller`` (one PyBullet client) for the whole run."""
-    try:
-        import ray
-    except ImportError as exc:
-        raise ConfigError("--backend ray needs Ray: pip install 'sagp-batched[ray]'") from exc
-    from ray.util import ActorPool
+    from .runtime import ray_session
 
-    started_here = not ray.is_initialized()
-    if started_here:
-        if config.run.ray_address:
-            ray.init(address=config.run.ray_address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=config.run.workers, include_dashboard=False, log_to_driver=False)
-    try:
+    with ray_session(config.run.ray_address, config.run.workers):
+        import ray
+        from ray.util import ActorPool
+
         labeller_actor = ray.remote(num_cpus=1)(_RayLabeller)
         pool = ActorPool([labeller_actor.remote(config.to_dict()) for _ in range(config.run.workers)])
         yield from pool.map_unordered(lambda actor, spec: actor.label.remote(spec, config.dataset.grasps_per_object), specs)
-    finally:
-        if started_here:
-            ray.shutdown()
 
 
 class _RayLabeller:

@@ -255,7 +255,7 @@ class _HandWorld:
     # -- the sequence --------------------------------------------------------------------------------
     def label(self, placement: ObjectPlacement, pregrasp: np.ndarray, grasp: np.ndarray, quat: np.ndarray) -> GraspLabel:
         """Approach, close, lift, hold, shake: the label of one grasp."""
-        config, execution, labelling = self.config, self.config.execution, self.config.labelling
+        execution, labelling = self.config.execution, self.config.labelling
         self._build(placement, pregrasp, quat)
         motion: dict[str, Any] = {}
 

@@ -1,6 +1,9 @@
 """Process-wide runtime settings, set once by entry points (runners, workers), never at import."""
 from __future__ import annotations
 
+import contextlib
+from typing import Iterator
+
 import torch
 
 # Measured: with 2 intra-op threads torch sometimes stalls for seconds on these 2-vCPU
@@ -11,3 +14,26 @@ DEFAULT_TORCH_THREADS = 1
 
 def configure_torch(threads: int = DEFAULT_TORCH_THREADS) -> None:
     torch.set_num_threads(threads)
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None, workers: int) -> Iterator[None]:
+    """Ray connected for the block: to the cluster at ``address``, else a local instance of
+    ``workers`` CPUs; one started here is shut down after, one already running is left as it was."""
+    from .config import ConfigError
+
+    try:
+        import ray
+    except ImportError as exc:
+        raise ConfigError("--backend ray needs Ray: pip install 'sagp-batched[ray]'") from exc
+    started_here = not ray.is_initialized()
+    if started_here:
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+    try:
+        yield
+    finally:
+        if started_here:
+            ray.shutdown()

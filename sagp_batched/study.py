@@ -120,33 +120,23 @@ def _crashed_unit_records(config: Config, objects_dir: str | None, unit: TrialUn
 
 
 def _run_ray(config: Config, units: list[TrialUnit], emit: Callable, objects_dir: str | None) -> None:
-    try:
+    from .runtime import ray_session
+
+    with ray_session(config.run.ray_address, config.run.workers):
         import ray
-    except ImportError as exc:
-        raise ConfigError("--backend ray needs Ray: pip install 'sagp-batched[ray]'") from exc
-    started_here = not ray.is_initialized()
-    if started_here:
-        if config.run.ray_address:
-            ray.init(address=config.run.ray_address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=max(1, config.run.workers), include_dashboard=False, log_to_driver=False)
 
-    @ray.remote(num_cpus=1)
-    def run_unit_task(config_dict: dict[str, Any], objects_dir_: str | None, unit: TrialUnit) -> list[TrialRecord]:
-        if _WORKER_RUNNER is None:  # Ray reuses worker processes: build the scene once per process
-            _init_worker(config_dict, objects_dir_)
-        return _run_unit_in_worker(unit)
+        @ray.remote(num_cpus=1)
+        def run_unit_task(config_dict: dict[str, Any], objects_dir_: str | None, unit: TrialUnit) -> list[TrialRecord]:
+            if _WORKER_RUNNER is None:  # Ray reuses worker processes: build the scene once per process
+                _init_worker(config_dict, objects_dir_)
+            return _run_unit_in_worker(unit)
 
-    config_ref = ray.put(config.to_dict())
-    pending = [run_unit_task.remote(config_ref, objects_dir, unit) for unit in units]
-    try:
+        config_ref = ray.put(config.to_dict())
+        pending = [run_unit_task.remote(config_ref, objects_dir, unit) for unit in units]
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             for record in ray.get(done[0]):
                 emit(record)
-    finally:
-        if started_here:
-            ray.shutdown()
 
 
 # --- the study ---------------------------------------------------------------------------------

@@ -1,0 +1,26 @@
+"""What the runners share on their command lines: flags as config overrides, a refused setting named by its flag."""
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from sagp_batched.config import Config, ConfigError, load_config
+
+# A runner's flag table: flag -> (argparse dest, config section, config key).
+SettingFlags = dict[str, tuple[str, str, str]]
+
+
+def config_from_flags(args: argparse.Namespace, setting_flags: SettingFlags) -> Config:
+    """``args.profile`` with every flag given in ``args`` laid over it; raises ``ConfigError``."""
+    overrides: dict[str, dict[str, Any]] = {}
+    for dest, section, key in setting_flags.values():
+        overrides.setdefault(section, {})[key] = getattr(args, dest)
+    return load_config(args.profile, overrides=overrides)
+
+
+def setting_error(exc: ConfigError, args: argparse.Namespace, setting_flags: SettingFlags) -> str:
+    """The error line of a refused setting, naming the flag when a flag gave it its value."""
+    for flag, (dest, section, key) in setting_flags.items():
+        if exc.setting == f"{section}.{key}" and getattr(args, dest) is not None:
+            return f"error: {flag}: {exc}"
+    return f"error: {exc}"
