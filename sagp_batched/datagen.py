@@ -25,7 +25,7 @@ import torch
 
 from .config import Config
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
-from .export import acronym_gripper_transforms_object
+from .export import acronym_gripper_transforms_object, planner_frames_from_acronym
 from .objects import ObjectSpec
 from .types import GraspCandidates, PerceptionFailure
 from .verdicts import ClassifiedGrasps, classify_grasps
@@ -156,7 +156,10 @@ class ObjectLabeller:
         parts, untested, skipped, neutral = [], [], [], {}
         times = dict.fromkeys(("reset", "capture", "plan", "simulate"), 0.0)
         for pose_index, share in enumerate(shares):
-            result = self._label_pose(spec, pose_index, share, times)
+            # A later capture offers the same grasps again in the object's frame: only new ones are picked.
+            picked = np.concatenate([p.transforms for p in parts] + [u.transforms for u in untested] + [np.zeros((0, 4, 4))])
+            taken = tuple(torch.as_tensor(a, dtype=torch.float64) for a in planner_frames_from_acronym(picked))
+            result = self._label_pose(spec, pose_index, share, times, taken)
             if isinstance(result, str):
                 skipped.append(result)
                 continue
@@ -170,7 +173,7 @@ class ObjectLabeller:
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
         return ObjectLabels(spec.id, grasps, untested_all, rater, neutral, skipped, times)
 
-    def _capture_and_classify(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float]):
+    def _capture_and_classify(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float], taken=None):
         """Place ``spec`` for capture ``pose_index``, capture it and classify ``n_grasps`` of its grasps;
         the reason instead where the capture failed."""
         from .perception import capture
@@ -187,7 +190,7 @@ class ObjectLabeller:
             return f"capture {pose_index}: {failure.reason}"
         times["capture"] += time.perf_counter() - clock
         clock = time.perf_counter()
-        classified = classify_grasps(cloud, config, dataset.seed + pose_index, n_grasps)
+        classified = classify_grasps(cloud, config, dataset.seed + pose_index, n_grasps, taken_object=taken)
         times["plan"] += time.perf_counter() - clock
         return cloud, classified
 
@@ -205,12 +208,12 @@ class ObjectLabeller:
         return {"compared": len(hand), "both_tested": len(both), "agree": sum(h.held == a.held for h, a in both),
                 "hand_held": sum(h.held for h, _ in both), "arm_held": sum(a.held for _, a in both)}
 
-    def _label_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float]):
+    def _label_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float], taken):
         from .zone_marks import rating_image
         from .zones import assign_zones
 
         config = self.config
-        captured = self._capture_and_classify(spec, pose_index, n_grasps, times)
+        captured = self._capture_and_classify(spec, pose_index, n_grasps, times, taken)
         if isinstance(captured, str):
             return captured
         cloud, classified = captured

@@ -77,6 +77,14 @@ def acronym_gripper_transforms_object(candidates_object: GraspCandidates) -> np.
     return transforms
 
 
+def planner_frames_from_acronym(acronym_transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(C, 3) grasp centres and (C, 3, 3) planner grasp frames (y = closing axis, z = approach) of
+    (C, 4, 4) ACRONYM gripper poses: the inverse of ``acronym_gripper_transforms_object``, same frame."""
+    rotation = acronym_transforms[:, :3, :3] @ ACRONYM_FROM_PLANNER_ROTATION.T
+    centre = acronym_transforms[:, :3, 3] + hand_to_grasp_target_m(PANDA.urdf_path) * acronym_transforms[:, :3, 2]
+    return centre, rotation
+
+
 def panda_hand_transforms_object(acronym_transforms_object: np.ndarray) -> np.ndarray:
     """(C, 4, 4) ``panda_hand`` poses in the object frame from (C, 4, 4) ACRONYM gripper poses there.
 

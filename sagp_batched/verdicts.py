@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 
 from sagp_batched_kernels.gripper_volume import gripper_occupancy_within
-from sagp_batched_kernels.pose_nms import pose_nms
+from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
 
 from .config import Config, DatasetConfig
 from .ik import panda_ik
@@ -89,12 +89,21 @@ def _verdict_quotas(available: dict[int, int], n_grasps: int, feasible_fraction:
     return quotas
 
 
-def classify_grasps(cloud: PerceivedCloud, config: Config, seed: int, n_grasps: int, dataset: DatasetConfig | None = None) -> ClassifiedGrasps:
+def classify_grasps(
+    cloud: PerceivedCloud,
+    config: Config,
+    seed: int,
+    n_grasps: int,
+    dataset: DatasetConfig | None = None,
+    taken_object: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> ClassifiedGrasps:
     """Up to ``n_grasps`` grasps of ``cloud`` covering the object, each with the planner's verdict.
 
     Every (candidate, approach) pose of the screened antipodal candidates is a grasp; those within
     ``dataset.nms_translation_m`` and ``dataset.nms_rotation_deg`` of a better one (S_geom, then
-    approach order) are dropped; the checks run on the rest; ``dataset.feasible_fraction`` of the
+    approach order) are dropped, and so are those that are the same grasp as one in
+    ``taken_object`` ((T, 3) centres and (T, 3, 3) frames in the object's link frame: grasps picked
+    from earlier captures of the object); the checks run on the rest; ``dataset.feasible_fraction`` of the
     picked grasps are feasible where the object offers them, the rest spread over the rejection
     verdicts, each drawn at random (``seed``) within its verdict so no region of the object is favoured.
     """
@@ -106,7 +115,14 @@ def classify_grasps(cloud: PerceivedCloud, config: Config, seed: int, n_grasps: 
     slots = torch.arange(n_approaches).repeat(n_candidates)
     approach, rotation = screened.frames(rows, slots)
     centre = screened.centre_world[rows]
-    covering = pose_nms(centre, rotation, dataset.nms_translation_m, math.radians(dataset.nms_rotation_deg))
+    rotation_threshold = math.radians(dataset.nms_rotation_deg)
+    covering = pose_nms(centre, rotation, dataset.nms_translation_m, rotation_threshold)
+    if taken_object is not None and len(taken_object[0]):
+        object_from_world = torch.as_tensor(cloud.object_from_world, dtype=torch.float64)
+        centre_object = centre[covering].double() @ object_from_world[:3, :3].T + object_from_world[:3, 3]
+        rotation_object = object_from_world[:3, :3] @ rotation[covering].double()
+        new = ~same_grasp(centre_object, rotation_object, *taken_object, dataset.nms_translation_m, rotation_threshold).any(dim=1)
+        covering = covering[new]
     rows, slots, approach, rotation, centre = rows[covering], slots[covering], approach[covering], rotation[covering], centre[covering]
     n = rows.numel()
 

@@ -165,3 +165,12 @@ def test_exported_ycb_mug_names_its_textured_mesh_relative_to_the_objects_root(t
     assert mesh_file == "025_mug/textured.obj" and mesh_scale == 1.0
     vertices = _obj_vertices(ycb_dir / mesh_file)
     assert len(vertices) > 100 and np.all(vertices.max(axis=0) - vertices.min(axis=0) < 0.2), "a mug, in metres"
+
+
+def test_acronym_poses_map_back_to_the_planners_grasp_frames():
+    from sagp_batched.export import acronym_gripper_transforms_object, planner_frames_from_acronym
+
+    candidates, _, _, _ = _trial(np.random.default_rng(2), 12)
+    centre, rotation = planner_frames_from_acronym(acronym_gripper_transforms_object(candidates))
+    assert np.allclose(centre, candidates.position_world.double().numpy(), atol=1e-6)
+    assert np.allclose(rotation, candidates.rotation_world.double().numpy(), atol=1e-6)
