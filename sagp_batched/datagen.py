@@ -367,8 +367,8 @@ def _write_object(out_dir: Path, spec: ObjectSpec, labels: ObjectLabels, mode: s
     write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, object_physics(spec),
                       grasps, labels.untested, mode, labels.rater)
     write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
-    centres = torch.as_tensor(grasps.transforms[:, :3, 3] + DISTINCT_CENTRE_OFFSET_M * grasps.transforms[:, :3, 2])
-    distinct = distinct_grasp_count(centres, torch.as_tensor(grasps.transforms[:, :3, :3]), 0.01, math.radians(20.0))
+    centres = torch.tensor(grasps.transforms[:, :3, 3] + DISTINCT_CENTRE_OFFSET_M * grasps.transforms[:, :3, 2])
+    distinct = distinct_grasp_count(centres, torch.tensor(grasps.transforms[:, :3, :3]), 0.01, math.radians(20.0))
     write_s.append(time.perf_counter() - clock)
     entry = {
         "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),

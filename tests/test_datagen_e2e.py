@@ -94,3 +94,16 @@ def test_bad_dataset_input_is_one_error_line_and_writes_nothing(tmp_path, capsys
     errors = _errors(capsys)
     assert len(errors) == 1 and named in errors[0]
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.slow
+def test_the_ray_backend_writes_the_labels_the_local_run_writes(tmp_path):
+    pytest.importorskip("ray")
+    runs = {}
+    for backend in ("local", "ray"):
+        out = tmp_path / backend
+        assert datagen.main(["--objects", "003_cracker_box", "--backend", backend, "--workers", "1", "--out", str(out),
+                             "--grasps-per-object", "8", "--captures", "1", "--pairs", "2000", "--no-progress"]) == 0
+        with h5py.File(out / "grasps" / "003_cracker_box.h5", "r") as f:
+            runs[backend] = (f["grasps/transforms"][()], f["grasps/qualities/flex/object_in_gripper"][()])
+    assert np.array_equal(runs["local"][0], runs["ray"][0]) and np.array_equal(runs["local"][1], runs["ray"][1])
