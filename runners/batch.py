@@ -16,7 +16,7 @@ from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 from sagp_batched.study import plan_units, run_study
 
-from .cli import config_from_flags, setting_error
+from .cli import config_or_report
 
 MODEL_BACKENDS = ("transformers", "openai")
 # The flags that set a config value: flag -> (argparse dest, section, field).
@@ -77,10 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        config = config_from_flags(args, SETTING_FLAGS)
-    except ConfigError as exc:
-        print(setting_error(exc, args, SETTING_FLAGS), file=sys.stderr)
+    config = config_or_report(args, SETTING_FLAGS)
+    if config is None:
         return 2
     try:
         objects = load_object_set(config.run.objects_dir)

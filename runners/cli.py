@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from sagp_batched.config import Config, ConfigError, load_config
@@ -24,3 +25,12 @@ def setting_error(exc: ConfigError, args: argparse.Namespace, setting_flags: Set
         if exc.setting == f"{section}.{key}" and getattr(args, dest) is not None:
             return f"error: {flag}: {exc}"
     return f"error: {exc}"
+
+
+def config_or_report(args: argparse.Namespace, setting_flags: SettingFlags) -> Config | None:
+    """``config_from_flags``, or None once a refused setting has been printed as one ``error:`` line."""
+    try:
+        return config_from_flags(args, setting_flags)
+    except ConfigError as exc:
+        print(setting_error(exc, args, setting_flags), file=sys.stderr)
+        return None

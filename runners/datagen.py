@@ -18,7 +18,7 @@ from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectE
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 
-from .cli import config_from_flags, setting_error
+from .cli import config_or_report
 
 # Flag -> (argparse dest, config section, config key).
 SETTING_FLAGS = {
@@ -70,10 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     from sagp_batched.datagen import dataset_object_ids, generate_dataset
 
     args = build_parser().parse_args(argv)
-    try:
-        config = config_from_flags(args, SETTING_FLAGS)
-    except ConfigError as exc:
-        print(setting_error(exc, args, SETTING_FLAGS), file=sys.stderr)
+    config = config_or_report(args, SETTING_FLAGS)
+    if config is None:
         return 2
     if args.agreement < 0:
         print(f"error: --agreement must be at least 0, got {args.agreement}", file=sys.stderr)
