@@ -31,7 +31,8 @@ def ray_session(address: str | None, workers: int) -> Iterator[None]:
         if address:
             ray.init(address=address, log_to_driver=False)
         else:
-            ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
+            # "local" starts a fresh instance even where another cluster on this machine left its address behind.
+            ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
     try:
         yield
     finally:

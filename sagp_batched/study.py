@@ -119,23 +119,29 @@ def _crashed_unit_records(config: Config, objects_dir: str | None, unit: TrialUn
     return [TrialRecord.build(spec, unit, method, config, error=f"worker process died: {exc}") for method in unit.methods]
 
 
+class _RayTrialRunner:
+    """A Ray actor holding one ``TrialRunner`` (one PyBullet client and rater) for the whole run: the
+    scene is built once per worker and reused, where a task per unit would build one per unit and a
+    module-level cache is a pickled copy inside a remote function."""
+
+    def __init__(self, config_dict: dict[str, Any], objects_dir: str | None):
+        _init_worker(config_dict, objects_dir)
+
+    def run_unit(self, unit: TrialUnit) -> list[TrialRecord]:
+        return _run_unit_in_worker(unit)
+
+
 def _run_ray(config: Config, units: list[TrialUnit], emit: Callable, objects_dir: str | None) -> None:
     from .runtime import ray_session
 
     with ray_session(config.run.ray_address, config.run.workers):
         import ray
+        from ray.util import ActorPool
 
-        @ray.remote(num_cpus=1)
-        def run_unit_task(config_dict: dict[str, Any], objects_dir_: str | None, unit: TrialUnit) -> list[TrialRecord]:
-            if _WORKER_RUNNER is None:  # Ray reuses worker processes: build the scene once per process
-                _init_worker(config_dict, objects_dir_)
-            return _run_unit_in_worker(unit)
-
-        config_ref = ray.put(config.to_dict())
-        pending = [run_unit_task.remote(config_ref, objects_dir, unit) for unit in units]
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            for record in ray.get(done[0]):
+        actor = ray.remote(num_cpus=1)(_RayTrialRunner)
+        pool = ActorPool([actor.remote(config.to_dict(), objects_dir) for _ in range(config.run.workers)])
+        for records in pool.map_unordered(lambda runner, unit: runner.run_unit.remote(unit), units):
+            for record in records:
                 emit(record)
 
 

@@ -1,3 +1,10 @@
+import os
+
+# Ray reads these when it is first imported: a cluster on loopback (tests/test_ray_cluster.py) needs
+# Ray to keep 127.0.0.1 rather than the machine's outward address, and no token authentication.
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+os.environ.setdefault("RAY_AUTH_MODE", "disabled")
+
 from pathlib import Path
 
 import pytest

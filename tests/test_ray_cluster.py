@@ -1,0 +1,91 @@
+"""A real Ray cluster joined by address (on loopback): the study and the dataset runner give the local run's results."""
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from sagp_batched.config import load_config
+from sagp_batched.objects import load_object_set
+from sagp_batched.study import run_study
+from test_study_e2e import _stable
+
+# Ray rewrites 127.0.0.1 to the machine's outward address and turns on token authentication unless told
+# not to; the head gets them in its environment, this process from conftest.
+RAY_LOOPBACK_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_AUTH_MODE": "disabled"}
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    pytest.importorskip("ray")
+    assert all(os.environ.get(key) == value for key, value in RAY_LOOPBACK_ENV.items()), "conftest sets them before Ray is imported"
+    port = _free_port()
+    env = {**os.environ, **RAY_LOOPBACK_ENV}
+    head = subprocess.Popen(
+        [sys.executable, "-m", "ray.scripts.scripts", "start", "--head", "--node-ip-address", "127.0.0.1", "--port", str(port),
+         "--num-cpus", "2", "--include-dashboard", "false", "--block"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )
+    address = f"127.0.0.1:{port}"
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            break
+        except OSError:
+            time.sleep(0.5)
+    else:
+        os.killpg(head.pid, signal.SIGKILL)
+        pytest.fail("the Ray head did not start")
+    yield address
+    os.killpg(head.pid, signal.SIGTERM)
+    try:
+        head.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(head.pid, signal.SIGKILL)
+        head.wait()
+
+
+def _study(tmp_path, name, ycb_dir, **run):
+    config = load_config("ci", overrides={"run": {"objects": ["005_tomato_soup_can"], "tasks": ["t1"], "methods": ["go"], "n_trials": 3,
+                                                   "out": str(tmp_path / name), "objects_dir": str(ycb_dir), **run}})
+    return run_study(config, load_object_set(config.run.objects_dir), config.run.methods, objects_dir=config.run.objects_dir, progress=False)
+
+
+@pytest.mark.slow
+def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_path, ycb_dir, ray_cluster):
+    local = _study(tmp_path, "local", ycb_dir)
+    clustered = _study(tmp_path, "cluster", ycb_dir, backend="ray", ray_address=ray_cluster, workers=2)
+    assert _stable(clustered.records) == _stable(local.records)
+    assert len((tmp_path / "cluster" / "trials.jsonl").read_text().splitlines()) == 3, "the driver wrote every record"
+
+
+@pytest.mark.slow
+def test_a_dataset_on_a_cluster_joined_by_address_writes_the_local_labels(tmp_path, ray_cluster):
+    import h5py
+
+    from runners import datagen
+
+    labels = {}
+    for name, backend in (("local", ["--backend", "local"]), ("cluster", ["--backend", "ray", "--address", ray_cluster, "--workers", "2"])):
+        out = tmp_path / name
+        assert datagen.main(["--objects", "003_cracker_box,005_tomato_soup_can", "--out", str(out), "--grasps-per-object", "6",
+                             "--captures", "1", "--pairs", "2000", "--no-progress", *backend]) == 0
+        labels[name] = {}
+        for entry in json.loads((out / "manifest.json").read_text())["objects"]:
+            with h5py.File(out / entry["grasps"], "r") as f:
+                labels[name][entry["id"]] = (f["grasps/transforms"][()], f["grasps/qualities/flex/object_in_gripper"][()])
+    assert labels["local"].keys() == labels["cluster"].keys() == {"003_cracker_box", "005_tomato_soup_can"}
+    for object_id, (transforms, held) in labels["local"].items():
+        assert np.array_equal(transforms, labels["cluster"][object_id][0]) and np.array_equal(held, labels["cluster"][object_id][1])
