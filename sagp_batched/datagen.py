@@ -28,11 +28,14 @@ from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from .export import acronym_gripper_transforms_object, planner_frames_from_acronym
 from .objects import ObjectSpec
 from .types import GraspCandidates, PerceptionFailure
-from .verdicts import ClassifiedGrasps, classify_grasps
+from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
 
 # The tasks a dataset's zone ratings are asked for: t3 is t1 among distractors, which a dataset
 # of single objects does not place.
 DATASET_TASKS: tuple[str, ...] = ("t1", "t2")
+# The report's coverage figure: grasps closer than this, and turned less, count as one.
+DISTINCT_TRANSLATION_M = 0.01
+DISTINCT_ROTATION_DEG = 20.0
 # PyBullet's lateral friction where a URDF gives none.
 PYBULLET_DEFAULT_FRICTION = 0.5
 
@@ -42,7 +45,9 @@ def object_physics(spec: ObjectSpec) -> ObjectPhysics:
     metadata (the solid's volume and full inertia, the density that made its mass), else the
     URDF's mass, COM, inertia and friction with the volume of its collision hulls (the solid
     PyBullet collides) and density = mass / volume."""
-    metadata_path = Path(spec.urdf_path).with_name("metadata.json")
+    from .mesh_import import METADATA_FILE
+
+    metadata_path = Path(spec.urdf_path).with_name(METADATA_FILE)
     if metadata_path.is_file():
         import json
 
@@ -122,7 +127,7 @@ def _motion(value: float | None) -> float:
 
 
 def _zone_levels(candidates: GraspCandidates, ratings: dict) -> tuple[list[str], dict[str, list[str]]]:
-    names = [candidates.zone_names[z] if 0 <= z < len(candidates.zone_names) else "" for z in candidates.zone.tolist()]
+    names = candidates.primary_zone_names()
     levels = {task: [(rating.level(name) or "") if name else "" for name in names] for task, rating in ratings.items()}
     return names, levels
 
@@ -167,7 +172,7 @@ class ObjectLabeller:
             parts.append(labelled)
             untested.append(rejected)
             neutral.update(pose_neutral)
-        grasps = LabelledGrasps.concatenate(parts) if parts else _empty_labels(DATASET_TASKS)
+        grasps = LabelledGrasps.concatenate(parts) if parts else LabelledGrasps.empty(DATASET_TASKS)
         untested_all = UntestedGrasps(np.concatenate([u.transforms for u in untested]) if untested else np.zeros((0, 4, 4)),
                                       sum((u.reason for u in untested), []))
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
@@ -201,7 +206,7 @@ class ObjectLabeller:
         if isinstance(captured, str):
             return {"compared": 0, "both_tested": 0, "agree": 0, "hand_held": 0, "arm_held": 0, "skipped": captured}
         _, classified = captured
-        feasible = classified.verdict == 0
+        feasible = classified.verdict == FEASIBLE
         hand = self.simulator("hand").simulate(classified.candidates, feasible)
         arm = self.simulator("arm").simulate(classified.candidates, feasible)
         both = [(h, a) for h, a in zip(hand, arm) if not isinstance(h, str) and not isinstance(a, str)]
@@ -224,16 +229,10 @@ class ObjectLabeller:
         neutral = {task: (rating.issues[0] if rating.issues else "neutral") for task, rating in ratings.items() if rating.is_neutral}
         times["plan"] += time.perf_counter() - clock
         clock = time.perf_counter()
-        outcomes = self.simulator(config.dataset.mode).simulate(zoned, classified.verdict == 0)
+        outcomes = self.simulator(config.dataset.mode).simulate(zoned, classified.verdict == FEASIBLE)
         times["simulate"] += time.perf_counter() - clock
         labelled, rejected = _pose_labels(cloud, zoned, classified, outcomes, ratings, pose_index)
         return labelled, rejected, neutral
-
-
-def _empty_labels(tasks: tuple[str, ...]) -> LabelledGrasps:
-    empty = np.zeros(0)
-    return LabelledGrasps(np.zeros((0, 4, 4)), empty, np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64), [], [],
-                          np.zeros(0, dtype=bool), [], empty, empty, empty, empty, empty, empty, [], {t: [] for t in tasks})
 
 
 def _pose_labels(cloud, zoned: GraspCandidates, classified: ClassifiedGrasps, outcomes: list, ratings: dict, pose_index: int):
@@ -241,7 +240,7 @@ def _pose_labels(cloud, zoned: GraspCandidates, classified: ClassifiedGrasps, ou
     tested = [i for i, outcome in enumerate(outcomes) if not isinstance(outcome, str)]
     object_frame = zoned.transform(cloud.object_from_world)
     transforms = acronym_gripper_transforms_object(object_frame)
-    untested = [i for i in range(len(outcomes)) if i not in set(tested)]
+    untested = [i for i, outcome in enumerate(outcomes) if isinstance(outcome, str)]
     kept = torch.as_tensor(tested, dtype=torch.int64)
     chosen = zoned.select(kept)
     zone_names, levels = _zone_levels(chosen, ratings)
@@ -353,7 +352,7 @@ def _labels_inline(config: Config, specs: list[ObjectSpec]):
         labeller.close()
 
 
-def _write_object(out_dir: Path, spec: ObjectSpec, labels: ObjectLabels, mode: str, write_s: list[float]) -> dict:
+def _write_object(out_dir: Path, spec: ObjectSpec, labels: ObjectLabels, mode: str) -> dict:
     """Write one object's files and return its progress line (what the report and a resume read)."""
     from sagp_batched_kernels.pose_nms import distinct_grasp_count
 
@@ -367,23 +366,19 @@ def _write_object(out_dir: Path, spec: ObjectSpec, labels: ObjectLabels, mode: s
     write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, object_physics(spec),
                       grasps, labels.untested, mode, labels.rater)
     write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
-    centres = torch.tensor(grasps.transforms[:, :3, 3] + DISTINCT_CENTRE_OFFSET_M * grasps.transforms[:, :3, 2])
-    distinct = distinct_grasp_count(centres, torch.tensor(grasps.transforms[:, :3, :3]), 0.01, math.radians(20.0))
-    write_s.append(time.perf_counter() - clock)
+    centres, frames = (torch.tensor(a) for a in planner_frames_from_acronym(grasps.transforms))
+    distinct = distinct_grasp_count(centres, frames, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
+    write_s = time.perf_counter() - clock
     entry = {
         "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
         "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
         "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
         "by_verdict": {v: [int(sum(h for h, w in zip(grasps.held, grasps.verdict) if w == v)), grasps.verdict.count(v)]
                        for v in sorted(set(grasps.verdict))},
-        "times_s": {**labels.times_s, "write": write_s[-1]},
+        "times_s": {**labels.times_s, "write": write_s},
     }
     append_progress(out_dir, entry)
     return entry
-
-
-# The grasp centre (contact midpoint) lies this far along the ACRONYM gripper's approach (z) from its base.
-DISTINCT_CENTRE_OFFSET_M = 0.105
 
 
 def measure_agreement(config: Config, objects, object_ids: list[str], n_grasps: int) -> dict:
@@ -411,12 +406,13 @@ def generate_dataset(config: Config, objects, out_dir: Path, *, progress: bool =
     on_note = on_note or (lambda note: None)
     object_ids = dataset_object_ids(config, objects)
     out_dir.mkdir(parents=True, exist_ok=True)
+    checksum = objects.checksum()
     with RunLock(out_dir):
-        check_same_run(out_dir, config, objects.checksum(), objects.source)
+        check_same_run(out_dir, config, checksum, objects.source)
         write_json(out_dir / CONFIG_FILE, config.to_dict())
         write_json(out_dir / PROVENANCE_FILE, provenance.collect(
             config.to_dict(), dataset_seed=config.dataset.seed,
-            objects={"source": objects.source, "checksum": objects.checksum(), "ids": object_ids,
+            objects={"source": objects.source, "checksum": checksum, "ids": object_ids,
                      "skipped": [list(item) for item in getattr(objects, "skipped", [])]},
         ))
         finished = read_progress(out_dir)
@@ -434,10 +430,10 @@ def generate_dataset(config: Config, objects, out_dir: Path, *, progress: bool =
             labels_of = _labels_on_ray
         else:
             labels_of = _labels_inline if config.run.workers == 1 else _labels_in_processes
-        new_objects, write_s = [], []
+        new_objects = []
         try:
             for labels in labels_of(config, pending):
-                _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, write_s)
+                _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode)
                 new_objects.append(labels.object_id)
                 if bar is not None:
                     bar.update(1)

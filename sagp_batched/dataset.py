@@ -84,6 +84,13 @@ class LabelledGrasps:
         return len(self.held)
 
     @classmethod
+    def empty(cls, tasks: tuple[str, ...]) -> "LabelledGrasps":
+        """No grasps (an object none of whose captures could be labelled), with every field's shape."""
+        none = np.zeros(0)
+        return cls(np.zeros((0, 4, 4)), none, np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64), [], [], np.zeros(0, dtype=bool), [],
+                   none, none, none, none, none, none, [], {task: [] for task in tasks})
+
+    @classmethod
     def concatenate(cls, parts: list["LabelledGrasps"]) -> "LabelledGrasps":
         values = {}
         for item in dataclasses.fields(cls):

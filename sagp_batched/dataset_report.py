@@ -16,6 +16,7 @@ import numpy as np
 
 from .config import Config
 from .dataset import read_progress, split_of, write_splits
+from .report import count_and_rate
 from .run_directory import write_json
 from .verdicts import VERDICTS
 
@@ -34,10 +35,6 @@ PICTURE_MAX_FACES = 4000
 PICTURE_MARGIN_M = 0.06
 
 
-def _rate(held: int, total: int) -> str:
-    return f"{held}/{total} ({100 * held / total:.1f} %)" if total else "-"
-
-
 def _verdict_totals(entries: list[dict[str, Any]]) -> dict[str, list[int]]:
     totals = {verdict: [0, 0] for verdict in VERDICTS}
     for entry in entries:
@@ -52,10 +49,10 @@ def _object_rows(entries: list[dict[str, Any]]) -> list[str]:
              "|---|---|---|---|---|" + "---|" * len(VERDICTS) + "---|"]
     for entry in entries:
         by_verdict = entry["by_verdict"]
-        cells = [_rate(*by_verdict[v]) if v in by_verdict else "-" for v in VERDICTS]
+        cells = [count_and_rate(*by_verdict[v]) if v in by_verdict else "-" for v in VERDICTS]
         semantics = "neutral: " + "; ".join(f"{t} {why}" for t, why in entry["neutral_tasks"].items()) if entry["neutral_tasks"] else entry["rater"]
-        lines.append(f"| {entry['object']} | {entry['labelled']} | {_rate(entry['held'], entry['labelled'])} | "
-                     f"{_rate(entry['distinct_1cm_20deg'], entry['labelled'])} | {entry['untested']} | " + " | ".join(cells) + f" | {semantics} |")
+        lines.append(f"| {entry['object']} | {entry['labelled']} | {count_and_rate(entry['held'], entry['labelled'])} | "
+                     f"{count_and_rate(entry['distinct_1cm_20deg'], entry['labelled'])} | {entry['untested']} | " + " | ".join(cells) + f" | {semantics} |")
     return lines
 
 
@@ -65,11 +62,11 @@ def _agreement_lines(out_dir: Path) -> list[str]:
         return ["Hand-vs-arm agreement was not measured for this dataset (`--agreement N` measures it)."]
     agreement = json.loads(path.read_text())
     lines = [f"Hand-vs-arm agreement, the same grasps simulated in both modes (grasps both executed): "
-             f"{_rate(agreement['agree'], agreement['both_tested'])}; {agreement['compared']} compared, "
+             f"{count_and_rate(agreement['agree'], agreement['both_tested'])}; {agreement['compared']} compared, "
              f"{agreement['compared'] - agreement['both_tested']} left out because one mode could not execute them.", "",
              "| object | compared | both executed | agree | hand held | arm held |", "|---|---|---|---|---|---|"]
     for object_id, row in sorted(agreement["by_object"].items()):
-        lines.append(f"| {object_id} | {row['compared']} | {row['both_tested']} | {_rate(row['agree'], row['both_tested'])} | "
+        lines.append(f"| {object_id} | {row['compared']} | {row['both_tested']} | {count_and_rate(row['agree'], row['both_tested'])} | "
                      f"{row['hand_held']} | {row['arm_held']} |")
     return lines
 
@@ -126,7 +123,7 @@ def _report_markdown(out_dir, manifest, summary, entries, pictures, plots) -> st
         f"Median time per object: {summary['seconds_per_object'] or 0:.1f} s.", "",
         "## Success by planner verdict (the planner's calibration)", "",
         "| verdict | held / labelled |", "|---|---|",
-        *[f"| {verdict} | {_rate(*counts)} |" for verdict, counts in by_verdict.items()], "",
+        *[f"| {verdict} | {count_and_rate(*counts)} |" for verdict, counts in by_verdict.items()], "",
         "## Per object", "", *_object_rows(entries), "",
         "## Hand vs arm", "", *_agreement_lines(out_dir), "",
     ]

@@ -154,7 +154,7 @@ def write_acronym(
             outcome[candidate] = max(outcome[candidate], int(attempt.success))
         executed_by_method[method] = executed
     tested = np.flatnonzero(outcome != UNTESTED)
-    zone_names = np.array([candidates.zone_names[z] if 0 <= z < len(candidates.zone_names) else "" for z in candidates.zone.tolist()], dtype=object)
+    zone_names = np.array(candidates.primary_zone_names(), dtype=object)
     rows = {
         "transforms": transforms, "panda_hand_transforms": panda_hand_transforms_object(transforms),
         "width": candidates.width_m.numpy(), "contacts": candidates_object.contacts_world.numpy(),

@@ -17,6 +17,11 @@ def grasp_waypoint_index(execution: ExecutionConfig) -> int:
     return execution.descent_waypoints
 
 
+def waypoint_count(execution: ExecutionConfig) -> int:
+    """W, the waypoints of ``motion_waypoints``: the pre-grasp and descent, the grasp, the lift."""
+    return execution.descent_waypoints + 1 + execution.lift_waypoints
+
+
 def motion_waypoints(position_world: torch.Tensor, approach_world: torch.Tensor, execution: ExecutionConfig) -> torch.Tensor:
     """Waypoints of the whole motion for N grasps.
 

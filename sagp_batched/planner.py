@@ -35,7 +35,7 @@ from sagp_batched_kernels.sampling import (
 from .config import Config, PlannerConfig
 from .hand import DOP_DIRECTIONS, HandGeometry, link_hulls, load_hand_geometry
 from .ik import PandaIK, panda_ik
-from .motion import grasp_waypoint_index, motion_waypoints
+from .motion import grasp_waypoint_index, motion_waypoints, waypoint_count
 from .robot import PANDA
 from .types import GraspCandidates, PerceivedCloud
 
@@ -221,13 +221,18 @@ class ScreenedCandidates:
 
         ``plan_batch`` runs it only on candidates that can still enter the kept set, in S_geom order.
         """
-        planner = self.planner
         # Gathered once for both checks: a second frames() call cost ~40 ms of a 500,000-pair mug plan.
         rotation = self.frames(rows)[1]
+        return self.volume_within(rows, rotation, self.clear_of_table(rows, rotation))
+
+    def volume_within(self, rows: torch.Tensor, rotation: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: the gripper volumes of candidates ``rows`` in frames ``rotation`` (R, K, 3, 3) hold at
+        most ``occupancy_max_fraction`` of their cloud's points; counted only where ``poses`` (R, K) is True."""
+        planner = self.planner
         return gripper_occupancy_within(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], rotation,
             self.width_m[rows], gripper_geometry(planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
-            planner.occupancy_chunk_elements, self.clear_of_table(rows, rotation),
+            planner.occupancy_chunk_elements, poses,
         )
 
     def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
@@ -866,7 +871,7 @@ def plan_batch(
     stage_time: dict[str, float] = {}
     screened = screen_candidates(clouds, config, seeds, stage_time)
     n_candidates, n_approaches = screened.n_candidates, planner.n_approaches
-    n_waypoints = motion_waypoints(torch.zeros(0, 3), torch.zeros(0, 3), config.execution).shape[1]
+    n_waypoints = waypoint_count(config.execution)
     search = _CandidateSearch.start(n_candidates, n_approaches)
     verdicts = _ScreenVerdicts(screened)
     motions = _MotionVerdicts(n_candidates, n_approaches, n_waypoints, planner.max_candidates)

@@ -82,10 +82,14 @@ def _failures_list(metrics: dict[str, Any]) -> str:
     return ", ".join(f"{key}×{count}" for key, count in metrics["attempt_failures"].items()) or "-"
 
 
-def _count_and_rate(metrics: dict[str, Any] | None, name: str) -> str:
+def count_and_rate(k: int, n: int) -> str:
     """'3/4 (75.0 %)', or '-' where there is nothing to count."""
-    k, n = metrics["counts"][name] if metrics else (0, 0)
     return f"{k}/{n} ({100 * k / n:.1f} %)" if n else "-"
+
+
+def _count_and_rate(metrics: dict[str, Any] | None, name: str) -> str:
+    """``count_and_rate`` of one metric's counts; '-' without metrics."""
+    return count_and_rate(*metrics["counts"][name]) if metrics else "-"
 
 
 def _functional_object_table(by_object: dict[str, Any], task: str, annotated: set[str]) -> list[str]:

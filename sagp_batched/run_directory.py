@@ -135,10 +135,10 @@ def recover_trials_file(path: Path) -> TrialsFile:
             rejected_file.flush()
             os.fsync(rejected_file.fileno())
         kept = path.with_suffix(".jsonl.tmp")
-        data = path.read_bytes()
+        rejected_lines = {line.line_number for line in scanned.rejected}
         with kept.open("wb") as kept_file:
-            for _, raw, whole in _split_lines(data):
-                if _parse_line(raw, whole)[0] is not None:
+            for number, raw, _ in _split_lines(path.read_bytes()):
+                if number not in rejected_lines:
                     kept_file.write(raw + b"\n")
             kept_file.flush()
             os.fsync(kept_file.fileno())

@@ -264,6 +264,10 @@ class GraspCandidates:
             return self._grasp(int(index))
         return self.select(index)
 
+    def primary_zone_names(self) -> list[str]:
+        """Each candidate's primary zone name, "" before zoning (zone -1)."""
+        return [self.zone_names[z] if 0 <= z < len(self.zone_names) else "" for z in self.zone.tolist()]
+
     def _grasp(self, i: int) -> Grasp:
         if not -len(self) <= i < len(self):
             raise IndexError(f"grasp {i} outside the {len(self)} candidates")

@@ -14,13 +14,12 @@ from dataclasses import dataclass
 
 import torch
 
-from sagp_batched_kernels.gripper_volume import gripper_occupancy_within
 from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
 
 from .config import Config, DatasetConfig
 from .ik import panda_ik
-from .motion import grasp_waypoint_index, motion_waypoints
-from .planner import ScreenedCandidates, check_motions, gripper_geometry, jaw_width_limit, screen_candidates
+from .motion import grasp_waypoint_index, waypoint_count
+from .planner import check_motions, jaw_width_limit, screen_candidates
 from .types import GraspCandidates, PerceivedCloud
 
 # The planner's verdicts on a grasp, in the order its checks run; a grasp's verdict is the first
@@ -130,7 +129,8 @@ def classify_grasps(
     verdict[~screened.clear_of_table(rows, rotation[:, None])[:, 0]] = VERDICTS.index("table")
     undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
     if undecided.numel():
-        volume_ok = _volume_ok(screened, rows[undecided], rotation[undecided])
+        single = torch.ones(undecided.numel(), 1, dtype=torch.bool)
+        volume_ok = screened.volume_within(rows[undecided], rotation[undecided, None], single)[:, 0]
         verdict[undecided[~volume_ok]] = VERDICTS.index("volume")
     clearance = torch.full((n,), math.inf)
     undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
@@ -138,8 +138,7 @@ def classify_grasps(
         swept = screened.hand_clearance(rows[undecided], slots[undecided])
         clearance[undecided] = swept.clearance_m
         verdict[undecided[swept.blocked]] = VERDICTS.index("hand_sweep")
-    n_waypoints = motion_waypoints(torch.zeros(0, 3), torch.zeros(0, 3), config.execution).shape[1]
-    joint_path = torch.zeros(n, n_waypoints, 7)
+    joint_path = torch.zeros(n, waypoint_count(config.execution), 7)
     s_reach = torch.zeros(n)
     undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
     if undecided.numel():
@@ -180,12 +179,3 @@ def classify_grasps(
     )
     return ClassifiedGrasps(candidates, verdict[picked], reasons, n_candidates * n_approaches, n)
 
-
-def _volume_ok(screened: ScreenedCandidates, rows: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
-    """(R,) bool: the gripper-volume rule for single poses (candidate ``rows``, frames ``rotation`` (R, 3, 3))."""
-    planner = screened.planner
-    return gripper_occupancy_within(
-        screened.occupancy_points, screened.object_index[rows], screened.centre_world[rows], rotation[:, None],
-        screened.width_m[rows], gripper_geometry(planner), planner.occupancy_max_fraction * screened.occupancy_total[screened.object_index[rows]],
-        planner.occupancy_chunk_elements, torch.ones(rows.numel(), 1, dtype=torch.bool),
-    )[:, 0]
