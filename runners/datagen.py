@@ -3,8 +3,8 @@
 Every object of the set (a folder of meshes or URDFs, a YCB-layout folder, or the embedded YCB set)
 is captured on the table, planned once per capture, and N of its grasps, across the planner's
 verdicts, are labelled by simulation (``--mode hand``: the Panda hand alone; ``arm``: the Panda
-executing the planned motion). Each finished object is written at once; re-running the command
-resumes. ``--agreement N`` also simulates N grasps of each of the first five objects in both modes
+executing the planned motion), spread over ``--workers`` (one object's grasps over all of them).
+Each finished object is written at once; re-running the command resumes. ``--agreement N`` also simulates N grasps of each of the first five objects in both modes
 and reports how often the modes agree.
 """
 from __future__ import annotations
@@ -35,6 +35,7 @@ SETTING_FLAGS = {
     "--grasps-per-object": ("grasps_per_object", "dataset", "grasps_per_object"),
     "--mode": ("mode", "dataset", "mode"),
     "--captures": ("captures_per_object", "dataset", "captures_per_object"),
+    "--grasps-per-chunk": ("grasps_per_chunk", "dataset", "grasps_per_chunk"),
 }
 AGREEMENT_OBJECTS = 5
 
@@ -52,6 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--grasps-per-object", type=int, help="labelled grasps per object")
     parser.add_argument("--mode", choices=("hand", "arm"), help="hand: the Panda hand alone; arm: the Panda executes the planned motion")
     parser.add_argument("--captures", type=int, dest="captures_per_object", help="captures (placements) per object")
+    parser.add_argument("--grasps-per-chunk", type=int, help="hand mode: grasps a worker simulates as one piece of work (labels do not depend on it)")
     parser.add_argument("--out", help="dataset directory (re-running into it resumes)")
     parser.add_argument("--workers", type=int, help="worker processes, each with its own PyBullet client")
     parser.add_argument("--backend", choices=("local", "ray"), help="where objects are labelled")
@@ -67,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sagp_batched.datagen import dataset_object_ids, generate_dataset
+    from sagp_batched.dataset_run import dataset_object_ids, generate_dataset
 
     args = build_parser().parse_args(argv)
     config = config_or_report(args, SETTING_FLAGS)

@@ -586,6 +586,9 @@ class DatasetConfig(_Section):
     # Each capture places the object at a fresh seeded position and yaw on the table (and, for an
     # object with several stable resting poses, in the next of them); its grasps share one plan.
     captures_per_object: int = setting(2, at_least=1, at_most=100)
+    # Grasps a worker simulates as one piece of work: one object's grasps spread over every worker
+    # in pieces this size (labels do not depend on it).
+    grasps_per_chunk: int = setting(50, at_least=1, at_most=100_000)
     seed: int = setting(1000, at_least=0)
     # Share of objects GraspGen's valid.txt lists, chosen by a hash of the object id.
     valid_fraction: float = setting(0.2, at_least=0, at_most=1)

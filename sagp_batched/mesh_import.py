@@ -56,7 +56,7 @@ MESH_SUFFIXES = frozenset({".obj", ".stl", ".ply", ".glb"})
 CACHE_DIR_ENV = "SAGP_CACHE_DIR"
 DEFAULT_CACHE_ROOT = "~/.cache/sagp_batched"
 # Bumped whenever the generated files change for the same inputs, so older cache entries are not reused.
-IMPORT_FORMAT = 1
+IMPORT_FORMAT = 2
 METADATA_FILE = "metadata.json"
 DECOMPOSERS = ("auto", "coacd", "vhacd")
 # The keys an ``objects.json`` entry of an imported folder may hold.
@@ -103,7 +103,7 @@ class MeshImportSettings:
     max_resting_poses: int = 8
     #: Resting poses less probable than this are dropped (the most probable one is always kept).
     min_resting_pose_probability: float = 0.01
-    #: An object wider than this in every direction cannot be grasped: the Panda's open hand.
+    #: An object each of whose convex parts is wider than this in every direction cannot be grasped: the Panda's open hand.
     max_grasp_width_m: float = PANDA.open_width_m
     #: Cache root (objects go under ``<root>/objects/``); ``None``: ``$SAGP_CACHE_DIR``, else ``~/.cache/sagp_batched``.
     cache_dir: Path | None = None
@@ -708,9 +708,6 @@ def _build(source: _Source, parameters: _ObjectParameters, settings: MeshImportS
         raise _Unusable(f"no volume: its convex hull holds {hull_volume:.3g} m^3")
     watertight = bool(mesh.is_watertight and mesh.volume > MIN_VOLUME_M3)
     solid = mesh if watertight else hull
-    narrowest = _narrowest_width(hull.vertices, hull.face_normals)
-    if narrowest > settings.max_grasp_width_m:
-        raise _Unusable(f"wider than the open hand in every direction: narrowest {narrowest:.3f} m > {settings.max_grasp_width_m:.3f} m")
 
     poses = _resting_poses(solid, settings)
     source_to_link = poses[0][1]
@@ -721,6 +718,12 @@ def _build(source: _Source, parameters: _ObjectParameters, settings: MeshImportS
     solid.density = density
     properties = solid.mass_properties
     hulls, method = _decompose(mesh, settings, decomposer, work_dir)
+    # A hand can close on a part narrower than the whole (a mug's handle or rim, a bowl's wall), so the
+    # width test asks of each convex part, not of the object's hull.
+    narrowest = min(_narrowest_width(part.vertices, part.face_normals) for part in hulls)
+    if narrowest > settings.max_grasp_width_m:
+        raise _Unusable(f"wider than the open hand in every direction, each of its {len(hulls)} convex part(s): "
+                        f"narrowest {narrowest:.3f} m > {settings.max_grasp_width_m:.3f} m")
 
     metadata = {
         "format": IMPORT_FORMAT,

@@ -81,9 +81,31 @@ def test_arm_mode_executes_the_plan_and_agreement_compares_both_modes(tmp_path):
     assert "Hand-vs-arm agreement" in (out / "report.md").read_text()
 
 
+def _labels(out, object_id):
+    with h5py.File(out / "grasps" / f"{object_id}.h5", "r") as f:
+        flex = f["grasps/qualities/flex"]
+        return {key: flex[key][()] for key in flex} | {"transforms": f["grasps/transforms"][()]}
+
+
+@pytest.mark.slow
+def test_labels_do_not_depend_on_the_workers_or_on_how_grasps_are_chunked(tmp_path):
+    """One object's grasps spread over two workers in chunks of 5 give the labels one worker gives
+    simulating each capture in one piece, bit for bit (motions included)."""
+    common = ["--objects", "025_mug,003_cracker_box", "--grasps-per-object", "24", "--captures", "2", "--pairs", "3000", "--no-progress"]
+    assert datagen.main([*common, "--workers", "1", "--grasps-per-chunk", "1000", "--out", str(tmp_path / "one")]) == 0
+    assert datagen.main([*common, "--workers", "2", "--grasps-per-chunk", "5", "--out", str(tmp_path / "two")]) == 0
+    for object_id in ("025_mug", "003_cracker_box"):
+        one, two = _labels(tmp_path / "one", object_id), _labels(tmp_path / "two", object_id)
+        assert one.keys() == two.keys() and len(one["transforms"]) == 24
+        for key in one:
+            assert np.array_equal(one[key], two[key], equal_nan=True), key
+        assert 0 < one["object_in_gripper"].sum() < 24
+
+
 @pytest.mark.parametrize("argv, named", [
     (["--grasps-per-object", "0"], "--grasps-per-object"),
     (["--captures", "0"], "--captures"),
+    (["--grasps-per-chunk", "0"], "--grasps-per-chunk"),
     (["--agreement", "-1"], "--agreement"),
     (["--objects-dir", "/no/such/folder"], "/no/such/folder"),
     (["--objects", "no_such_object"], "no_such_object"),

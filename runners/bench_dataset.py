@@ -1,0 +1,94 @@
+"""Benchmark dataset generation: labelled grasps per second per core, by mode and worker count, with the stage breakdown.
+
+    python -m runners.bench_dataset --json OUT.json [--objects-dir DIR] [--object 025_mug]
+        [--hand-grasps 400] [--arm-grasps 60] [--workers 1,2] [--repeats 3] [--pairs N] [--shared-world-pairs 1,4,16]
+
+Every case is the real dataset run of one object into a fresh directory (one plan per capture, the
+grasps spread over the workers); medians over ``--repeats``, the cases interleaved within each
+repeat. The per-core rate is labelled grasps / (wall time x workers). The projection to
+``--project-objects`` x ``--project-grasps`` uses the hand-mode rate at the most workers measured.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from sagp_batched.config import ConfigError, load_config
+from sagp_batched.dataset_benchmark import STAGES, benchmark_dataset, projected_hours, shared_world_step_cost
+from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
+from sagp_batched.provenance import collect
+from sagp_batched.runtime import configure_torch
+
+PROJECTION_CORES = (2, 64)
+
+
+def _counts(parser: argparse.ArgumentParser, flag: str, text: str, minimum: int) -> list[int]:
+    try:
+        counts = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < minimum:
+        parser.error(f"{flag} takes whole numbers >= {minimum} separated by commas, got {text!r}")
+    return counts
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--json", required=True, type=Path, help="where to write the results")
+    parser.add_argument("--profile", default="dataset")
+    parser.add_argument("--objects-dir", default=None, help="object set (default: the embedded compact YCB set)")
+    parser.add_argument("--object", default="025_mug", help="the object every case labels")
+    parser.add_argument("--hand-grasps", type=int, default=400, help="grasps per hand-mode case (0 skips hand mode)")
+    parser.add_argument("--arm-grasps", type=int, default=60, help="grasps per arm-mode case (0 skips arm mode)")
+    parser.add_argument("--workers", default="1,2", help="comma-separated worker counts")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--pairs", type=int, default=None, help="sampled point pairs per capture (default: the profile's)")
+    parser.add_argument("--shared-world-pairs", default="1,4,16", help="hand-object pairs per world for the step-cost measure ('' skips)")
+    parser.add_argument("--project-objects", type=int, default=1000)
+    parser.add_argument("--project-grasps", type=int, default=2000)
+    args = parser.parse_args(argv)
+    worker_counts = _counts(parser, "--workers", args.workers, 1)
+    pair_counts = _counts(parser, "--shared-world-pairs", args.shared_world_pairs, 1) if args.shared_world_pairs.strip() else []
+    if args.repeats < 1 or args.hand_grasps < 0 or args.arm_grasps < 0:
+        parser.error("--repeats must be >= 1 and --hand-grasps / --arm-grasps >= 0")
+    grasps_by_mode = {mode: n for mode, n in (("hand", args.hand_grasps), ("arm", args.arm_grasps)) if n > 0}
+    try:
+        config = load_config(args.profile, overrides={"planner": {"n_pairs": args.pairs}} if args.pairs is not None else None)
+        objects = load_object_set(args.objects_dir)
+        objects.get(args.object)
+    except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    configure_torch()
+
+    rows = benchmark_dataset(config, objects, args.object, grasps_by_mode, worker_counts, args.repeats)
+    for row in rows:
+        stages = " ".join(f"{stage}={row['stage_s'][stage]:.2f}s" for stage in STAGES)
+        print(f"{row['mode']:>4} workers={row['workers']} {row['labelled']} labelled ({row['untested']} untested) in {row['wall_s']:.1f} s: "
+              f"{row['labels_per_s_per_core']:.1f} labels/s per core, simulation alone {row['simulated_labels_per_s_per_core']:.1f}/s | "
+              f"{stages} (summed over workers, medians of {row['repeats']})", flush=True)
+    projection = None
+    hand_rows = [row for row in rows if row["mode"] == "hand"]
+    if hand_rows:
+        widest = max(hand_rows, key=lambda row: row["workers"])
+        projection = {"objects": args.project_objects, "grasps_per_object": args.project_grasps,
+                      "labels_per_s_per_core": widest["labels_per_s_per_core"], "measured_workers": widest["workers"],
+                      "hours_by_cores": {cores: projected_hours(widest["labels_per_s_per_core"], args.project_objects, args.project_grasps, cores)
+                                         for cores in PROJECTION_CORES}}
+        print(f"projection, hand mode at {projection['labels_per_s_per_core']:.1f} labels/s per core: {args.project_objects} objects x "
+              f"{args.project_grasps} grasps = " + ", ".join(f"{hours:.0f} h on {cores} cores" for cores, hours in projection["hours_by_cores"].items()))
+    shared = shared_world_step_cost(config, objects, args.object, pair_counts) if pair_counts else []
+    for row in shared:
+        print(f"shared world: {row['pairs']:>3} hand-object pairs, {row['contacts']} contacts: {row['step_ms']:.3f} ms a step, "
+              f"{row['step_ms_per_pair']:.3f} ms per pair")
+    report = {"cases": rows, "projection": projection, "shared_world": shared,
+              "provenance": collect(config.to_dict(), object=args.object, objects_source=objects.source, repeats=args.repeats)}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,46 @@
+"""An object planned once, its grasps simulated in chunks in any order and joined: the labels one pass gives."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sagp_batched.config import load_config
+from sagp_batched.datagen import ObjectLabeller, object_labels
+from sagp_batched.objects import load_object_set
+
+
+@pytest.fixture(scope="module")
+def labeller(tmp_path_factory):
+    config = load_config("dataset", overrides={"dataset": {"captures_per_object": 2}, "planner": {"n_pairs": 3000},
+                                               "labelling": {"hand_urdf_cache_dir": str(tmp_path_factory.mktemp("hand"))}})
+    labeller = ObjectLabeller(config, load_object_set(None))
+    yield labeller
+    labeller.close()
+
+
+@pytest.fixture(scope="module")
+def plan(labeller):
+    return labeller.plan_object("005_tomato_soup_can", 14)
+
+
+def test_a_plan_splits_into_chunks_that_cover_each_capture_once(plan):
+    assert [len(pose.candidates) for pose in plan.poses] == [7, 7]
+    chunks = plan.chunks("hand", 3)
+    assert [(c.pose_index, c.first, len(c.grasps)) for c in chunks] == [(0, 0, 3), (0, 3, 3), (0, 6, 1), (1, 0, 3), (1, 3, 3), (1, 6, 1)]
+    # The arm restores its capture's state between grasps: one chunk a capture, whatever the size asked.
+    assert [(c.pose_index, c.first, len(c.grasps)) for c in plan.chunks("arm", 3)] == [(0, 0, 7), (1, 0, 7)]
+    rejected = [i for i, v in enumerate(plan.poses[0].classified.verdict_names()) if v != "feasible"]
+    assert rejected and all(plan.chunks("arm", 3)[0].grasps[i].joint_path is None for i in rejected)
+
+
+def test_chunks_simulated_in_any_order_join_to_the_labels_of_one_pass(labeller, plan):
+    whole = object_labels(plan, [labeller.simulate(chunk) for chunk in plan.chunks("hand", 100)])
+    shuffled = [labeller.simulate(chunk) for chunk in reversed(plan.chunks("hand", 3))]
+    parts = object_labels(plan, shuffled)
+    for field in dataclasses.fields(whole.grasps):
+        a, b = getattr(whole.grasps, field.name), getattr(parts.grasps, field.name)
+        assert (np.array_equal(a, b, equal_nan=True) if isinstance(a, np.ndarray) else a == b), field.name
+    assert len(whole.grasps.held) == 14 and 0 < whole.grasps.held.sum() < 14
+    assert set(whole.times_s) == {"reset", "capture", "plan", "simulate"} and whole.times_s["simulate"] > 0
