@@ -530,7 +530,7 @@ class LabellingConfig(_Section):
     #: Force the fixed constraint that carries the hand may apply: many times what moving hand
     #: (1 kg) and object (up to 1.1 kg) at the shake's accelerations takes.
     hand_constraint_max_force_n: float = setting(1000.0, above=0)
-    #: Where the floating hand's URDF (built from the robot's, with absolute mesh paths) is written.
+    #: Where the floating hand's URDF and the objects' collision-only URDFs (absolute mesh paths) are written.
     hand_urdf_cache_dir: str = setting("~/.cache/sagp_batched/hand", non_empty=True)
 
 

@@ -24,6 +24,7 @@ in the world (the hand holds still), during the shake in the hand's (grasp targe
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 import os
@@ -138,16 +139,38 @@ def floating_hand_urdf(robot: RobotDescription, cache_dir: str | Path) -> Path:
     hand = ElementTree.Element("robot", name=f"{robot.name}_floating_hand")
     for element in source:
         if element.tag == "link" and element.get("name") in keep:
-            for visual in element.findall("visual"):
-                element.remove(visual)
-            for mesh in element.iter("mesh"):
-                mesh.set("filename", str(robot.urdf_path.parent / mesh.get("filename").removeprefix("package://")))
-            hand.append(element)
+            hand.append(_collision_only(element, robot.urdf_path.parent))
         elif element.tag == "joint" and element.find("parent").get("link") in keep:
             hand.append(element)
-    text = ElementTree.tostring(hand, encoding="unicode")
+    return _cached_urdf(ElementTree.tostring(hand, encoding="unicode"), cache_dir, f"{robot.name}_hand")
+
+
+def collision_only_urdf(urdf_path: str | Path, cache_dir: str | Path) -> Path:
+    """``urdf_path`` without its visual geometry, mesh paths made absolute, cached in ``cache_dir``.
+
+    A world built for every grasp would otherwise parse the object's visual mesh each time (often
+    far larger than its convex hulls) for a simulation that never renders."""
+    urdf_path = Path(urdf_path)
+    root = ElementTree.parse(urdf_path).getroot()
+    for position, element in enumerate(list(root)):
+        if element.tag == "link":
+            root[position] = _collision_only(element, urdf_path.parent)
+    return _cached_urdf(ElementTree.tostring(root, encoding="unicode"), cache_dir, root.get("name", urdf_path.stem))
+
+
+def _collision_only(link: ElementTree.Element, base: Path) -> ElementTree.Element:
+    """A copy of a URDF link without visuals, its mesh file names made absolute (from ``base``)."""
+    link = copy.deepcopy(link)
+    for visual in link.findall("visual"):
+        link.remove(visual)
+    for mesh in link.iter("mesh"):
+        mesh.set("filename", str(base / mesh.get("filename").removeprefix("package://")))
+    return link
+
+
+def _cached_urdf(text: str, cache_dir: str | Path, stem: str) -> Path:
     folder = Path(cache_dir).expanduser()
-    path = folder / f"{robot.name}_hand_{hashlib.sha256(text.encode()).hexdigest()[:16]}.urdf"
+    path = folder / f"{stem}_{hashlib.sha256(text.encode()).hexdigest()[:16]}.urdf"
     if not path.is_file():
         folder.mkdir(parents=True, exist_ok=True)
         # Written beside its final name and moved there whole: concurrent labellers never read half a file.
@@ -173,6 +196,13 @@ class _HandWorld:
         self.client = pybullet.connect(pybullet.DIRECT)
         self.hand_urdf = str(floating_hand_urdf(PANDA, config.labelling.hand_urdf_cache_dir))
         self.grasp_offset_m = hand_to_grasp_target_m(PANDA.urdf_path)
+        self._object_urdfs: dict[str, str] = {}
+
+    def _object_urdf(self, spec: ObjectSpec) -> str:
+        key = str(spec.urdf_path)
+        if key not in self._object_urdfs:
+            self._object_urdfs[key] = str(collision_only_urdf(spec.urdf_path, self.config.labelling.hand_urdf_cache_dir))
+        return self._object_urdfs[key]
 
     def close(self) -> None:
         if pybullet.isConnected(self.client):
@@ -192,7 +222,7 @@ class _HandWorld:
         pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
         self.table = create_table(client, config.scene)
         try:
-            self.target = pybullet.loadURDF(str(placement.spec.urdf_path), flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
+            self.target = pybullet.loadURDF(self._object_urdf(placement.spec), flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
         except pybullet.error as exc:
             raise ObjectLoadError(f"object '{placement.spec.id}': PyBullet cannot load {placement.spec.urdf_path}: {exc}") from exc
         pybullet.resetBasePositionAndOrientation(self.target, placement.com_position_world, placement.com_quat_xyzw, physicsClientId=client)

@@ -259,3 +259,24 @@ def test_grasps_given_as_arrays_take_their_approach_from_the_orientation_and_bad
     with pytest.raises(InvalidGraspError, match="width_m"):
         label_grasps_hand(ObjectPlacement(load_object_set(None).get("025_mug"), (0.5, 0.0, 0.66), (0.0, 0.0, 0.0, 1.0)),
                           grasps_from_poses([[0.5, 0.0, 0.7]], [quat], [0.2]), Config())
+
+
+def test_an_objects_collision_only_urdf_collides_as_its_urdf_and_names_no_visual(tmp_path):
+    from sagp_batched.labelling import collision_only_urdf
+
+    spec = load_object_set(None).get("025_mug")
+    path = collision_only_urdf(spec.urdf_path, tmp_path)
+    root = ElementTree.parse(path).getroot()
+    assert not root.findall(".//visual") and root.findall(".//collision")
+    assert all(Path(mesh.get("filename")).is_absolute() and Path(mesh.get("filename")).is_file() for mesh in root.iter("mesh"))
+    assert collision_only_urdf(spec.urdf_path, tmp_path) == path, "cached by content"
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        bodies = [pybullet.loadURDF(str(p), flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client) for p in (spec.urdf_path, path)]
+        dynamics = [pybullet.getDynamicsInfo(b, -1, physicsClientId=client) for b in bodies]
+        shapes = [pybullet.getCollisionShapeData(b, -1, physicsClientId=client) for b in bodies]
+        assert dynamics[0] == dynamics[1]
+        assert [s[1:4] + s[5:] for s in shapes[0]] == [s[1:4] + s[5:] for s in shapes[1]]  # body id and file name aside
+        assert pybullet.getAABB(bodies[0], physicsClientId=client) == pybullet.getAABB(bodies[1], physicsClientId=client)
+    finally:
+        pybullet.disconnect(client)
