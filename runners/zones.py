@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+
+import numpy as np
 
 from sagp_batched.config import ConfigError, load_config
 from sagp_batched.functional_regions import region_membership
@@ -16,7 +19,71 @@ from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectE
 from sagp_batched.perception import capture
 from sagp_batched.scene import Scene
 from sagp_batched.types import PerceptionFailure
-from sagp_batched.zones import decompose, describe_zones, plot_zones
+from sagp_batched.zone_marks import PRIMARY_ZONE_RGB, PROTRUSION_RGB
+from sagp_batched.zones import GEOMETRIC_ZONES, ZONE_INDEX, ZoneDecomposition, decompose, describe_zones
+
+
+# Zone colours are the ones ``zone_marks`` draws on the rating image, so the plot and the image agree.
+_PRIMARY_COLOURS = {name: tuple(c / 255.0 for c in rgb) for name, rgb in PRIMARY_ZONE_RGB.items()}
+_PROTRUSION_COLOURS = tuple(tuple(c / 255.0 for c in rgb) for rgb in PROTRUSION_RGB)
+_SIDE_COLOURS = {("left", "front"): "tab:purple", ("left", "back"): "tab:pink", ("right", "front"): "tab:cyan", ("right", "back"): "tab:olive"}
+
+
+def plot_zones(
+    decomposition: ZoneDecomposition, path: str | Path, title: str = "", regions: dict[str, np.ndarray] | None = None
+) -> Path:
+    """Save a PNG of the cloud coloured by zone: primary zones (left panel, each protrusion in its
+    own colour) and, beside them, the object's annotated regions when ``regions`` ("functional",
+    "avoid": (N,) bool per cloud point) is given, else the side zones."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    points = decomposition.points_world.numpy()
+    figure = plt.figure(figsize=(11, 5.5))
+    primary_axes = figure.add_subplot(1, 2, 1, projection="3d")
+    right_axes = figure.add_subplot(1, 2, 2, projection="3d")
+    protrusions = decomposition.zone_names[len(GEOMETRIC_ZONES):]
+    colours = {**_PRIMARY_COLOURS, **{name: _PROTRUSION_COLOURS[k % len(_PROTRUSION_COLOURS)] for k, name in enumerate(protrusions)}}
+    for name, colour in colours.items():
+        member = (decomposition.point_zone == decomposition.zone_names.index(name)).numpy()
+        if member.any():
+            primary_axes.scatter(*points[member].T, s=2, c=colour, label=f"{name} ({int(member.sum())})")
+    if regions is not None:
+        functional, avoid = np.asarray(regions["functional"], dtype=bool), np.asarray(regions["avoid"], dtype=bool)
+        panels = {"functional region": (functional, "tab:green"), "avoid region": (avoid, "tab:red"),
+                  "elsewhere": (~functional & ~avoid, "lightgray")}
+        right_heading = "annotated regions"
+    else:
+        panels = {
+            f"{lateral}/{depth}": ((decomposition.memberships[:, ZONE_INDEX[lateral]] & decomposition.memberships[:, ZONE_INDEX[depth]]).numpy(), colour)
+            for (lateral, depth), colour in _SIDE_COLOURS.items()
+        }
+        right_heading = "side zones"
+    for label, (member, colour) in panels.items():
+        if member.any():
+            right_axes.scatter(*points[member].T, s=2, c=colour, label=f"{label} ({int(member.sum())})")
+    subtitle = f" [degenerate: {decomposition.degenerate}]" if decomposition.degenerate else ""
+    primary_heading = f"primary zones, {decomposition.split} thirds, {decomposition.protrusion_rule} protrusion rule"
+    for axes, heading in ((primary_axes, primary_heading), (right_axes, right_heading)):
+        axes.set_title(f"{title} {heading}{subtitle}".strip())
+        axes.set_xlabel("x (m)")
+        axes.set_ylabel("y (m)")
+        axes.set_zlabel("z (m)")
+        if points.shape[0]:
+            centre = points.mean(axis=0)
+            half = max(float(np.ptp(points, axis=0).max()) / 2.0, 1e-3)
+            axes.set_xlim(centre[0] - half, centre[0] + half)
+            axes.set_ylim(centre[1] - half, centre[1] + half)
+            axes.set_zlim(centre[2] - half, centre[2] + half)
+        axes.legend(loc="upper left", markerscale=4, fontsize=8)
+    figure.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+    return path
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterator
 import torch
 
 from .config import Config
-from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, SimulationChunk, object_labels, object_physics
+from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
 from .export import planner_frames_from_acronym
 from .objects import ObjectSet
 

@@ -17,7 +17,7 @@ from .types import PerceivedCloud
 from .vlm_direct import project_to_crop, scaled_crop
 from .zones import GEOMETRIC_ZONES, ZoneDecomposition
 
-# The colours of ``zones.plot_zones`` (matplotlib's tab palette), so the 3-D plot and the image agree.
+# Zone colours (matplotlib's tab palette): ``runners.zones`` plots the cloud with these too.
 PRIMARY_ZONE_RGB = {"top": (31, 119, 180), "middle": (44, 160, 44), "bottom": (255, 127, 14),
                     "wide_end": (31, 119, 180), "narrow_end": (255, 127, 14)}
 PROTRUSION_RGB = ((214, 39, 40), (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34))

@@ -8,6 +8,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from runners.zones import plot_zones
 from sagp_batched.config import ZonesConfig
 from sagp_batched.zones import (
     UNZONED,
@@ -16,7 +17,6 @@ from sagp_batched.zones import (
     ZoneInputError,
     decompose,
     describe_zones,
-    plot_zones,
 )
 from sagp_batched_kernels import zones as zone_kernels
 
