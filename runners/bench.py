@@ -6,6 +6,9 @@
 
 ``--threads 1,2`` times the planner and the IK at each torch thread count in turn, in one run, so
 figures for one core and for several compare on the same clouds and targets.
+
+``--batch-sizes 1,4,16`` times, per batch size B, B single plans against one ``plan_batch`` on the
+same B clouds (at the first thread count), per cloud and per stage; 0 or empty (the default) skips it.
 """
 from __future__ import annotations
 
@@ -88,23 +91,7 @@ def main(argv: list[str] | None = None) -> int:
             _print_ik(ik[-1])
     configure_torch(thread_counts[0])
     print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
-    plan_batch_rows = None
-    if batch_sizes:
-        batch_ids = args.batch_objects.split(",") if args.batch_objects else list(object_set.ids)[: max(batch_sizes)]
-        batch_clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in batch_ids]
-        plan_batch_rows = benchmark_plan_batch(
-            batch_clouds, config.override("planner", n_pairs=args.batch_pairs), tuple(batch_sizes), args.repeats
-        )
-        for row in plan_batch_rows:
-            stages = " ".join(
-                f"{stage}={row['singles_stage_per_cloud_s'][stage] * 1e3:.1f}/{row['batch_stage_per_cloud_s'][stage] * 1e3:.1f}ms"
-                for stage in row["singles_stage_per_cloud_s"]
-            )
-            print(
-                f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} threads={thread_counts[0]}: singles {row['singles_per_cloud_s'] * 1e3:.1f} "
-                f"ms/cloud, batch {row['batch_per_cloud_s'] * 1e3:.1f} ms/cloud, ratio {row['ratio']:.2f} | per cloud, singles/batch: {stages}",
-                flush=True,
-            )
+    plan_batch_rows = _plan_batch_section(args, batch_sizes, config, object_set, settings, thread_counts[0]) if batch_sizes else None
     world = None
     if args.world_runs > 0:
         world = benchmark_world(object_set.get(args.world_object), config, args.world_runs)
@@ -140,6 +127,24 @@ def _thread_counts(parser: argparse.ArgumentParser, text: str) -> list[int]:
     if not counts or min(counts) < 1:
         parser.error(f"--threads takes positive whole numbers separated by commas, got {text!r}")
     return counts
+
+
+def _plan_batch_section(args: argparse.Namespace, batch_sizes: list[int], config, object_set, settings: BenchmarkSettings, threads: int) -> list[dict]:
+    """``benchmark_plan_batch`` on the --batch-objects clouds, one printed line per batch size."""
+    batch_ids = args.batch_objects.split(",") if args.batch_objects else list(object_set.ids)[: max(batch_sizes)]
+    clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in batch_ids]
+    rows = benchmark_plan_batch(clouds, config.override("planner", n_pairs=args.batch_pairs), tuple(batch_sizes), args.repeats)
+    for row in rows:
+        stages = " ".join(
+            f"{stage}={row['singles_stage_per_cloud_s'][stage] * 1e3:.1f}/{row['batch_stage_per_cloud_s'][stage] * 1e3:.1f}ms"
+            for stage in row["singles_stage_per_cloud_s"]
+        )
+        print(
+            f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} threads={threads}: singles {row['singles_per_cloud_s'] * 1e3:.1f} "
+            f"ms/cloud, batch {row['batch_per_cloud_s'] * 1e3:.1f} ms/cloud, ratio {row['ratio']:.2f} | per cloud, singles/batch: {stages}",
+            flush=True,
+        )
+    return rows
 
 
 def _batch_sizes(parser: argparse.ArgumentParser, text: str) -> list[int]:
