@@ -126,6 +126,45 @@ def _coordinate_scale(*tensors: torch.Tensor) -> float:
     return max((float(t.nan_to_num().abs().amax()) for t in tensors if t.numel()), default=0.0)
 
 
+def scene_extents(points: torch.Tensor) -> torch.Tensor:
+    """(B,) int64 rows of each of (B, N, 3) ``points``' scenes up to its last row without NaN: the
+    rows after it are padding, whose separation is inf, so a scene's points end there."""
+    if points.shape[1] == 0:
+        return torch.zeros(points.shape[0], dtype=torch.int64)
+    valid = ~points.isnan().any(dim=-1)
+    return (valid * torch.arange(1, points.shape[1] + 1)).amax(dim=1)
+
+
+def row_blocks(scene: torch.Tensor, width: torch.Tensor, budget: int) -> list[tuple[int, int, int]]:
+    """Consecutive ranges (start, end, width) of rows of scenes (R,) ``scene``, each as many rows
+    as ``budget`` elements allow at the widest of their scenes' (B,) ``width`` (one row at least),
+    with that width: rows of a narrow scene take the rows of a wide one's budget.
+
+    Walks the runs of equal scenes (a scene-sorted batch's few) in Python integers, not the rows."""
+    if scene.numel() == 0:
+        return []
+    run_scene, run_length = torch.unique_consecutive(scene, return_counts=True)
+    blocks, start, rows, block_width = [], 0, 0, 0
+    for run_width, count in zip(width[run_scene].tolist(), run_length.tolist()):
+        while count:
+            wider = max(block_width, run_width)
+            room = max(1, budget // max(1, wider)) - rows
+            if room <= 0:
+                blocks.append((start, start + rows, block_width))
+                start, rows, block_width = start + rows, 0, 0
+                continue
+            taken = min(count, room)
+            rows, count, block_width = rows + taken, count - taken, wider
+    blocks.append((start, start + rows, block_width))
+    return blocks
+
+
+def _probe_width(extent: int) -> tuple[int, int]:
+    """The probe runs of a block whose scenes hold up to ``extent`` probe points, and their length."""
+    n_runs = min(PROBE_RUNS, extent)
+    return n_runs, (-(-extent // n_runs) if n_runs else 0)
+
+
 def hand_clearance(
     points: torch.Tensor,
     probe_points: torch.Tensor,
@@ -158,6 +197,11 @@ def hand_clearance(
         ``HandClearance`` of (C,) tensors; every separation it reports is the exhaustive
         computation's for that point, bit for bit, so ``blocked`` is exactly "some point of
         ``points`` is under the margin".
+
+    Each block of candidates takes its scenes' points up to their last real one
+    (``scene_extents``), not the padding up to the largest scene's: a batch of scenes of 250 to
+    2,000 points would otherwise sweep each candidate over the largest. A block's probes are the
+    runs of its scenes' probes so cut, so a scene's candidates probe alike alone and in a batch.
     """
     if points.ndim != 3 or points.shape[-1] != 3 or probe_points.ndim != 3 or probe_points.shape[-1] != 3:
         raise ValueError(f"points and probe_points must be (B, N, 3), got {tuple(points.shape)} and {tuple(probe_points.shape)}")
@@ -165,37 +209,44 @@ def hand_clearance(
         raise ValueError(f"rotation must be (C, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
     if low.shape != high.shape or low.shape[1] != directions.shape[0] or directions.shape[0] < 3:
         raise ValueError(f"low and high must be (S, D) with D = {directions.shape[0]} >= 3, got {tuple(low.shape)} and {tuple(high.shape)}")
-    n_candidates, n_points = centre.shape[0], points.shape[1]
+    n_candidates = centre.shape[0]
     middle = ((low + high) / 2)[:, :, None, None]  # (S, D, 1, 1)
     half = ((high - low) / 2)[:, :, None, None]
     axes = directions @ rotation.transpose(-1, -2)  # (C, D, 3): u_d^T R^T
     clearance = torch.full((n_candidates,), float("inf"))
-    n_runs = min(PROBE_RUNS, probe_points.shape[1])
-    step = max(1, chunk_elements // max(1, low.numel() * n_points))
-    if n_runs:
+    probe_extent = scene_extents(probe_points)
+    # Probe blocks are sized by the probes' own bound tensor, at their runs' padded width.
+    n_runs = probe_extent.clamp_max(PROBE_RUNS)
+    padded_extent = n_runs * torch.where(n_runs > 0, -(-probe_extent // n_runs.clamp_min(1)), 0)
+    probe_budget = min(chunk_elements, PROBE_BLOCK_ELEMENTS) // max(1, low.shape[0] * 3)
+    for start, end, _ in row_blocks(object_index, padded_extent, probe_budget):
+        block = slice(start, end)
+        scene, block_axes = object_index[block], axes[block, :3]
+        n_runs, run_length = _probe_width(int(probe_extent[scene].max()))
+        if not n_runs:
+            continue
         # NaN padding to whole runs: its bound is inf, and a run of padding alone gives an inf separation.
-        run_length = -(-probe_points.shape[1] // n_runs)
-        probe_points = torch.nn.functional.pad(probe_points, (0, 0, 0, n_runs * run_length - probe_points.shape[1]), value=float("nan"))
-        # The probes of every candidate first, in blocks sized by the probes' own bound tensor.
-        probe_step = max(1, min(chunk_elements, PROBE_BLOCK_ELEMENTS) // max(1, low.shape[0] * 3 * probe_points.shape[1]))
-        for start in range(0, n_candidates, probe_step):
-            block = slice(start, min(start + probe_step, n_candidates))
-            scene, block_axes = object_index[block], axes[block, :3]
-            # From world coordinates like the point pass: the bound only picks which probes are
-            # evaluated, and each evaluated probe's separation is exact whichever are picked.
-            picked = _least_per_run(_bound_from_world(probe_points, scene, block_axes, centre[block], middle, half), n_runs)
-            probe = probe_points[scene[:, None], picked] - centre[block, None, :]  # (c, runs, 3)
-            clearance[block] = _separation(probe, axes[block], middle, half).amin(dim=1)
+        block_probes = torch.nn.functional.pad(
+            probe_points[:, : min(n_runs * run_length, probe_points.shape[1])], (0, 0, 0, max(0, n_runs * run_length - probe_points.shape[1])),
+            value=float("nan"),
+        )
+        # From world coordinates like the point pass: the bound only picks which probes are
+        # evaluated, and each evaluated probe's separation is exact whichever are picked.
+        picked = _least_per_run(_bound_from_world(block_probes, scene, block_axes, centre[block], middle, half), n_runs)
+        probe = block_probes[scene[:, None], picked] - centre[block, None, :]  # (c, runs, 3)
+        clearance[block] = _separation(probe, axes[block], middle, half).amin(dim=1)
     slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
     # The rest only where the probes left the gripper clear, in blocks of those candidates; there
     # only points whose bound is under the probes' clearance can block it or lower that clearance.
     open_rows = (clearance >= margin_m).nonzero().squeeze(1)
-    for start in range(0, open_rows.numel(), step):
-        rows = open_rows[start:start + step]
+    extent = scene_extents(points)
+    for start, end, width in row_blocks(object_index[open_rows], extent, chunk_elements // max(1, low.numel())):
+        rows = open_rows[start:end]
         scene, row_axes = object_index[rows], axes[rows]
-        candidates = _bound_from_world(points, scene, row_axes[:, :3], centre[rows], middle, half) - slack_m < clearance[rows, None]
+        block_points = points[:, :width]
+        candidates = _bound_from_world(block_points, scene, row_axes[:, :3], centre[rows], middle, half) - slack_m < clearance[rows, None]
         per_row = candidates.sum(dim=1)
         if int(per_row.max()):
-            found = _separation(_compacted(points, scene, centre[rows], candidates, per_row), row_axes, middle, half).amin(dim=1)
+            found = _separation(_compacted(block_points, scene, centre[rows], candidates, per_row), row_axes, middle, half).amin(dim=1)
             clearance[rows] = torch.minimum(clearance[rows], found)
     return HandClearance(clearance < margin_m, clearance)

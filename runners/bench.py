@@ -2,9 +2,13 @@
 
     python -m runners.bench --json OUT.json [--objects 025_mug,003_cracker_box] [--pairs 5000,50000,500000]
         [--repeats 5] [--ik-targets 2000] [--ik-unreachable 200] [--objects-dir DIR] [--cache-dir DIR] [--threads 1[,2]]
+        [--batch-sizes 1,4,16] [--batch-objects ID,...] [--batch-pairs 5000]
 
 ``--threads 1,2`` times the planner and the IK at each torch thread count in turn, in one run, so
 figures for one core and for several compare on the same clouds and targets.
+
+``--batch-sizes 1,4,16`` times, per batch size B, B single plans against one ``plan_batch`` on the
+same B clouds (at the first thread count), per cloud and per stage; 0 or empty (the default) skips it.
 """
 from __future__ import annotations
 
@@ -17,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from sagp_batched.benchmark import BenchmarkSettings, benchmark_ik, benchmark_object, benchmark_world, mesh_cloud
+from sagp_batched.benchmark import BenchmarkSettings, benchmark_ik, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud
 from sagp_batched.config import load_config
 from sagp_batched.objects import embedded_ycb_dir, load_object_set
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
@@ -48,8 +52,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", default=str(DEFAULT_TORCH_THREADS), help="comma-separated torch thread counts, each timed in turn")
     parser.add_argument("--world-object", default="005_tomato_soup_can", help="object of the PyBullet timing runs")
     parser.add_argument("--world-runs", type=int, default=20, help="trials timed in PyBullet (reset, capture, plan, attempt); 0 skips")
+    parser.add_argument("--batch-sizes", default="", help="comma-separated batch sizes B: B single plans against one plan_batch; 0 or empty skips")
+    parser.add_argument("--batch-objects", default=None, help="comma-separated YCB ids the batches cycle through (default: the set's first, as many as the largest B)")
+    parser.add_argument("--batch-pairs", type=int, default=5000, help="sampled pairs per cloud in the batch comparison")
     args = parser.parse_args(argv)
     thread_counts = _thread_counts(parser, args.threads)
+    batch_sizes = _batch_sizes(parser, args.batch_sizes)
 
     configure_torch(thread_counts[0])
     config = load_config(args.profile)
@@ -83,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
             _print_ik(ik[-1])
     configure_torch(thread_counts[0])
     print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
+    plan_batch_rows = _plan_batch_section(args, batch_sizes, config, object_set, settings, thread_counts[0]) if batch_sizes else None
     world = None
     if args.world_runs > 0:
         world = benchmark_world(object_set.get(args.world_object), config, args.world_runs)
@@ -95,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         "results": results,
         "ik": ik,
         "world": world,
+        "plan_batch": None if plan_batch_rows is None else {"threads": thread_counts[0], "rows": plan_batch_rows},
         "provenance": {
             "torch": torch.__version__,
             "threads": thread_counts,
@@ -117,6 +127,36 @@ def _thread_counts(parser: argparse.ArgumentParser, text: str) -> list[int]:
     if not counts or min(counts) < 1:
         parser.error(f"--threads takes positive whole numbers separated by commas, got {text!r}")
     return counts
+
+
+def _plan_batch_section(args: argparse.Namespace, batch_sizes: list[int], config, object_set, settings: BenchmarkSettings, threads: int) -> list[dict]:
+    """``benchmark_plan_batch`` on the --batch-objects clouds, one printed line per batch size."""
+    batch_ids = args.batch_objects.split(",") if args.batch_objects else list(object_set.ids)[: max(batch_sizes)]
+    clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in batch_ids]
+    rows = benchmark_plan_batch(clouds, config.override("planner", n_pairs=args.batch_pairs), tuple(batch_sizes), args.repeats)
+    for row in rows:
+        stages = " ".join(
+            f"{stage}={row['singles_stage_per_cloud_s'][stage] * 1e3:.1f}/{row['batch_stage_per_cloud_s'][stage] * 1e3:.1f}ms"
+            for stage in row["singles_stage_per_cloud_s"]
+        )
+        print(
+            f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} threads={threads}: singles {row['singles_per_cloud_s'] * 1e3:.1f} "
+            f"ms/cloud, batch {row['batch_per_cloud_s'] * 1e3:.1f} ms/cloud, ratio {row['ratio']:.2f} | per cloud, singles/batch: {stages}",
+            flush=True,
+        )
+    return rows
+
+
+def _batch_sizes(parser: argparse.ArgumentParser, text: str) -> list[int]:
+    if text.strip() in ("", "0"):
+        return []
+    try:
+        sizes = [int(part) for part in text.split(",")]
+    except ValueError:
+        sizes = []
+    if not sizes or min(sizes) < 1:
+        parser.error(f"--batch-sizes takes positive whole numbers separated by commas (0 or empty skips), got {text!r}")
+    return sizes
 
 
 def _print_ik(ik: dict) -> None:

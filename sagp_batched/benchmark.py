@@ -24,7 +24,7 @@ from ._open3d import o3d
 from .config import Config
 from .ik import PandaIK, link_moved_by
 from .objects import ObjectSpec
-from .planner import plan
+from .planner import plan, plan_batch
 from .reference import plan_reference
 from .robot import PANDA
 from .types import PerceivedCloud
@@ -117,6 +117,58 @@ def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkS
                 "stage_median_s": {stage: _median(values) for stage, values in stages.items()},
                 "ik_targets_median": _median(ik_targets),
                 "counts_last_repeat": counts,
+            }
+        )
+    return rows
+
+
+def benchmark_plan_batch(
+    clouds: list[PerceivedCloud], config: Config, batch_sizes: tuple[int, ...] = (1, 4, 16), repeats: int = 5
+) -> list[dict[str, Any]]:
+    """Per batch size B, B single ``plan`` calls against one ``plan_batch`` call on the same B clouds.
+
+    Cloud i of a batch is ``clouds[i % len(clouds)]`` with seed i, in both. Each repeat times the
+    singles and then the batch, so a load that drifts over the run weighs on both alike. Returns per
+    B the medians over ``repeats`` of the seconds per cloud of each (``singles_per_cloud_s``,
+    ``batch_per_cloud_s``), their ``ratio`` (batch over singles), and per stage (``STAGES``) the
+    medians of the stage's seconds per cloud, summed over the singles (``singles_stage_per_cloud_s``)
+    and in the batch (``batch_stage_per_cloud_s``).
+    """
+    rows = []
+    for batch_size in batch_sizes:
+        batch = [clouds[index % len(clouds)] for index in range(batch_size)]
+        seeds = list(range(batch_size))
+        plan_batch(batch, config, seeds)  # warm-up: IK chain build, allocator
+        singles, batched = [], []
+        singles_stages, batch_stages = {stage: [] for stage in STAGES}, {stage: [] for stage in STAGES}
+        for _ in range(repeats):
+            stage_sums = dict.fromkeys(STAGES, 0.0)
+            start = time.perf_counter()
+            for cloud, seed in zip(batch, seeds):
+                timings: dict[str, float] = {}
+                plan(cloud, config, seed=seed, timings=timings)
+                for stage in STAGES:
+                    stage_sums[stage] += timings[stage]
+            singles.append((time.perf_counter() - start) / batch_size)
+            timings = {}
+            start = time.perf_counter()
+            plan_batch(batch, config, seeds, timings=timings)
+            batched.append((time.perf_counter() - start) / batch_size)
+            for stage in STAGES:
+                singles_stages[stage].append(stage_sums[stage] / batch_size)
+                batch_stages[stage].append(timings[stage] / batch_size)
+        singles_s, batch_s = _median(singles), _median(batched)
+        rows.append(
+            {
+                "batch_size": batch_size,
+                "objects": [cloud.object_id for cloud in batch],
+                "pairs": config.planner.n_pairs,
+                "repeats": repeats,
+                "singles_per_cloud_s": singles_s,
+                "batch_per_cloud_s": batch_s,
+                "ratio": batch_s / singles_s,
+                "singles_stage_per_cloud_s": {stage: _median(values) for stage, values in singles_stages.items()},
+                "batch_stage_per_cloud_s": {stage: _median(values) for stage, values in batch_stages.items()},
             }
         )
     return rows

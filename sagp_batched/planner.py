@@ -787,48 +787,54 @@ def _window_with_verdicts(
 def _planned_candidates(
     screened: ScreenedCandidates, search: _CandidateSearch, motions: _MotionVerdicts, n_objects: int, config: Config
 ) -> list[GraspCandidates]:
-    """One ``GraspCandidates`` per object: its first ``max_candidates`` feasible candidates, with counts."""
+    """One ``GraspCandidates`` per object: its first ``max_candidates`` feasible candidates, with counts.
+
+    Every object's kept candidates and counts are gathered at once and then cut into objects:
+    masking all candidates once per object grew as objects times candidates."""
     planner = config.planner
     candidate_object = screened.object_index
     feasible = search.status == FEASIBLE
     collision_free = search.screened & search.usable.any(dim=1)
     rank_in_object = _segment_exclusive_cumsum(feasible.to(torch.int64), candidate_object, n_objects)
-    keep = feasible & (rank_in_object < planner.max_candidates)
-    final_slot = search.cursor.clamp_max(search.usable.shape[1] - 1)
+    kept = (feasible & (rank_in_object < planner.max_candidates)).nonzero().squeeze(1)  # by object, then rank
+    slot = search.cursor[kept].clamp_max(search.usable.shape[1] - 1)
+    approach, rotation = screened.frames(kept, slot)
+    joint_path, s_reach = motions.kept(kept, slot)
+    per_object = torch.bincount(candidate_object[kept], minlength=n_objects).tolist()
+    fields = {
+        "contacts_world": screened.contacts_world[kept],
+        "closing_axis": screened.closing_axis[kept],
+        "width_m": screened.width_m[kept],
+        "s_geom": screened.s_geom[kept],
+        "approach": approach,
+        "rotation_world": rotation,
+        "s_reach": s_reach,
+        "ik_solution": joint_path[:, grasp_waypoint_index(config.execution)],
+        "joint_path": joint_path,
+        "hand_clearance_m": search.clearance_m[kept, slot],
+    }
+    # Each object's rows as tensors of their own (clones of the cut), not views of the batch's.
+    parts = {name: [part.clone() for part in values.split(per_object)] for name, values in fields.items()}
+
+    def per_object_count(mask: torch.Tensor) -> list[int]:
+        return torch.bincount(candidate_object[mask], minlength=n_objects).tolist()
+
+    every = torch.ones_like(feasible)
+    counted = {"antipodal": per_object_count(every), "collision_free": per_object_count(collision_free), "ik_feasible": per_object_count(feasible)}
+    rejected = torch.zeros(n_objects, search.rejected.shape[1], dtype=torch.int64).index_add_(0, candidate_object, search.rejected).T.tolist()
+    counted.update({f"rejected_{stage}": rejected[column] for column, stage in enumerate(("hand", *MotionCheck.STAGES))})
     results = []
-    for index in range(n_objects):
-        mine = (keep & (candidate_object == index)).nonzero().squeeze(1)
-        slot = final_slot[mine]
-        approach, rotation = screened.frames(mine, slot)
-        joint_path, s_reach = motions.kept(mine, slot)
-        zeros = torch.zeros(mine.numel())
+    for index, n_kept in enumerate(per_object):
+        zeros = torch.zeros(n_kept)
         results.append(
             GraspCandidates(
-                contacts_world=screened.contacts_world[mine],
-                closing_axis=screened.closing_axis[mine],
-                width_m=screened.width_m[mine],
-                s_geom=screened.s_geom[mine],
-                approach=approach,
-                rotation_world=rotation,
-                s_reach=s_reach,
-                ik_solution=joint_path[:, grasp_waypoint_index(config.execution)],
-                joint_path=joint_path,
-                hand_clearance_m=search.clearance_m[mine, slot],
-                zone=torch.full((mine.numel(),), -1, dtype=torch.int64),
+                **{name: values[index] for name, values in parts.items()},
+                zone=torch.full((n_kept,), -1, dtype=torch.int64),
                 s_afford=zeros.clone(),
                 s_avoid=zeros.clone(),
                 s_task=zeros.clone(),
-                score=screened.s_geom[mine].clone(),
-                counts={
-                    "sampled": planner.n_pairs,
-                    "antipodal": int((candidate_object == index).sum()),
-                    "collision_free": int((collision_free & (candidate_object == index)).sum()),
-                    "ik_feasible": int((feasible & (candidate_object == index)).sum()),
-                    **{
-                        f"rejected_{stage}": int(search.rejected[candidate_object == index, column].sum())
-                        for column, stage in enumerate(("hand", *MotionCheck.STAGES))
-                    },
-                },
+                score=parts["s_geom"][index].clone(),
+                counts={"sampled": planner.n_pairs, **{name: values[index] for name, values in counted.items()}},
             )
         )
     return results

@@ -77,3 +77,42 @@ def test_dataset_bench_refuses_an_unknown_object_in_one_line(tmp_path):
     done = subprocess.run([sys.executable, "-m", "runners.bench_dataset", "--json", str(tmp_path / "x.json"), "--object", "no_such"],
                           cwd=REPO, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith("error:") and "no_such" in done.stderr
+
+
+def test_bench_compares_single_plans_with_one_plan_batch_per_batch_size(tmp_path, ycb_dir):
+    out = tmp_path / "bench.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench", "--json", str(out), "--objects", "005_tomato_soup_can", "--pairs", "200",
+         "--repeats", "1", "--reference-max-pairs", "0", "--ik-targets", "0", "--world-runs", "0", "--batch-sizes", "1,2",
+         "--batch-objects", "003_cracker_box,005_tomato_soup_can", "--batch-pairs", "200",
+         "--objects-dir", str(ycb_dir), "--cache-dir", str(tmp_path / "clouds")],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    section = json.loads(out.read_text())["plan_batch"]
+    assert section["threads"] == 1
+    assert [row["batch_size"] for row in section["rows"]] == [1, 2]
+    assert section["rows"][1]["objects"] == ["003_cracker_box", "005_tomato_soup_can"] and section["rows"][1]["pairs"] == 200
+    for row in section["rows"]:
+        assert row["singles_per_cloud_s"] > 0 and row["batch_per_cloud_s"] > 0 and row["ratio"] > 0
+        for stages in (row["singles_stage_per_cloud_s"], row["batch_stage_per_cloud_s"]):
+            assert set(stages) == {"sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion"}
+            assert all(seconds > 0 for seconds in stages.values())
+    assert "plan_batch B= 1 pairs=200" in done.stdout and "plan_batch B= 2 pairs=200" in done.stdout
+
+
+def test_bench_skips_the_batch_comparison_by_default_and_rejects_a_bad_batch_size(tmp_path, ycb_dir):
+    out = tmp_path / "bench.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench", "--json", str(out), "--objects", "005_tomato_soup_can", "--pairs", "200",
+         "--repeats", "1", "--reference-max-pairs", "0", "--ik-targets", "0", "--world-runs", "0", "--batch-sizes", "0",
+         "--objects-dir", str(ycb_dir), "--cache-dir", str(tmp_path / "clouds")],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads(out.read_text())["plan_batch"] is None and "plan_batch B=" not in done.stdout
+    bad = subprocess.run(
+        [sys.executable, "-m", "runners.bench", "--json", str(tmp_path / "bad.json"), "--batch-sizes", "4,x"],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )
+    assert bad.returncode == 2 and "--batch-sizes takes positive whole numbers" in bad.stderr

@@ -5,7 +5,7 @@ from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS
 from sagp_batched.planner import hand_geometry
 from sagp_batched_kernels.grasp_frames import scene_points_about
-from sagp_batched_kernels.hand_clearance import _compacted, _least_per_run, hand_clearance
+from sagp_batched_kernels.hand_clearance import _compacted, _least_per_run, hand_clearance, row_blocks, scene_extents
 
 CONFIG = Config()
 
@@ -90,3 +90,23 @@ def test_any_probe_subset_gives_the_exact_verdicts_and_unblocked_clearances(prob
     swept = hand_clearance(points, points[:, ::probe_stride], object_index, centre, rotation, DOP_DIRECTIONS, low, high, 0.003,
                            20 * low.numel() * 300)
     _assert_meets_the_contract(swept, _dense_separation(points, object_index, centre, rotation, DOP_DIRECTIONS, low, high), 0.003)
+
+
+def test_scene_extents_end_each_scene_at_its_last_row_without_nan():
+    points = torch.zeros(3, 5, 3)
+    points[0, 3:] = float("nan")
+    points[1, 1:4, 2] = float("nan")  # NaN rows inside a scene are its own, the last real row ends it
+    points[2] = float("nan")
+    assert scene_extents(points).tolist() == [3, 5, 0]
+
+
+def test_row_blocks_cover_the_rows_in_order_within_the_budget_at_each_blocks_widest_scene():
+    scene = torch.tensor([0] * 7 + [1] * 3 + [2] * 9 + [0] * 2)
+    width = torch.tensor([10, 40, 5])
+    blocks = row_blocks(scene, width, 60)
+    assert [start for start, _, _ in blocks] == [0] + [end for _, end, _ in blocks[:-1]] and blocks[-1][1] == scene.numel()
+    for start, end, block_width in blocks:
+        assert block_width == int(width[scene[start:end]].max()) and (end - start) * block_width <= 60
+    # A row wider than the whole budget still gets a block of its own.
+    assert row_blocks(torch.tensor([1, 1]), width, 30) == [(0, 1, 40), (1, 2, 40)]
+    assert row_blocks(torch.zeros(0, dtype=torch.int64), width, 60) == []

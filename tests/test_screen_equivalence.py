@@ -6,6 +6,7 @@ only on poses that clear the table, and ``plan_batch`` screens candidates ahead 
 blocks; each is compared here with the plain definition: every point, every pose, one window
 round at a time.
 """
+import dataclasses
 import math
 from dataclasses import replace
 
@@ -259,3 +260,30 @@ def test_volumes_counted_only_where_the_table_is_clear_give_the_verdicts_of_coun
     expected = clear_of_table & under_limit
     assert torch.equal(screened.table_and_volume_ok(rows), expected)
     assert expected.any() and not expected.all() and (clear_of_table & ~under_limit).any()
+
+
+def assert_identical_candidates(got, expected) -> None:
+    """Every tensor field (and the counts and zone names) equal, bit for bit, dtypes included."""
+    assert got.counts == expected.counts and got.zone_names == expected.zone_names
+    for field in dataclasses.fields(expected):
+        value, reference = getattr(got, field.name), getattr(expected, field.name)
+        if isinstance(reference, torch.Tensor):
+            assert value.dtype == reference.dtype and torch.equal(value, reference), field.name
+        else:
+            assert value == reference, field.name
+
+
+def test_each_cloud_of_a_batch_is_planned_as_it_is_alone(ycb_clouds):
+    """``plan_batch`` over clouds of different sizes and kinds (mug, box, can, with and without an
+    obstacle beside them, a grid box) gives each cloud the plan ``plan`` gives it alone with its
+    seed, every tensor bit for bit; and a batch of one is ``plan``."""
+    names = [*OBJECTS, "mug beside the can", "box beside the mug", "grid box"]
+    clouds, seeds = [ycb_clouds[name] for name in names], [7, 1, 4, 2, 5, 3]
+    config = CONFIG.override("planner", n_pairs=3000)
+    batched = plan_batch(clouds, config, seeds)
+    for cloud, seed, result in zip(clouds, seeds, batched, strict=True):
+        assert_identical_candidates(result, planner.plan(cloud, config, seed=seed))
+    (alone,) = plan_batch(clouds[-1:], config, seeds[-1:])
+    assert_identical_candidates(alone, planner.plan(clouds[-1], config, seed=seeds[-1]))
+    # Full plans, short ones and an empty one (the mug at this seed) alike.
+    assert sum(len(result) > 0 for result in batched) >= 4 and len({len(result) for result in batched}) > 2
