@@ -49,7 +49,7 @@ def plot_zones(
     for name, colour in colours.items():
         member = (decomposition.point_zone == decomposition.zone_names.index(name)).numpy()
         if member.any():
-            primary_axes.scatter(*points[member].T, s=2, c=colour, label=f"{name} ({int(member.sum())})")
+            primary_axes.scatter(*points[member].T, s=2, color=colour, label=f"{name} ({int(member.sum())})")
     if regions is not None:
         functional, avoid = np.asarray(regions["functional"], dtype=bool), np.asarray(regions["avoid"], dtype=bool)
         panels = {"functional region": (functional, "tab:green"), "avoid region": (avoid, "tab:red"),
@@ -63,7 +63,7 @@ def plot_zones(
         right_heading = "side zones"
     for label, (member, colour) in panels.items():
         if member.any():
-            right_axes.scatter(*points[member].T, s=2, c=colour, label=f"{label} ({int(member.sum())})")
+            right_axes.scatter(*points[member].T, s=2, color=colour, label=f"{label} ({int(member.sum())})")
     subtitle = f" [degenerate: {decomposition.degenerate}]" if decomposition.degenerate else ""
     primary_heading = f"primary zones, {decomposition.split} thirds, {decomposition.protrusion_rule} protrusion rule"
     for axes, heading in ((primary_axes, primary_heading), (right_axes, right_heading)):
