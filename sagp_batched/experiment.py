@@ -117,6 +117,11 @@ class TrialRunner:
                 if method not in recorded:
                     result.records.append(TrialRecord.build(spec, unit, method, self.config, error=message,
                                                             traceback=traceback.format_exc(limit=8)))
+        # The images are in ``result.files`` as PNG once encoded; the raw arrays would only be carried back to
+        # the driver for nothing (a record never writes them).
+        for record in result.records:
+            for attempt in record.executed.attempts if record.executed is not None else ():
+                attempt.details.pop("frames", None)
         return result
 
     def _distractors_for(self, unit: TrialUnit) -> list[ObjectSpec]:

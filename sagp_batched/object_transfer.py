@@ -13,7 +13,7 @@ Files keep their layout below the objects root that ``export.objects_root`` find
 Objects inside ``pybullet_data`` are named by their path there instead: every worker has that folder, since
 PyBullet ships it, and the checksum check catches a worker whose copy differs.
 
-On Ray, ``put_objects`` places the pack in the object store once; each actor receives it by reference.
+On Ray the driver places the pack in the object store once (``ray.put``) and hands each actor the reference.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ import tempfile
 import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Iterable
 
 import pybullet_data
 
@@ -243,21 +243,12 @@ def materialise(packed: PackedObjects, cache_dir: str | Path | None = None) -> O
     objects = ObjectSet(packed.source, specs, list(packed.skipped))
     checksum = objects.checksum()
     if checksum != packed.checksum:
-        raise ObjectTransferError(f"the objects materialised in {directory} do not match the driver's "
-                                  f"(checksum {checksum[:12]}, the driver's {packed.checksum[:12]}): pybullet_data differs?")
+        raise ObjectTransferError(
+            f"the objects materialised in {directory} are not the driver's (checksum {checksum[:12]}, the driver's "
+            f"{packed.checksum[:12]}): a pybullet_data object differs from the driver's, or a URDF changed while it was packed")
     return objects
 
 
 def materialised_dir(packed: PackedObjects, cache_dir: str | Path | None = None) -> Path:
     """Where ``materialise`` puts ``packed``'s files on this machine."""
     return transfer_dir(cache_dir) / packed.checksum
-
-
-def put_objects(objects: ObjectSet, ids: Iterable[str] | None = None) -> Any:
-    """``pack_objects`` placed once in Ray's object store; returns its ``ray.ObjectRef``.
-
-    The object store, not a runtime_env ``working_dir``: a working_dir is zipped and uploaded per job with a
-    size cap and lands in a per-job folder, where a pack is sent once and fetched by each node that needs it."""
-    import ray
-
-    return ray.put(pack_objects(objects, ids))

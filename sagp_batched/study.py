@@ -4,6 +4,11 @@ Long runs lose nothing: each finished record is appended to ``trials.jsonl`` and
 (``run_directory``); a re-run into the same directory skips finished records and runs again the
 trials whose line was torn or invalid, and those that ended in an error unless ``run.keep_errors``;
 a unit that raises or times out is recorded with its error.
+
+Only the driver writes the run directory, whichever backend runs the units: a unit comes back with
+its records and the contents of the files they name, and the driver writes the files (whole, by
+rename) before the records, so a resume never finds a record whose file is missing. Each worker
+process reports its resident memory after every unit; the driver appends it to ``workers.jsonl``.
 """
 from __future__ import annotations
 
@@ -192,8 +197,7 @@ class _RayTrialRunner:
         return self.worker.run_unit(unit)
 
 
-def _run_ray(config: Config, objects: ObjectSet, units: list[TrialUnit], finish: Finish) -> None:
-    from .object_transfer import put_objects
+def _run_ray(config: Config, packed: PackedObjects, units: list[TrialUnit], finish: Finish) -> None:
     from .runtime import ray_session
 
     if not units:
@@ -202,7 +206,9 @@ def _run_ray(config: Config, objects: ObjectSet, units: list[TrialUnit], finish:
         import ray
         from ray.util import ActorPool
 
-        packed_ref = put_objects(objects, objects_used(objects, units))
+        # The object store, not a runtime_env working_dir: a working_dir is zipped and uploaded per job under a
+        # size cap, where one put is fetched by each node that runs an actor.
+        packed_ref = ray.put(packed)
         actor = ray.remote(num_cpus=1)(_RayTrialRunner)
         pool = ActorPool([actor.remote(config.to_dict(), packed_ref) for _ in range(config.run.workers)])
         try:
@@ -255,16 +261,24 @@ def run_study(
     error records run again)."""
     out_dir = Path(config.run.out).expanduser()
     units = plan_units(config, objects, methods)
+    packed = None
+    if config.run.backend == "ray":
+        from . import object_transfer
+
+        # Read before anything is written: a file that cannot be packed stops the run with no run directory made.
+        packed = object_transfer.pack_objects(objects, objects_used(objects, units))
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"cannot create the run directory {out_dir}: {exc.strerror or exc}") from exc
     with RunLock(out_dir):
-        return _run_locked(config, objects, methods, units, out_dir, objects_dir, progress, not_run or {}, on_note or (lambda note: None))
+        return _run_locked(config, objects, methods, units, out_dir, objects_dir, packed, progress, not_run or {},
+                           on_note or (lambda note: None))
 
 
 def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], units: list[TrialUnit], out_dir: Path,
-                objects_dir: str | None, progress: bool, not_run: dict[str, str], on_note: Callable[[str], None]) -> StudyResult:
+                objects_dir: str | None, packed: PackedObjects | None, progress: bool, not_run: dict[str, str],
+                on_note: Callable[[str], None]) -> StudyResult:
     from .report import write_reports
 
     checksum = objects.checksum()
@@ -317,7 +331,7 @@ def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], unit
 
     try:
         if config.run.backend == "ray":
-            _run_ray(config, objects, pending, finish)
+            _run_ray(config, packed, pending, finish)
         elif config.run.backend == "local" and config.run.workers > 1:
             _run_processes(config, objects, pending, finish, objects_dir)
         elif config.run.backend == "local":

@@ -107,6 +107,14 @@ def test_workers_of_one_node_share_one_materialised_folder_and_a_damaged_one_is_
     assert repaired.checksum() == packed.checksum
 
 
+def test_a_set_that_does_not_materialise_as_the_drivers_is_refused(tmp_path):
+    import dataclasses
+
+    packed = pack_objects(load_object_set(), ["025_mug"])
+    with pytest.raises(ObjectTransferError, match="not the driver's"):
+        materialise(dataclasses.replace(packed, checksum="0" * 64), tmp_path / "cache")
+
+
 def test_packing_an_object_whose_mesh_is_missing_names_the_file_in_one_line(tmp_path):
     copy = tmp_path / "ycb"
     shutil.copytree(embedded_ycb_dir(), copy)
@@ -116,3 +124,18 @@ def test_packing_an_object_whose_mesh_is_missing_names_the_file_in_one_line(tmp_
         pack_objects(objects, ["025_mug"])
     message = str(error.value)
     assert "\n" not in message and "025_mug" in message and "collision_vhacd.obj" in message and "does not exist" in message
+
+
+def test_a_ray_study_whose_object_names_a_missing_texture_stops_in_one_line_before_ray_starts(tmp_path):
+    from test_preflight import _batch
+
+    copy = tmp_path / "ycb"
+    shutil.copytree(embedded_ycb_dir(), copy)
+    urdf = copy / "005_tomato_soup_can" / "model.urdf"
+    # Loading checks meshes only; a texture the URDF names is first read when the objects are packed.
+    urdf.write_text(urdf.read_text().replace("</material>", '<texture filename="label.png"/></material>', 1))
+    done, out = _batch(tmp_path, copy, "--backend", "ray")
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert done.returncode == 2 and len(errors) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert "005_tomato_soup_can" in errors[0] and "label.png" in errors[0] and "does not exist" in errors[0]
+    assert not out.exists(), "nothing is written, and Ray is not started, for objects that cannot be packed"

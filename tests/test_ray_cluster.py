@@ -1,4 +1,5 @@
 """A real Ray cluster joined by address (on loopback): the study and the dataset runner give the local run's results."""
+import contextlib
 import json
 import os
 import shutil
@@ -11,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-import sagp_batched.object_transfer as object_transfer
+import sagp_batched.runtime as runtime
 from sagp_batched.config import load_config
 from sagp_batched.objects import CACHE_DIR_ENV, load_object_set
 from sagp_batched.study import run_study
@@ -79,22 +80,22 @@ def _exported_files(out):
 @pytest.mark.slow
 def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_path, ycb_dir, ray_cluster, worker_cache, monkeypatch):
     local = _study(tmp_path, "local", ycb_dir)
-    # The driver's objects leave their folder as soon as they are in the object store: the workers can get
-    # them nowhere else.
+    # The driver's objects leave their folder once Ray is connected, before any actor starts: the workers can
+    # get them from the object store only.
     driver_objects, moved_away = tmp_path / "driver_objects", tmp_path / "moved_away"
     shutil.copytree(ycb_dir, driver_objects)
-    put_objects = object_transfer.put_objects
-    packed = {}
+    checksum = load_object_set(driver_objects).subset(["005_tomato_soup_can"]).checksum()
+    ray_session = runtime.ray_session
 
-    def put_then_move_the_folder(objects, ids):
-        ref = put_objects(objects, ids)
-        packed["checksum"] = objects.subset(ids).checksum()
-        shutil.move(driver_objects, moved_away)
-        return ref
+    @contextlib.contextmanager
+    def session_then_move_the_folder(*args):
+        with ray_session(*args):
+            shutil.move(driver_objects, moved_away)
+            yield
 
-    monkeypatch.setattr(object_transfer, "put_objects", put_then_move_the_folder)
+    monkeypatch.setattr(runtime, "ray_session", session_then_move_the_folder)
     clustered = _study(tmp_path, "cluster", driver_objects, backend="ray", ray_address=ray_cluster, workers=2)
-    assert not driver_objects.exists() and packed
+    assert not driver_objects.exists() and moved_away.is_dir()
 
     assert _stable(clustered.records) == _stable(local.records)
     assert len((tmp_path / "cluster" / "trials.jsonl").read_text().splitlines()) == 3, "the driver wrote every record"
@@ -105,7 +106,7 @@ def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_pat
     # The workers read their objects from their own materialised folder, made from the object store.
     reports = [json.loads(line) for line in (tmp_path / "cluster" / "workers.jsonl").read_text().splitlines()]
     assert len(reports) == 3 and all(r["rss_bytes"] > 0 for r in reports)
-    materialised = worker_cache / "transfer" / packed["checksum"]
+    materialised = worker_cache / "transfer" / checksum
     assert {r["objects_dir"] for r in reports} == {str(materialised)}
     assert {r["pid"] for r in reports}.isdisjoint({os.getpid()})
     for path in (moved_away / "005_tomato_soup_can").iterdir():
