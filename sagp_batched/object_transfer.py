@@ -171,13 +171,6 @@ def transfer_dir(cache_dir: str | Path | None = None) -> Path:
     return sagp_cache_root(cache_dir) / TRANSFER_DIR
 
 
-def _inside(base: Path, name: str) -> Path:
-    try:
-        return path_inside(base, name)
-    except ValueError as exc:
-        raise ObjectTransferError(f"packed objects name a file outside their folder: {exc}") from None
-
-
 def _is_complete(directory: Path, packed: PackedObjects) -> bool:
     for number, tree in enumerate(packed.trees):
         for name, contents in tree.items():
@@ -193,7 +186,7 @@ def _is_complete(directory: Path, packed: PackedObjects) -> bool:
 def _write_trees(directory: Path, packed: PackedObjects) -> None:
     for number, tree in enumerate(packed.trees):
         for name, contents in tree.items():
-            path = _inside(directory / str(number), name)
+            path = path_inside(directory / str(number), name)
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(contents)
 
@@ -236,10 +229,10 @@ def materialise(packed: PackedObjects, cache_dir: str | Path | None = None) -> O
     raises ``ObjectTransferError`` when the files cannot be written or the set's checksum is not the driver's."""
     directory = _write_materialised(packed, cache_dir)
     data_dir = Path(pybullet_data.getDataPath())
-    specs = [
-        dataclasses.replace(entry.spec, urdf_path=_inside(data_dir if entry.tree is None else directory / str(entry.tree), entry.urdf))
-        for entry in packed.specs
-    ]
+    specs = []
+    for entry in packed.specs:
+        tree_dir = data_dir if entry.tree is None else directory / str(entry.tree)
+        specs.append(dataclasses.replace(entry.spec, urdf_path=path_inside(tree_dir, entry.urdf)))
     objects = ObjectSet(packed.source, specs, list(packed.skipped))
     checksum = objects.checksum()
     if checksum != packed.checksum:
