@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         result = run_study(config, objects, methods, objects_dir=config.run.objects_dir,
                            progress=not args.no_progress, not_run=not_run,
                            on_note=lambda note: print(f"note: {note}", file=sys.stderr))
-    except (ConfigError, ObjectSetError, UnknownObjectError) as exc:
+    except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

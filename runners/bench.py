@@ -9,6 +9,13 @@ figures for one core and for several compare on the same clouds and targets.
 
 ``--batch-sizes 1,4,16`` times, per batch size B, B single plans against one ``plan_batch`` on the
 same B clouds (at the first thread count), per cloud and per stage; 0 or empty (the default) skips it.
+
+    python -m runners.bench --json OUT.json --ray-address HOST:PORT [--study-trials 500] [--study-object ID]
+        [--workers 2] [--profile ci] [--study-out DIR]
+
+``--ray-address`` measures Ray workers instead: a study of ``--study-trials`` trials (one object, t1,
+Geometry-Only) through the study's Ray backend on that cluster, then each worker's resident memory at
+its 50th unit and at its last, and the units per second.
 """
 from __future__ import annotations
 
@@ -55,7 +62,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch-sizes", default="", help="comma-separated batch sizes B: B single plans against one plan_batch; 0 or empty skips")
     parser.add_argument("--batch-objects", default=None, help="comma-separated YCB ids the batches cycle through (default: the set's first, as many as the largest B)")
     parser.add_argument("--batch-pairs", type=int, default=5000, help="sampled pairs per cloud in the batch comparison")
+    _add_ray_memory_arguments(parser)
     args = parser.parse_args(argv)
+    if args.ray_address is not None:
+        return _ray_worker_memory(args)
     thread_counts = _thread_counts(parser, args.threads)
     batch_sizes = _batch_sizes(parser, args.batch_sizes)
 
@@ -114,6 +124,67 @@ def main(argv: list[str] | None = None) -> int:
             "settings": dataclasses.asdict(settings),
         },
     }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2, default=str))
+    return 0
+
+
+# --- Ray workers' memory over a long study ----------------------------------------------------------
+
+RAY_MEMORY_EARLY_UNIT = 50
+
+
+def _add_ray_memory_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--ray-address", default=None, help="measure Ray workers' memory over a study on this cluster (host:port) instead")
+    parser.add_argument("--study-trials", type=int, default=500, help="trials of the --ray-address study")
+    parser.add_argument("--study-object", default="005_tomato_soup_can", help="object of the --ray-address study")
+    parser.add_argument("--workers", type=int, default=2, help="Ray workers of the --ray-address study")
+    parser.add_argument("--study-out", type=Path, default=None, help="run directory of the --ray-address study (default: a fresh temporary one)")
+
+
+def _ray_worker_memory(args: argparse.Namespace) -> int:
+    import tempfile
+    import time
+
+    from sagp_batched.benchmark import worker_memory
+    from sagp_batched.config import ConfigError
+    from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError
+    from sagp_batched.preflight import PreflightError, check_ray_address, check_ray_installed
+    from sagp_batched.run_directory import WORKERS_FILE
+    from sagp_batched.study import run_study
+
+    out = args.study_out or Path(tempfile.mkdtemp(prefix="sagp_ray_memory_"))
+    objects_dir = _ycb_dir(args.objects_dir)
+    try:
+        check_ray_installed()
+        check_ray_address(args.ray_address, flag="--ray-address")
+        config = load_config(args.profile or "ci", overrides={"run": {
+            "objects": [args.study_object], "tasks": ["t1"], "methods": ["go"], "n_trials": args.study_trials,
+            "backend": "ray", "ray_address": args.ray_address, "workers": args.workers, "out": str(out),
+            "objects_dir": str(objects_dir), "export_grasps": False, "save_frames": False,
+        }})
+        objects = load_object_set(objects_dir)
+        configure_torch()
+        start = time.perf_counter()
+        result = run_study(config, objects, config.run.methods, progress=False)
+        wall_s = time.perf_counter() - start
+    except (ConfigError, PreflightError, ObjectSetError, ObjectLoadError, UnknownObjectError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    memory = worker_memory(out / WORKERS_FILE, RAY_MEMORY_EARLY_UNIT)
+    errors = sum(record["error"] is not None for record in result.records)
+    print(f"Ray workers, {args.study_object} t1 go, {result.new_records} trials in {wall_s:.0f} s ({errors} errors), run directory {out}")
+    for worker in memory["workers"]:
+        early = "n/a" if worker["rss_early_bytes"] is None else f"{worker['rss_early_bytes'] / 2**20:.0f} MiB"
+        growth = "n/a" if worker["growth_percent"] is None else f"{worker['growth_percent']:+.1f} %"
+        print(f"  worker {worker['node']}:{worker['pid']}: {worker['units']} units, RSS at unit {RAY_MEMORY_EARLY_UNIT} {early}, "
+              f"at its last {worker['rss_last_bytes'] / 2**20:.0f} MiB ({growth}), {worker['units_per_s']:.2f} units/s")
+    run_rate = memory["run_units_per_s"]
+    print(f"  median worker rate {memory['median_worker_units_per_s']:.2f} units/s; whole run "
+          f"{'n/a' if run_rate is None else f'{run_rate:.2f}'} units/s")
+    report = {"ray_memory": {**memory, "trials": result.new_records, "errors": errors, "wall_s": wall_s, "run_directory": str(out),
+                             "object": args.study_object, "profile": args.profile or "ci", "address": args.ray_address},
+              "provenance": {"git": git_revision(), "packages": package_versions(), "python": sys.version.split()[0]}}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2, default=str))
     return 0

@@ -11,6 +11,7 @@ judges every answer by forward kinematics, not by the solver's own flag.
 from __future__ import annotations
 
 import dataclasses
+import json
 import statistics
 import time
 from pathlib import Path
@@ -399,4 +400,36 @@ def benchmark_world(spec: ObjectSpec, config: Config, runs: int) -> dict[str, An
         "runs": runs,
         **{name: _median(values) if values else None for name, values in timings.items()},
         "first_attempt_success": successes / max(1, len(timings["attempt_s"])),
+    }
+
+
+def worker_memory(workers_file: Path, early_unit: int = 50) -> dict[str, Any]:
+    """Each worker's resident memory at its ``early_unit``-th unit and at its last, from a run's ``workers.jsonl``.
+
+    Growth is the last unit's RSS over the early one's, in percent (None for a worker that ran fewer units);
+    a worker's rate is 1 / its median unit time; the run's rate is units over the span from the first
+    report to the last."""
+    lines = [json.loads(line) for line in workers_file.read_text().splitlines() if line.strip()]
+    by_worker: dict[tuple[str, int], list[dict[str, Any]]] = {}
+    for line in lines:
+        by_worker.setdefault((line["node"], line["pid"]), []).append(line)
+    workers = []
+    for (node, pid), reports in sorted(by_worker.items()):
+        reports.sort(key=lambda report: report["units_done"])
+        early = next((report for report in reports if report["units_done"] == early_unit), None)
+        last = reports[-1]
+        workers.append({
+            "node": node, "pid": pid, "units": last["units_done"],
+            "rss_early_bytes": early["rss_bytes"] if early else None, "rss_last_bytes": last["rss_bytes"],
+            "growth_percent": 100.0 * (last["rss_bytes"] / early["rss_bytes"] - 1.0) if early else None,
+            "units_per_s": 1.0 / _median([report["unit_s"] for report in reports]),
+        })
+    times = sorted(line["time"] for line in lines)
+    span_s = times[-1] - times[0] if len(times) > 1 else 0.0
+    return {
+        "early_unit": early_unit,
+        "units": len(lines),
+        "workers": workers,
+        "median_worker_units_per_s": _median([worker["units_per_s"] for worker in workers]) if workers else None,
+        "run_units_per_s": (len(lines) - 1) / span_s if span_s > 0 else None,
     }

@@ -2,16 +2,19 @@
 
 A *unit* is one (object, task, trial): the scene, the cloud and the candidate set are shared by
 every method of the unit, so all methods rank the identical candidates, as the published comparison requires.
-Each method's result is one ``TrialRecord`` (``records.py``).
+Each method's result is one ``TrialRecord`` (``records.py``). A unit returns its records with the
+contents of the files they name (the grasp export, the attempt images), and the study's driver writes
+both into the run directory: a worker never writes there, wherever it runs.
 """
 from __future__ import annotations
 
+import io
 import signal
 import time
 import traceback
 from contextlib import contextmanager
-from pathlib import Path
-from typing import Any, Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -54,6 +57,23 @@ def _zone_points_object(cloud: PerceivedCloud, decomposition) -> dict[str, np.nd
     return {name: points_object[decomposition.memberships[:, index].numpy()] for index, name in enumerate(decomposition.zone_names)}
 
 
+GRASPS_DIR = "grasps"
+FRAMES_DIR = "frames"
+
+
+@dataclass
+class UnitResult:
+    """What one unit produced: its records, and the files they name as run-relative POSIX path -> contents."""
+
+    records: list[TrialRecord] = field(default_factory=list)
+    files: dict[str, bytes] = field(default_factory=dict)
+
+
+def grasps_file(object_id: str, task: str, trial: int) -> str:
+    """The run-relative path of a unit's grasp export (``run.export_grasps``)."""
+    return f"{GRASPS_DIR}/{object_id}_{task}_{trial:04d}.h5"
+
+
 class TrialRunner:
     """Runs units in one process with one PyBullet client and one rater, built on first use."""
 
@@ -79,41 +99,44 @@ class TrialRunner:
             self._rater = get_rater(self.config.rating)
         return self._rater
 
-    def run_unit(self, unit: TrialUnit, emit: Callable[[TrialRecord], None]) -> None:
-        """Run every method of ``unit``; ``emit`` each finished record at once.
+    def run_unit(self, unit: TrialUnit) -> UnitResult:
+        """Run every method of ``unit``: a record per method, and the files the records name.
 
         A failure inside the unit (an exception or the time limit) is recorded on every method
-        of the unit not yet emitted, and the caller goes on with the next unit.
+        of the unit without a record yet, and the caller goes on with the next unit.
         """
         spec = self.objects.get(unit.object_id)
-        emitted: set[str] = set()
-
-        def emit_once(record: TrialRecord) -> None:
-            emitted.add(record.method)
-            emit(record)
-
+        result = UnitResult()
         try:
             with time_limit(self.config.run.trial_timeout_s):
-                self._run_unit(spec, unit, emit_once)
+                self._run_unit(spec, unit, result)
         except Exception as exc:  # recorded, never lost: the run goes on with the next unit
             message = f"{type(exc).__name__}: {exc}"
+            recorded = {record.method for record in result.records}
             for method in unit.methods:
-                if method not in emitted:
-                    emit(TrialRecord.build(spec, unit, method, self.config, error=message,
-                                           traceback=traceback.format_exc(limit=8)))
+                if method not in recorded:
+                    result.records.append(TrialRecord.build(spec, unit, method, self.config, error=message,
+                                                            traceback=traceback.format_exc(limit=8)))
+        # The images are in ``result.files`` as PNG once encoded; the raw arrays would only be carried back to
+        # the driver for nothing (a record never writes them).
+        for record in result.records:
+            for attempt in record.executed.attempts if record.executed is not None else ():
+                attempt.details.pop("frames", None)
+        return result
 
     def _distractors_for(self, unit: TrialUnit) -> list[ObjectSpec]:
         if unit.task != "t3":
             return []
         return list(self.objects.distractors())
 
-    def _run_unit(self, spec: ObjectSpec, unit: TrialUnit, emit: Callable[[TrialRecord], None]) -> None:
+    def _run_unit(self, spec: ObjectSpec, unit: TrialUnit, result: UnitResult) -> None:
         from .perception import capture
         from .planner import plan
         from .zone_marks import rating_image
         from .zones import assign_zones
 
         config, scene = self.config, self.scene
+        emit = result.records.append
         scene.reset(spec, unit.trial, distractors=self._distractors_for(unit))
 
         start = time.perf_counter()
@@ -167,20 +190,19 @@ class TrialRunner:
             if len(ranked) == 0:
                 emit(TrialRecord.build(spec, unit, method, config, plan=summary, failure_reason="no_candidates"))
                 continue
-            result = self._execute(ranked, cloud, rating, unit, method, executed)
-            attempts_by_method[method] = result.attempts
-            emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=result))
+            executed_grasps = self._execute(ranked, cloud, rating, unit, method, executed, result.files)
+            attempts_by_method[method] = executed_grasps.attempts
+            emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=executed_grasps))
         if config.run.export_grasps:
-            from .export import write_acronym
+            from .export import acronym_bytes
 
-            grasps_dir = Path(config.run.out).expanduser() / "grasps"
-            grasps_dir.mkdir(parents=True, exist_ok=True)
-            write_acronym(grasps_dir / f"{spec.id}_{unit.task}_{unit.trial:04d}.h5", spec, cloud, candidates,
-                          ranked_by_method, attempts_by_method)
+            result.files[grasps_file(spec.id, unit.task, unit.trial)] = acronym_bytes(
+                spec, cloud, candidates, ranked_by_method, attempts_by_method)
 
     def _execute(self, ranked: GraspCandidates, cloud: PerceivedCloud, rating: ZoneRating, unit: TrialUnit, method: str,
-                 executed: dict[int, GraspAttempt]) -> ExecutedGrasps:
-        """Execute the leading grasps of ``ranked`` (reusing the unit's attempts in ``executed``) and judge the last one tried."""
+                 executed: dict[int, GraspAttempt], files: dict[str, bytes]) -> ExecutedGrasps:
+        """Execute the leading grasps of ``ranked`` (reusing the unit's attempts in ``executed``) and judge the
+        last one tried; the attempts' images (``run.save_frames``) go into ``files``."""
         from .execution import execute_ranked
 
         config = self.config
@@ -192,27 +214,8 @@ class TrialRunner:
             unit.task, final.success, placement.in_preferred_zone, final.orientation_change_deg,
             final.details.get("distractors_max_displacement_m", 0.0), config.tasks,
         )
-        frames = self._save_frames(attempts, unit, method) if config.run.save_frames else None
+        frames = _encode_frames(attempts, unit, method, files) if config.run.save_frames else None
         return ExecutedGrasps([ranked[i] for i in range(len(attempts))], attempts, placement, outcome, frames)
-
-    def _save_frames(self, attempts, unit: TrialUnit, method: str) -> dict[str, str]:
-        """PNG images of every attempt: at contact and after the lift, or at the moment it failed
-        (``failed_<phase>``), since failures are what a user looks at. Keys are the final
-        attempt's moments, and ``attempt<k>_<moment>`` for the earlier attempts; paths are
-        relative to the run."""
-        from PIL import Image
-
-        out_dir = Path(self.config.run.out).expanduser()
-        frames_dir = out_dir / "frames"
-        frames_dir.mkdir(parents=True, exist_ok=True)
-        saved = {}
-        for number, attempt in enumerate(attempts, start=1):
-            prefix = "" if number == len(attempts) else f"attempt{number}_"
-            for moment, image in attempt.details.get("frames", {}).items():
-                path = frames_dir / f"{unit.object_id}_{unit.task}_{method}_{unit.trial:04d}_{prefix}{moment}.png"
-                Image.fromarray(np.asarray(image, dtype=np.uint8)).save(path)
-                saved[f"{prefix}{moment}"] = str(path.relative_to(out_dir))
-        return saved
 
     def _model_client(self):
         """The rater's own model client, so VLM-Direct never loads a second copy of the model."""
@@ -220,3 +223,21 @@ class TrialRunner:
 
         rater = getattr(self.rater, "inner", self.rater)
         return rater.client if hasattr(rater, "client") else get_vd_client(self.config.rating)
+
+
+def _encode_frames(attempts: list[GraspAttempt], unit: TrialUnit, method: str, files: dict[str, bytes]) -> dict[str, str]:
+    """PNG images of every attempt, into ``files``: at contact and after the lift, or at the moment it
+    failed (``failed_<phase>``), since failures are what a user looks at. Keys are the final attempt's
+    moments, and ``attempt<k>_<moment>`` for the earlier attempts; values are the run-relative paths."""
+    from PIL import Image
+
+    saved = {}
+    for number, attempt in enumerate(attempts, start=1):
+        prefix = "" if number == len(attempts) else f"attempt{number}_"
+        for moment, image in attempt.details.get("frames", {}).items():
+            path = f"{FRAMES_DIR}/{unit.object_id}_{unit.task}_{method}_{unit.trial:04d}_{prefix}{moment}.png"
+            encoded = io.BytesIO()
+            Image.fromarray(np.asarray(image, dtype=np.uint8)).save(encoded, format="PNG")
+            files[path] = encoded.getvalue()
+            saved[f"{prefix}{moment}"] = path
+    return saved

@@ -35,6 +35,7 @@ per-grasp fields, so a loader that reads ``grasps/`` never takes an untested gra
 """
 from __future__ import annotations
 
+import io
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 from typing import Sequence
@@ -45,6 +46,7 @@ from scipy.spatial.transform import Rotation
 from .hand import hand_to_grasp_target_m
 from .objects import ObjectSpec
 from .robot import PANDA
+from .run_directory import write_file_atomically
 from .types import GraspAttempt, GraspCandidates, PerceivedCloud
 
 # ACRONYM's Franka gripper is the same hand as panda_hand (finger joints 0.0584 m above the base,
@@ -133,8 +135,19 @@ def write_acronym(
     ranked_by_method: dict[str, GraspCandidates],
     attempts_by_method: dict[str, Sequence[GraspAttempt]],
 ) -> None:
-    """Write one trial's grasps: the simulated ones under ``grasps/``, every scored candidate under
-    ``candidates/``; the file is replaced atomically.
+    """Write one trial's grasps to ``path`` (``acronym_bytes``); the file is replaced atomically."""
+    write_file_atomically(path, acronym_bytes(spec, cloud, candidates, ranked_by_method, attempts_by_method))
+
+
+def acronym_bytes(
+    spec: ObjectSpec,
+    cloud: PerceivedCloud,
+    candidates: GraspCandidates,
+    ranked_by_method: dict[str, GraspCandidates],
+    attempts_by_method: dict[str, Sequence[GraspAttempt]],
+) -> bytes:
+    """One trial's grasps as the bytes of an HDF5 file: the simulated ones under ``grasps/``, every
+    scored candidate under ``candidates/``.
 
     ``candidates`` is the planner's output; ``ranked_by_method`` holds each method's ranking of
     them and ``attempts_by_method`` the outcomes of its leading grasps, in ranked order.
@@ -167,8 +180,8 @@ def write_acronym(
             aligned = np.empty(n, dtype=np.float32)
             aligned[ids] = values.numpy()
             rows[f"qualities/{method}/{term}"] = aligned
-    tmp = path.with_suffix(".tmp")
-    with h5py.File(tmp, "w") as f:
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as f:
         for group, selection in (("grasps", tested), ("candidates", slice(None))):
             for name, values in rows.items():
                 f[f"{group}/{name}"] = values[selection]
@@ -185,7 +198,7 @@ def write_acronym(
         f["object/id"] = spec.id
         f["object/mass"] = float(spec.mass_kg)
         f["gripper/type"] = "panda"
-    tmp.replace(path)
+    return buffer.getvalue()
 
 
 def objects_root(urdf_path: Path) -> Path:

@@ -47,14 +47,13 @@ import trimesh
 from scipy.spatial import QhullError
 from scipy.spatial.transform import Rotation
 
-from .objects import INDEX_METADATA_KEYS, ObjectSet, ObjectSetError, ObjectSpec, RestingPose
+from .objects import CACHE_DIR_ENV  # noqa: F401 (callers name the variable through this module)
+from .objects import INDEX_METADATA_KEYS, ObjectSet, ObjectSetError, ObjectSpec, RestingPose, sagp_cache_root
 from .robot import PANDA
 
 log = logging.getLogger(__name__)
 
 MESH_SUFFIXES = frozenset({".obj", ".stl", ".ply", ".glb"})
-CACHE_DIR_ENV = "SAGP_CACHE_DIR"
-DEFAULT_CACHE_ROOT = "~/.cache/sagp_batched"
 # Bumped whenever the generated files change for the same inputs, so older cache entries are not reused.
 IMPORT_FORMAT = 2
 METADATA_FILE = "metadata.json"
@@ -127,8 +126,7 @@ class MeshImportSettings:
             raise ValueError(f"MeshImportSettings.decomposer must be one of {', '.join(DECOMPOSERS)}, got '{self.decomposer}'")
 
     def cache_root(self) -> Path:
-        chosen = self.cache_dir if self.cache_dir is not None else os.environ.get(CACHE_DIR_ENV) or DEFAULT_CACHE_ROOT
-        return Path(chosen).expanduser() / "objects"
+        return sagp_cache_root(self.cache_dir) / "objects"
 
 
 class _Unusable(Exception):

@@ -20,7 +20,7 @@ import os
 import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Iterable
 
 import pybullet
 import pybullet_data
@@ -29,6 +29,9 @@ if TYPE_CHECKING:
     from .mesh_import import MeshImportSettings
 
 YCB_DIR_ENV = "SAGP_YCB_DIR"
+# The cache that generated objects live in (imported meshes, object sets shipped to workers).
+CACHE_DIR_ENV = "SAGP_CACHE_DIR"
+DEFAULT_CACHE_ROOT = "~/.cache/sagp_batched"
 DISTRACTOR_CATEGORY = "distractor"
 # The ``objects_dir`` value (or ``$SAGP_YCB_DIR``) that selects the built-in pybullet_data set.
 PYBULLET_DATA_SET = "pybullet_data"
@@ -128,6 +131,13 @@ class ObjectSet:
     def distractors(self) -> list[ObjectSpec]:
         return [spec for spec in self._specs.values() if spec.category == DISTRACTOR_CATEGORY]
 
+    def subset(self, object_ids: Iterable[str]) -> "ObjectSet":
+        """The objects ``object_ids`` of this set, in the set's order, under the same source."""
+        wanted = set(object_ids)
+        for object_id in wanted:
+            self.get(object_id)  # raises UnknownObjectError naming the id
+        return ObjectSet(self.source, [spec for spec in self._specs.values() if spec.id in wanted], self.skipped)
+
     def checksum(self) -> str:
         """SHA-256 over every object's metadata and URDF bytes: identifies the exact set a run used."""
         digest = hashlib.sha256(self.source.encode())
@@ -138,6 +148,12 @@ class ObjectSet:
 
     def __len__(self) -> int:
         return len(self._specs)
+
+
+def sagp_cache_root(cache_dir: str | Path | None = None) -> Path:
+    """The cache root: ``cache_dir``, else ``$SAGP_CACHE_DIR``, else ``~/.cache/sagp_batched``."""
+    chosen = cache_dir if cache_dir is not None else os.environ.get(CACHE_DIR_ENV) or DEFAULT_CACHE_ROOT
+    return Path(chosen).expanduser()
 
 
 def _check_urdf(urdf_path: Path, object_id: str) -> None:

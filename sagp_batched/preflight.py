@@ -79,19 +79,20 @@ def check_rater(rating: RatingConfig) -> None:
         raise PreflightError(f"rater '{rating.backend}': {exc}") from exc
 
 
-def check_ray_address(address: str) -> None:
-    """A TCP connection to ``ray://host:port`` (or ``host:port``) opens; Ray itself is not started."""
+def check_ray_address(address: str, flag: str = "--address") -> None:
+    """A TCP connection to ``ray://host:port`` (or ``host:port``) opens; Ray itself is not started.
+    ``flag`` is the option the message names as the address's source."""
     if address in RAY_ADDRESS_KEYWORDS:
         return
     host, _, port = address.removeprefix("ray://").rpartition(":")
     host = host.strip("[]")  # an IPv6 host is written [::1]:10001
     if not host or not port.isdigit():
-        raise PreflightError(f"--address {address}: expected ray://host:port or host:port")
+        raise PreflightError(f"{flag} {address}: expected ray://host:port or host:port")
     try:
         with socket.create_connection((host, int(port)), timeout=RAY_CONNECT_TIMEOUT_S):
             pass
     except OSError as exc:
-        raise PreflightError(f"--address {address}: cannot reach the Ray cluster: {exc.strerror or exc}") from exc
+        raise PreflightError(f"{flag} {address}: cannot reach the Ray cluster: {exc.strerror or exc}") from exc
 
 
 def preflight(config: Config) -> None:

@@ -24,6 +24,8 @@ from .config import Config, ConfigError
 from .records import record_key, record_problem
 
 TRIALS_FILE = "trials.jsonl"
+# One line per unit a worker process finished: its pid, node, units run so far, resident memory.
+WORKERS_FILE = "workers.jsonl"
 REJECTED_FILE = "trials.rejected.jsonl"
 LOCK_FILE = ".lock"
 CONFIG_FILE = "config.json"
@@ -269,6 +271,38 @@ def check_same_run(out_dir: Path, config: Config, objects_checksum: str, objects
                 f"{out_dir} holds a run made with another object set ({objects.get('source')}, now {objects_source}); "
                 "choose another --out or delete that directory"
             )
+
+
+def path_inside(base: Path, name: str) -> Path:
+    """``base / name`` for a relative ``name`` that stays inside ``base``; ``ValueError`` for one that would leave it."""
+    relative = Path(name)
+    if relative.is_absolute() or ".." in relative.parts or not relative.parts:
+        raise ValueError(f"{name!r} is not a path inside {base}")
+    return base / relative
+
+
+def run_file_path(out_dir: Path, name: str) -> Path:
+    """The path of a worker's file ``name`` (run-relative) in the run directory; one that would leave it is refused."""
+    try:
+        return path_inside(out_dir, name)
+    except ValueError as exc:
+        raise RunDirectoryError(f"refusing to write a file: {exc}") from None
+
+
+def write_file_atomically(path: Path, contents: bytes) -> None:
+    """Write ``path`` whole and synced (a temporary file beside it, then a rename): a reader finds the old
+    file or the new one, never part of one. Raises ``RunDirectoryError`` (one line) if the disk refuses."""
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with temporary.open("wb") as file:
+            file.write(contents)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(temporary, path)
+    except OSError as exc:
+        temporary.unlink(missing_ok=True)
+        raise RunDirectoryError(f"cannot write {path}: {_os_reason(exc)}") from exc
 
 
 def write_json(path: Path, value: Any) -> None:

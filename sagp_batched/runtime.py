@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 from typing import Iterator
 
 import torch
@@ -14,6 +15,16 @@ DEFAULT_TORCH_THREADS = 1
 
 def configure_torch(threads: int = DEFAULT_TORCH_THREADS) -> None:
     torch.set_num_threads(threads)
+
+
+def resident_memory_bytes() -> int:
+    """This process's resident set size: ``psutil`` where it is installed, else ``/proc/self/statm`` (Linux)."""
+    try:
+        import psutil
+    except ImportError:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    return int(psutil.Process().memory_info().rss)
 
 
 @contextlib.contextmanager

@@ -4,26 +4,44 @@ Long runs lose nothing: each finished record is appended to ``trials.jsonl`` and
 (``run_directory``); a re-run into the same directory skips finished records and runs again the
 trials whose line was torn or invalid, and those that ended in an error unless ``run.keep_errors``;
 a unit that raises or times out is recorded with its error.
+
+Only the driver writes the run directory, whichever backend runs the units: a unit comes back with
+its records and the contents of the files they name, and the driver writes the files (whole, by
+rename) before the records, so a resume never finds a record whose file is missing. Each worker
+process reports its resident memory after every unit; the driver appends it to ``workers.jsonl``.
 """
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
+import json
 import multiprocessing
+import os
+import socket
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from . import provenance
 from .config import Config, ConfigError, load_config
-from .experiment import TrialRunner
+from .experiment import TrialRunner, UnitResult
 from .records import TrialRecord, TrialUnit, record_key
 from .run_directory import (
-    CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, RunDirectoryError, RunLock, TrialWriter, check_same_run, read_records, recover_trials_file, write_json,
+    CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, WORKERS_FILE, RunDirectoryError, RunLock, TrialWriter, check_same_run, read_records,
+    recover_trials_file, run_file_path, write_file_atomically, write_json,
 )
 from .metrics import summarise
 from .objects import ObjectSet, load_object_set
+
+if TYPE_CHECKING:
+    from .object_transfer import PackedObjects
 from .types import METHODS, TASKS
+
+class StudyWorkerError(ConfigError):
+    """A worker could not start or stopped mid-run (its objects could not be written, its node went away)."""
+
 
 @dataclass
 class StudyResult:
@@ -67,85 +85,154 @@ def plan_units(config: Config, objects: ObjectSet, methods: Iterable[str]) -> li
 
 # --- executors ---------------------------------------------------------------------------------
 
-_WORKER_RUNNER: TrialRunner | None = None
+
+@dataclass(frozen=True)
+class WorkerReport:
+    """A worker process just after finishing a unit: which process on which node, how many units it has
+    run, its resident memory, how long the unit took, and the folder its objects were read from."""
+
+    pid: int
+    node: str
+    units_done: int
+    rss_bytes: int
+    unit_s: float
+    objects_dir: str | None
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
 
 
-def _init_worker(config_dict: dict[str, Any], objects_dir: str | None) -> None:
-    global _WORKER_RUNNER
-    from .runtime import configure_torch
+class _Worker:
+    """One worker process's ``TrialRunner`` (one PyBullet client and rater, kept for the whole run) and its count of units."""
 
-    configure_torch()
-    config = load_config(overrides=config_dict)
-    _WORKER_RUNNER = TrialRunner(config, load_object_set(objects_dir))
+    def __init__(self, config_dict: dict[str, Any], objects: ObjectSet, objects_dir: str | None):
+        from .runtime import configure_torch
+
+        configure_torch()
+        self.runner = TrialRunner(load_config(overrides=config_dict), objects)
+        self.objects_dir = objects_dir
+        self.node = socket.gethostname()
+        self.units_done = 0
+
+    def run_unit(self, unit: TrialUnit) -> tuple[UnitResult, WorkerReport]:
+        from .runtime import resident_memory_bytes
+
+        start = time.perf_counter()
+        result = self.runner.run_unit(unit)
+        self.units_done += 1
+        return result, WorkerReport(os.getpid(), self.node, self.units_done, resident_memory_bytes(),
+                                    time.perf_counter() - start, self.objects_dir)
 
 
-def _run_unit_in_worker(unit: TrialUnit) -> list[TrialRecord]:
-    records: list[TrialRecord] = []
-    _WORKER_RUNNER.run_unit(unit, records.append)
-    return records
+_PROCESS_WORKER: _Worker | None = None
 
 
-def _run_inline(config: Config, objects: ObjectSet, units: list[TrialUnit], emit: Callable) -> None:
+def _init_process_worker(config_dict: dict[str, Any], objects_dir: str | None) -> None:
+    global _PROCESS_WORKER
+    _PROCESS_WORKER = _Worker(config_dict, load_object_set(objects_dir), objects_dir)
+
+
+def _run_unit_in_process(unit: TrialUnit) -> tuple[UnitResult, WorkerReport]:
+    return _PROCESS_WORKER.run_unit(unit)
+
+
+Finish = Callable[[UnitResult, "WorkerReport | None"], None]
+
+
+def _run_inline(config: Config, objects: ObjectSet, units: list[TrialUnit], finish: Finish) -> None:
     runner = TrialRunner(config, objects)
     for unit in units:
-        runner.run_unit(unit, emit)
+        finish(runner.run_unit(unit), None)
 
 
-def _run_processes(config: Config, units: list[TrialUnit], emit: Callable, objects_dir: str | None) -> None:
+def _run_processes(config: Config, objects: ObjectSet, units: list[TrialUnit], finish: Finish, objects_dir: str | None) -> None:
     # spawn: each worker gets a fresh interpreter and its own PyBullet client (fork would copy
     # the parent's torch thread pools and any open client).
     context = multiprocessing.get_context("spawn")
     with concurrent.futures.ProcessPoolExecutor(
-        max_workers=config.run.workers, mp_context=context, initializer=_init_worker,
+        max_workers=config.run.workers, mp_context=context, initializer=_init_process_worker,
         initargs=(config.to_dict(), objects_dir),
     ) as pool:
-        futures = {pool.submit(_run_unit_in_worker, unit): unit for unit in units}
+        futures = {pool.submit(_run_unit_in_process, unit): unit for unit in units}
         try:
             for future in concurrent.futures.as_completed(futures):
                 unit = futures[future]
                 try:
-                    records = future.result()
+                    result, report = future.result()
                 except concurrent.futures.process.BrokenProcessPool as exc:
-                    records = _crashed_unit_records(config, objects_dir, unit, exc)
-                for record in records:
-                    emit(record)
+                    result, report = _crashed_unit(config, objects, unit, exc), None
+                finish(result, report)
         except BaseException:  # an interrupt, or a record that cannot be written: start no further unit
             pool.shutdown(wait=False, cancel_futures=True)
             raise
 
 
-def _crashed_unit_records(config: Config, objects_dir: str | None, unit: TrialUnit, exc: BaseException) -> list[TrialRecord]:
-    spec = load_object_set(objects_dir).get(unit.object_id)
-    return [TrialRecord.build(spec, unit, method, config, error=f"worker process died: {exc}") for method in unit.methods]
+def _crashed_unit(config: Config, objects: ObjectSet, unit: TrialUnit, exc: BaseException) -> UnitResult:
+    spec = objects.get(unit.object_id)
+    return UnitResult([TrialRecord.build(spec, unit, method, config, error=f"worker process died: {exc}") for method in unit.methods])
+
+
+def objects_used(objects: ObjectSet, units: Iterable[TrialUnit]) -> list[str]:
+    """The ids of the objects ``units`` place in their scenes: each unit's object, and the distractors for t3."""
+    units = list(units)
+    ids = list(dict.fromkeys(unit.object_id for unit in units))
+    if any(unit.task == "t3" for unit in units):
+        ids += [spec.id for spec in objects.distractors() if spec.id not in ids]
+    return ids
 
 
 class _RayTrialRunner:
-    """A Ray actor holding one ``TrialRunner`` (one PyBullet client and rater) for the whole run: the
-    scene is built once per worker and reused, where a task per unit would build one per unit and a
-    module-level cache is a pickled copy inside a remote function."""
+    """A Ray actor holding one ``_Worker`` for the whole run: the scene is built once per worker and
+    reused, where a task per unit would build one per unit and a module-level cache is a pickled copy
+    inside a remote function. Its objects arrive from the object store (``object_transfer``) and are
+    written to this node's own cache, so no node needs the driver's objects folder."""
 
-    def __init__(self, config_dict: dict[str, Any], objects_dir: str | None):
-        _init_worker(config_dict, objects_dir)
+    def __init__(self, config_dict: dict[str, Any], packed_objects: PackedObjects):
+        from .object_transfer import materialise, materialised_dir
 
-    def run_unit(self, unit: TrialUnit) -> list[TrialRecord]:
-        return _run_unit_in_worker(unit)
+        objects = materialise(packed_objects)
+        self.worker = _Worker(config_dict, objects, str(materialised_dir(packed_objects)))
+
+    def run_unit(self, unit: TrialUnit) -> tuple[UnitResult, WorkerReport]:
+        return self.worker.run_unit(unit)
 
 
-def _run_ray(config: Config, units: list[TrialUnit], emit: Callable, objects_dir: str | None) -> None:
+def _run_ray(config: Config, packed: PackedObjects, units: list[TrialUnit], finish: Finish) -> None:
     from .runtime import ray_session
 
+    if not units:
+        return
     with ray_session(config.run.ray_address, config.run.workers):
         import ray
         from ray.util import ActorPool
 
+        # The object store, not a runtime_env working_dir: a working_dir is zipped and uploaded per job under a
+        # size cap, where one put is fetched by each node that runs an actor.
+        packed_ref = ray.put(packed)
         actor = ray.remote(num_cpus=1)(_RayTrialRunner)
-        pool = ActorPool([actor.remote(config.to_dict(), objects_dir) for _ in range(config.run.workers)])
-        for records in pool.map_unordered(lambda runner, unit: runner.run_unit.remote(unit), units):
-            for record in records:
-                emit(record)
+        pool = ActorPool([actor.remote(config.to_dict(), packed_ref) for _ in range(config.run.workers)])
+        try:
+            for result, report in pool.map_unordered(lambda runner, unit: runner.run_unit.remote(unit), units):
+                finish(result, report)
+        except ray.exceptions.RayActorError as exc:
+            raise StudyWorkerError(f"a Ray worker stopped: {_last_line(str(exc))}") from exc
+
+
+def _last_line(text: str) -> str:
+    """The last non-blank line of an error's text: where Ray reports a worker's exception after its traceback."""
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return lines[-1] if lines else text
 
 
 # --- the study ---------------------------------------------------------------------------------
+
+
+def _append_json_line(path: Path, value: dict[str, Any]) -> None:
+    try:
+        with path.open("a", encoding="utf-8") as file:
+            file.write(json.dumps(value, sort_keys=True) + "\n")
+    except OSError as exc:
+        raise RunDirectoryError(f"cannot write {path}: {exc.strerror or exc}") from exc
 
 
 def _pending_units(units: list[TrialUnit], finished: set[tuple[str, str, str, int]]) -> list[TrialUnit]:
@@ -174,16 +261,24 @@ def run_study(
     error records run again)."""
     out_dir = Path(config.run.out).expanduser()
     units = plan_units(config, objects, methods)
+    packed = None
+    if config.run.backend == "ray":
+        from . import object_transfer
+
+        # Read before anything is written: a file that cannot be packed stops the run with no run directory made.
+        packed = object_transfer.pack_objects(objects, objects_used(objects, units))
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"cannot create the run directory {out_dir}: {exc.strerror or exc}") from exc
     with RunLock(out_dir):
-        return _run_locked(config, objects, methods, units, out_dir, objects_dir, progress, not_run or {}, on_note or (lambda note: None))
+        return _run_locked(config, objects, methods, units, out_dir, objects_dir, packed, progress, not_run or {},
+                           on_note or (lambda note: None))
 
 
 def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], units: list[TrialUnit], out_dir: Path,
-                objects_dir: str | None, progress: bool, not_run: dict[str, str], on_note: Callable[[str], None]) -> StudyResult:
+                objects_dir: str | None, packed: PackedObjects | None, progress: bool, not_run: dict[str, str],
+                on_note: Callable[[str], None]) -> StudyResult:
     from .report import write_reports
 
     checksum = objects.checksum()
@@ -212,6 +307,7 @@ def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], unit
     pending = _pending_units(units, finished)
 
     writer = TrialWriter(trials_path)
+    workers_path = out_dir / WORKERS_FILE
     bar = None
     if progress:
         from tqdm import tqdm
@@ -219,21 +315,27 @@ def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], unit
         bar = tqdm(total=sum(len(u.methods) for u in pending), unit="trial", file=sys.stderr, dynamic_ncols=True)
     new_records = 0
 
-    def emit(record: TrialRecord) -> None:
+    def finish(result: UnitResult, report: WorkerReport | None) -> None:
+        """Write a finished unit on the driver: its files first, then its records, so a record on disk names only files on disk."""
         nonlocal new_records
-        writer.write(record.to_json())
-        new_records += 1
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix_str(f"{record.object} {record.task} {record.method} #{record.trial}")
+        for name, contents in result.files.items():
+            write_file_atomically(run_file_path(out_dir, name), contents)
+        for record in result.records:
+            writer.write(record.to_json())
+            new_records += 1
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix_str(f"{record.object} {record.task} {record.method} #{record.trial}")
+        if report is not None:
+            _append_json_line(workers_path, {**report.to_json(), "time": time.time()})
 
     try:
         if config.run.backend == "ray":
-            _run_ray(config, pending, emit, objects_dir)
+            _run_ray(config, packed, pending, finish)
         elif config.run.backend == "local" and config.run.workers > 1:
-            _run_processes(config, pending, emit, objects_dir)
+            _run_processes(config, objects, pending, finish, objects_dir)
         elif config.run.backend == "local":
-            _run_inline(config, objects, pending, emit)
+            _run_inline(config, objects, pending, finish)
         else:
             raise ConfigError(f"unknown backend '{config.run.backend}' (known: local, ray)")
     finally:

@@ -116,3 +116,13 @@ def test_bench_skips_the_batch_comparison_by_default_and_rejects_a_bad_batch_siz
         cwd=REPO, capture_output=True, text=True, timeout=120,
     )
     assert bad.returncode == 2 and "--batch-sizes takes positive whole numbers" in bad.stderr
+
+
+def test_bench_names_an_unreachable_ray_address_in_one_line(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench", "--json", str(tmp_path / "bench.json"), "--ray-address", "127.0.0.1:9"],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert done.returncode == 2 and len(errors) == 1 and "--ray-address 127.0.0.1:9: cannot reach the Ray cluster" in errors[0]
+    assert "Traceback" not in done.stderr and not (tmp_path / "bench.json").exists()

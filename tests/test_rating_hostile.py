@@ -293,8 +293,7 @@ def _unit_records(config, rater=None) -> dict[str, dict]:
     runner = TrialRunner(config, load_object_set(config.run.objects_dir))
     if rater is not None:
         runner._rater = rater
-    records = []
-    runner.run_unit(TrialUnit("005_tomato_soup_can", "t1", 0, ("go", "sagp")), records.append)
+    records = runner.run_unit(TrialUnit("005_tomato_soup_can", "t1", 0, ("go", "sagp"))).records
     return {record.method: record.to_json() for record in records}
 
 

@@ -1,6 +1,8 @@
 """A real Ray cluster joined by address (on loopback): the study and the dataset runner give the local run's results."""
+import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -10,8 +12,9 @@ import time
 import numpy as np
 import pytest
 
+import sagp_batched.runtime as runtime
 from sagp_batched.config import load_config
-from sagp_batched.objects import load_object_set
+from sagp_batched.objects import CACHE_DIR_ENV, load_object_set
 from sagp_batched.study import run_study
 from test_study_e2e import _stable
 
@@ -27,11 +30,17 @@ def _free_port() -> int:
 
 
 @pytest.fixture(scope="module")
-def ray_cluster():
+def worker_cache(tmp_path_factory):
+    """The cache of the cluster's workers: apart from the driver's, as on a node of its own."""
+    return tmp_path_factory.mktemp("worker_cache")
+
+
+@pytest.fixture(scope="module")
+def ray_cluster(worker_cache):
     pytest.importorskip("ray")
     assert all(os.environ.get(key) == value for key, value in RAY_LOOPBACK_ENV.items()), "conftest sets them before Ray is imported"
     port = _free_port()
-    env = {**os.environ, **RAY_LOOPBACK_ENV}
+    env = {**os.environ, **RAY_LOOPBACK_ENV, CACHE_DIR_ENV: str(worker_cache)}
     head = subprocess.Popen(
         [sys.executable, "-m", "ray.scripts.scripts", "start", "--head", "--node-ip-address", "127.0.0.1", "--port", str(port),
          "--num-cpus", "2", "--include-dashboard", "false", "--block"],
@@ -59,16 +68,49 @@ def ray_cluster():
 
 def _study(tmp_path, name, ycb_dir, **run):
     config = load_config("ci", overrides={"run": {"objects": ["005_tomato_soup_can"], "tasks": ["t1"], "methods": ["go"], "n_trials": 3,
-                                                   "out": str(tmp_path / name), "objects_dir": str(ycb_dir), **run}})
+                                                   "out": str(tmp_path / name), "objects_dir": str(ycb_dir), "export_grasps": True,
+                                                   "save_frames": True, **run}})
     return run_study(config, load_object_set(config.run.objects_dir), config.run.methods, objects_dir=config.run.objects_dir, progress=False)
 
 
+def _exported_files(out):
+    return {path.relative_to(out).as_posix(): path.read_bytes() for folder in ("grasps", "frames") for path in sorted((out / folder).iterdir())}
+
+
 @pytest.mark.slow
-def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_path, ycb_dir, ray_cluster):
+def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_path, ycb_dir, ray_cluster, worker_cache, monkeypatch):
     local = _study(tmp_path, "local", ycb_dir)
-    clustered = _study(tmp_path, "cluster", ycb_dir, backend="ray", ray_address=ray_cluster, workers=2)
+    # The driver's objects leave their folder once Ray is connected, before any actor starts: the workers can
+    # get them from the object store only.
+    driver_objects, moved_away = tmp_path / "driver_objects", tmp_path / "moved_away"
+    shutil.copytree(ycb_dir, driver_objects)
+    checksum = load_object_set(driver_objects).subset(["005_tomato_soup_can"]).checksum()
+    ray_session = runtime.ray_session
+
+    @contextlib.contextmanager
+    def session_then_move_the_folder(*args):
+        with ray_session(*args):
+            shutil.move(driver_objects, moved_away)
+            yield
+
+    monkeypatch.setattr(runtime, "ray_session", session_then_move_the_folder)
+    clustered = _study(tmp_path, "cluster", driver_objects, backend="ray", ray_address=ray_cluster, workers=2)
+    assert not driver_objects.exists() and moved_away.is_dir()
+
     assert _stable(clustered.records) == _stable(local.records)
     assert len((tmp_path / "cluster" / "trials.jsonl").read_text().splitlines()) == 3, "the driver wrote every record"
+    # Every exported file came back to the driver, the same as the local run's.
+    local_files, cluster_files = _exported_files(tmp_path / "local"), _exported_files(tmp_path / "cluster")
+    assert sum(name.startswith("grasps/") for name in local_files) == 3 and sum(name.startswith("frames/") for name in local_files) >= 6
+    assert cluster_files.keys() == local_files.keys() and cluster_files == local_files
+    # The workers read their objects from their own materialised folder, made from the object store.
+    reports = [json.loads(line) for line in (tmp_path / "cluster" / "workers.jsonl").read_text().splitlines()]
+    assert len(reports) == 3 and all(r["rss_bytes"] > 0 for r in reports)
+    materialised = worker_cache / "transfer" / checksum
+    assert {r["objects_dir"] for r in reports} == {str(materialised)}
+    assert {r["pid"] for r in reports}.isdisjoint({os.getpid()})
+    for path in (moved_away / "005_tomato_soup_can").iterdir():
+        assert (materialised / "0" / "005_tomato_soup_can" / path.name).read_bytes() == path.read_bytes()
 
 
 @pytest.mark.slow

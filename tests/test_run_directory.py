@@ -13,6 +13,7 @@ import pytest
 
 from runners import batch
 from sagp_batched.config import load_config
+from sagp_batched.experiment import UnitResult
 from sagp_batched.objects import load_object_set
 from sagp_batched.records import TrialRecord, TrialUnit, record_problem
 from sagp_batched.run_directory import (
@@ -166,11 +167,10 @@ class _ScriptedRunner:
     def __init__(self, config, objects):
         self.config = config
 
-    def run_unit(self, unit, emit):
+    def run_unit(self, unit):
         _ScriptedRunner.ran.append(unit.trial)
         outcome = {"error": "RuntimeError: mesh missing"} if unit.trial in self.failing else {"failure_reason": "no_candidates"}
-        for method in unit.methods:
-            emit(TrialRecord.build(SPEC, unit, method, self.config, **outcome))
+        return UnitResult([TrialRecord.build(SPEC, unit, method, self.config, **outcome) for method in unit.methods])
 
 
 @pytest.fixture

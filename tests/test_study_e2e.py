@@ -1,5 +1,6 @@
 """The study runner end to end in PyBullet: records, resume, workers, Ray, failures, CI slice."""
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -138,6 +139,10 @@ def test_end_to_end_two_workers_equal_one(tmp_path, ycb_dir):
     one = _run(_config(tmp_path, ycb_dir, "one", n_trials=2, workers=1))
     two = _run(_config(tmp_path, ycb_dir, "two", n_trials=2, workers=2))
     assert _stable(one.records) == _stable(two.records)
+    # Each worker process reported its memory after each unit; the driver kept them apart from the records.
+    reports = [json.loads(line) for line in (two.out_dir / "workers.jsonl").read_text().splitlines()]
+    assert len(reports) == 2 and all(r["rss_bytes"] > 0 and r["units_done"] >= 1 for r in reports)
+    assert {r["pid"] for r in reports}.isdisjoint({os.getpid()})
 
 
 @pytest.mark.slow
