@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         result = generate_dataset(config, objects, out_dir, progress=not args.no_progress,
                                   on_note=lambda note: print(f"note: {note}", file=sys.stderr),
                                   agreement_objects=object_ids[:AGREEMENT_OBJECTS], agreement_grasps=args.agreement)
-    except (ConfigError, ObjectSetError, UnknownObjectError) as exc:
+    except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

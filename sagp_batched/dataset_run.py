@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import collections
 import math
+import os
+import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +23,7 @@ from .config import Config
 from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
 from .export import planner_frames_from_acronym
 from .objects import ObjectSet
+from .run_directory import WorkerReport
 
 # The report's coverage figure: grasps closer than this, and turned less, count as one.
 DISTINCT_TRANSLATION_M = 0.01
@@ -45,16 +48,26 @@ def dataset_object_ids(config: Config, objects: ObjectSet) -> list[str]:
 
 
 # --- workers: each holds one ObjectLabeller (one PyBullet client) for the whole run -------------------
-_WORKER_LABELLER: ObjectLabeller | None = None
+class _DatasetWorker:
+    """One worker process's labeller and its count of finished work, reported after each piece."""
 
+    def __init__(self, config_dict: dict, objects: ObjectSet, objects_dir: str | None):
+        from .config import load_config
+        from .runtime import configure_torch
 
-def _init_worker(config_dict: dict, objects: ObjectSet) -> None:
-    global _WORKER_LABELLER
-    from .config import load_config
-    from .runtime import configure_torch
+        configure_torch()
+        self.labeller = ObjectLabeller(load_config(overrides=config_dict), objects)
+        self.objects_dir = objects_dir
+        self.node = socket.gethostname()
+        self.done = 0
 
-    configure_torch()
-    _WORKER_LABELLER = ObjectLabeller(load_config(overrides=config_dict), objects)
+    def work(self, kind: str, payload: Any) -> tuple[Any, WorkerReport]:
+        from .runtime import resident_memory_bytes
+
+        start = time.perf_counter()
+        result = _work(self.labeller, kind, payload)
+        self.done += 1
+        return result, WorkerReport(os.getpid(), self.node, self.done, resident_memory_bytes(), time.perf_counter() - start, self.objects_dir)
 
 
 def _work(labeller: ObjectLabeller, kind: str, payload: Any) -> Any:
@@ -64,14 +77,22 @@ def _work(labeller: ObjectLabeller, kind: str, payload: Any) -> Any:
     return labeller.simulate(payload)
 
 
-def _work_in_worker(kind: str, payload: Any) -> Any:
-    return _work(_WORKER_LABELLER, kind, payload)
+_PROCESS_WORKER: _DatasetWorker | None = None
+
+
+def _init_process_worker(config_dict: dict, objects: ObjectSet) -> None:
+    global _PROCESS_WORKER
+    _PROCESS_WORKER = _DatasetWorker(config_dict, objects, None)
+
+
+def _work_in_process(kind: str, payload: Any) -> tuple[Any, WorkerReport]:
+    return _PROCESS_WORKER.work(kind, payload)
 
 
 class _InlineWorkers:
     """Work run in this process, in the order submitted."""
 
-    def __init__(self, config: Config, objects: ObjectSet):
+    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
         self.labeller = ObjectLabeller(config, objects)
         self.queue: collections.deque = collections.deque()
 
@@ -81,9 +102,9 @@ class _InlineWorkers:
     def __len__(self) -> int:
         return len(self.queue)
 
-    def next_done(self) -> tuple[str, Any]:
+    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
         kind, payload = self.queue.popleft()
-        return kind, _work(self.labeller, kind, payload)
+        return kind, _work(self.labeller, kind, payload), None
 
     def close(self) -> None:
         self.labeller.close()
@@ -92,26 +113,26 @@ class _InlineWorkers:
 class _ProcessWorkers:
     """Spawned worker processes: each a fresh interpreter with its own PyBullet client."""
 
-    def __init__(self, config: Config, objects: ObjectSet):
+    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
         import concurrent.futures
         import multiprocessing
 
         self._futures = concurrent.futures
         self.pool = concurrent.futures.ProcessPoolExecutor(
             max_workers=config.run.workers, mp_context=multiprocessing.get_context("spawn"),
-            initializer=_init_worker, initargs=(config.to_dict(), objects))
+            initializer=_init_process_worker, initargs=(config.to_dict(), objects))
         self.running: dict = {}
 
     def submit(self, kind: str, payload: Any) -> None:
-        self.running[self.pool.submit(_work_in_worker, kind, payload)] = kind
+        self.running[self.pool.submit(_work_in_process, kind, payload)] = kind
 
     def __len__(self) -> int:
         return len(self.running)
 
-    def next_done(self) -> tuple[str, Any]:
+    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
         done, _ = self._futures.wait(self.running, return_when=self._futures.FIRST_COMPLETED)
         future = next(iter(done))
-        return self.running.pop(future), future.result()
+        return (self.running.pop(future), *future.result())
 
     def close(self) -> None:
         # An interrupt or a failed write ends the run: start nothing further.
@@ -119,24 +140,31 @@ class _ProcessWorkers:
 
 
 class _RayLabeller:
-    """An ``ObjectLabeller`` built inside a Ray worker from the config's plain dict."""
+    """A Ray actor holding one ``_DatasetWorker`` for the whole run. Its objects arrive by value from the
+    object store (``object_transfer``) and are written to this node's own cache, so no node needs the
+    driver's objects folder."""
 
-    def __init__(self, config_dict: dict, objects: ObjectSet):
-        _init_worker(config_dict, objects)
+    def __init__(self, config_dict: dict, packed: Any):
+        from .object_transfer import materialise, materialised_dir
 
-    def work(self, kind: str, payload: Any) -> Any:
-        return _work_in_worker(kind, payload)
+        self.worker = _DatasetWorker(config_dict, materialise(packed), str(materialised_dir(packed)))
+
+    def work(self, kind: str, payload: Any) -> tuple[Any, WorkerReport]:
+        return self.worker.work(kind, payload)
 
 
 class _RayWorkers:
     """One actor per worker, each given one piece of work at a time, the rest waiting here in order."""
 
-    def __init__(self, config: Config, objects: ObjectSet):
+    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
         import ray
 
-        self.ray = ray
+        from .runtime import ray_worker_stopped
+
+        self.ray, self.stopped = ray, ray_worker_stopped
         actor = ray.remote(num_cpus=1)(_RayLabeller)
-        self.idle = [actor.remote(config.to_dict(), objects) for _ in range(config.run.workers)]
+        packed_ref = ray.put(packed)  # once: each node that runs an actor fetches it
+        self.idle = [actor.remote(config.to_dict(), packed_ref) for _ in range(config.run.workers)]
         self.waiting: collections.deque = collections.deque()
         self.running: dict = {}
 
@@ -153,27 +181,33 @@ class _RayWorkers:
     def __len__(self) -> int:
         return len(self.running) + len(self.waiting)
 
-    def next_done(self) -> tuple[str, Any]:
+    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
         [ref], _ = self.ray.wait(list(self.running), num_returns=1)
         kind, worker = self.running.pop(ref)
         self.idle.append(worker)
-        result = self.ray.get(ref)
+        try:
+            result, report = self.ray.get(ref)
+        except self.ray.exceptions.RayActorError as exc:
+            raise self.stopped(exc) from exc
         self._dispatch()
-        return kind, result
+        return kind, result, report
 
     def close(self) -> None:
         for ref in self.running:
             self.ray.cancel(ref)
 
 
-def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str]) -> Iterator[ObjectLabels]:
-    """Each object's labels as soon as its plan and every chunk of it are done (objects in any order)."""
+def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], packed: Any = None,
+                     on_report: Callable[[WorkerReport], None] | None = None) -> Iterator[ObjectLabels]:
+    """Each object's labels as soon as its plan and every chunk of it are done (objects in any order).
+    ``packed``: the objects packed for Ray (``object_transfer.pack_objects``); ``on_report`` hears each
+    worker process's report after each piece of work."""
     dataset = config.dataset
     if config.run.backend == "ray":
         workers_type = _RayWorkers
     else:
         workers_type = _InlineWorkers if config.run.workers == 1 else _ProcessWorkers
-    workers = workers_type(config, objects)
+    workers = workers_type(config, objects, packed)
     to_plan = collections.deque(object_ids)
     unfinished: dict[str, tuple[ObjectPlan, list, int]] = {}
 
@@ -187,7 +221,9 @@ def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str]) 
         for _ in range(max(1, config.run.workers)):
             plan_next()
         while len(workers):
-            kind, result = workers.next_done()
+            kind, result, report = workers.next_done()
+            if report is not None and on_report is not None:
+                on_report(report)
             if kind == "plan":
                 chunks = result.chunks(dataset.mode, dataset.grasps_per_chunk)
                 unfinished[result.object_id] = (result, [], len(chunks))
@@ -256,10 +292,16 @@ def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progr
     from . import provenance
     from .dataset import read_progress
     from .dataset_report import write_dataset_report
-    from .run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_json
+    from .run_directory import CONFIG_FILE, PROVENANCE_FILE, WORKERS_FILE, RunLock, append_json_line, check_same_run, write_json
 
     on_note = on_note or (lambda note: None)
     object_ids = dataset_object_ids(config, objects)
+    packed = None
+    if config.run.backend == "ray":
+        from .object_transfer import pack_objects
+
+        # Read before anything is written: a file that cannot be packed stops the run with no directory made.
+        packed = pack_objects(objects, object_ids)
     out_dir.mkdir(parents=True, exist_ok=True)
     checksum = objects.checksum()
     with RunLock(out_dir):
@@ -284,7 +326,10 @@ def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progr
         new_objects = []
         try:
             with _ray_connected(config):
-                for labels in labelled_objects(config, objects, pending):
+                def on_report(report: WorkerReport) -> None:
+                    append_json_line(out_dir / WORKERS_FILE, {**report.to_json(), "time": time.time()})
+
+                for labels in labelled_objects(config, objects, pending, packed, on_report):
                     entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode)
                     new_objects.append(labels.object_id)
                     if on_object is not None:

@@ -204,13 +204,19 @@ def _write_materialised(packed: PackedObjects, cache_dir: str | Path | None) -> 
         raise ObjectTransferError(f"cannot write the objects under {parent}: {exc.strerror or exc}") from exc
     try:
         _write_trees(staging, packed)
-        if directory.exists():  # damaged (a complete one returned above): set it aside, then take its place
-            stale = Path(tempfile.mkdtemp(prefix=f".stale-{packed.checksum[:16]}-", dir=parent))
-            try:
-                directory.rename(stale / "old")
-            except OSError:
-                pass  # another worker replaced it first
-            shutil.rmtree(stale, ignore_errors=True)
+        try:
+            staging.rename(directory)
+            return directory
+        except OSError:
+            # Taken: by another worker that finished first (then it is complete, and may be in use), or damaged.
+            if _is_complete(directory, packed):
+                return directory
+        stale = Path(tempfile.mkdtemp(prefix=f".stale-{packed.checksum[:16]}-", dir=parent))
+        try:
+            directory.rename(stale / "old")
+        except OSError:
+            pass  # another worker set it aside first
+        shutil.rmtree(stale, ignore_errors=True)
         try:
             staging.rename(directory)
         except OSError:

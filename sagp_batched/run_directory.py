@@ -13,6 +13,7 @@ holds the records of one run's settings and object set only; one process writes 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import json
 import os
@@ -314,3 +315,29 @@ def write_json(path: Path, value: Any) -> None:
     except OSError as exc:
         temporary.unlink(missing_ok=True)
         raise RunDirectoryError(f"cannot write {path}: {_os_reason(exc)}") from exc
+
+
+@dataclass(frozen=True)
+class WorkerReport:
+    """A worker process just after finishing a unit of work (a study's trial unit; a dataset's object
+    plan or chunk of grasps): which process on which node, how many units it has run, its resident
+    memory, how long the unit took, and the folder its objects were read from."""
+
+    pid: int
+    node: str
+    units_done: int
+    rss_bytes: int
+    unit_s: float
+    objects_dir: str | None
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def append_json_line(path: Path, value: dict[str, Any]) -> None:
+    """One JSON line appended to ``path`` (a run's ``workers.jsonl``); ``RunDirectoryError`` if it cannot be written."""
+    try:
+        with path.open("a", encoding="utf-8") as file:
+            file.write(json.dumps(value, sort_keys=True) + "\n")
+    except OSError as exc:
+        raise RunDirectoryError(f"cannot write {path}: {exc.strerror or exc}") from exc

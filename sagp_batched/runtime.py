@@ -27,6 +27,15 @@ def resident_memory_bytes() -> int:
     return int(psutil.Process().memory_info().rss)
 
 
+def ray_worker_stopped(exc: BaseException) -> Exception:
+    """The one-line error of a Ray actor that could not start or stopped mid-run (its objects could not
+    be written, its node went away): Ray puts the worker's own exception on the last line of its text."""
+    from .config import ConfigError
+
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    return ConfigError(f"a Ray worker stopped: {lines[-1] if lines else exc}")
+
+
 @contextlib.contextmanager
 def ray_session(address: str | None, workers: int) -> Iterator[None]:
     """Ray connected for the block: to the cluster at ``address``, else a local instance of

@@ -13,8 +13,6 @@ process reports its resident memory after every unit; the driver appends it to `
 from __future__ import annotations
 
 import concurrent.futures
-import dataclasses
-import json
 import multiprocessing
 import os
 import socket
@@ -29,7 +27,8 @@ from .config import Config, ConfigError, load_config
 from .experiment import TrialRunner, UnitResult
 from .records import TrialRecord, TrialUnit, record_key
 from .run_directory import (
-    CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, WORKERS_FILE, RunDirectoryError, RunLock, TrialWriter, check_same_run, read_records,
+    CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, WORKERS_FILE, RunDirectoryError, RunLock, TrialWriter, WorkerReport, append_json_line,
+    check_same_run, read_records,
     recover_trials_file, run_file_path, write_file_atomically, write_json,
 )
 from .metrics import summarise
@@ -38,10 +37,6 @@ from .objects import ObjectSet, load_object_set
 if TYPE_CHECKING:
     from .object_transfer import PackedObjects
 from .types import METHODS, TASKS
-
-class StudyWorkerError(ConfigError):
-    """A worker could not start or stopped mid-run (its objects could not be written, its node went away)."""
-
 
 @dataclass
 class StudyResult:
@@ -84,22 +79,6 @@ def plan_units(config: Config, objects: ObjectSet, methods: Iterable[str]) -> li
 
 
 # --- executors ---------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class WorkerReport:
-    """A worker process just after finishing a unit: which process on which node, how many units it has
-    run, its resident memory, how long the unit took, and the folder its objects were read from."""
-
-    pid: int
-    node: str
-    units_done: int
-    rss_bytes: int
-    unit_s: float
-    objects_dir: str | None
-
-    def to_json(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
 
 
 class _Worker:
@@ -198,7 +177,7 @@ class _RayTrialRunner:
 
 
 def _run_ray(config: Config, packed: PackedObjects, units: list[TrialUnit], finish: Finish) -> None:
-    from .runtime import ray_session
+    from .runtime import ray_session, ray_worker_stopped
 
     if not units:
         return
@@ -215,24 +194,10 @@ def _run_ray(config: Config, packed: PackedObjects, units: list[TrialUnit], fini
             for result, report in pool.map_unordered(lambda runner, unit: runner.run_unit.remote(unit), units):
                 finish(result, report)
         except ray.exceptions.RayActorError as exc:
-            raise StudyWorkerError(f"a Ray worker stopped: {_last_line(str(exc))}") from exc
-
-
-def _last_line(text: str) -> str:
-    """The last non-blank line of an error's text: where Ray reports a worker's exception after its traceback."""
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return lines[-1] if lines else text
+            raise ray_worker_stopped(exc) from exc
 
 
 # --- the study ---------------------------------------------------------------------------------
-
-
-def _append_json_line(path: Path, value: dict[str, Any]) -> None:
-    try:
-        with path.open("a", encoding="utf-8") as file:
-            file.write(json.dumps(value, sort_keys=True) + "\n")
-    except OSError as exc:
-        raise RunDirectoryError(f"cannot write {path}: {exc.strerror or exc}") from exc
 
 
 def _pending_units(units: list[TrialUnit], finished: set[tuple[str, str, str, int]]) -> list[TrialUnit]:
@@ -327,7 +292,7 @@ def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], unit
                 bar.update(1)
                 bar.set_postfix_str(f"{record.object} {record.task} {record.method} #{record.trial}")
         if report is not None:
-            _append_json_line(workers_path, {**report.to_json(), "time": time.time()})
+            append_json_line(workers_path, {**report.to_json(), "time": time.time()})
 
     try:
         if config.run.backend == "ray":

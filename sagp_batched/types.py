@@ -315,7 +315,7 @@ class GraspCandidates:
         """The batch moved by a (4, 4) rigid transform, in float64: ``transform(object_from_world)``
         expresses it in the object frame (fields keep their ``_world`` names, as graspnetAPI's
         ``GraspGroup.transform`` keeps its)."""
-        matrix = torch.as_tensor(np.asarray(transform), dtype=torch.float64)
+        matrix = torch.tensor(np.asarray(transform), dtype=torch.float64)  # a copy: a read-only array (from Ray) stays untouched
         if matrix.shape != (4, 4) or not torch.allclose(matrix[:3, :3] @ matrix[:3, :3].T, torch.eye(3, dtype=torch.float64), atol=1e-6):
             raise ValueError(f"transform must be a (4, 4) rigid transform, got shape {tuple(matrix.shape)}")
         rotation, translation = matrix[:3, :3], matrix[:3, 3]

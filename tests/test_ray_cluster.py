@@ -114,20 +114,48 @@ def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_pat
 
 
 @pytest.mark.slow
-def test_a_dataset_on_a_cluster_joined_by_address_writes_the_local_labels(tmp_path, ray_cluster):
+def test_a_dataset_of_your_meshes_on_a_cluster_joined_by_address_writes_the_local_labels(tmp_path, ray_cluster, worker_cache, monkeypatch):
     import h5py
+    import trimesh
 
     from runners import datagen
 
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    trimesh.creation.box((0.05, 0.04, 0.08)).export(meshes / "box.stl")
+    trimesh.creation.cylinder(0.03, 0.1, sections=24).export(meshes / "can.obj")
+    driver_objects, moved_away = tmp_path / "driver_objects", tmp_path / "moved_away"
+    shutil.copytree(meshes, driver_objects)
+    ray_session = runtime.ray_session
+
+    @contextlib.contextmanager
+    def session_then_move_the_folder(*args):
+        with ray_session(*args):
+            shutil.move(driver_objects, moved_away)
+            yield
+
     labels = {}
-    for name, backend in (("local", ["--backend", "local"]), ("cluster", ["--backend", "ray", "--address", ray_cluster, "--workers", "2"])):
+    common = ["--out", "--grasps-per-object", "8", "--captures", "1", "--pairs", "2000", "--no-progress"]
+    runs = {"local": (meshes, ["--backend", "local"]),
+            "cluster": (driver_objects, ["--backend", "ray", "--address", ray_cluster, "--workers", "2", "--grasps-per-chunk", "3"])}
+    for name, (folder, backend) in runs.items():
+        if name == "cluster":
+            monkeypatch.setattr(runtime, "ray_session", session_then_move_the_folder)
         out = tmp_path / name
-        assert datagen.main(["--objects", "003_cracker_box,005_tomato_soup_can", "--out", str(out), "--grasps-per-object", "6",
-                             "--captures", "1", "--pairs", "2000", "--no-progress", *backend]) == 0
+        assert datagen.main(["--objects-dir", str(folder), common[0], str(out), *common[1:], *backend]) == 0
         labels[name] = {}
         for entry in json.loads((out / "manifest.json").read_text())["objects"]:
             with h5py.File(out / entry["grasps"], "r") as f:
-                labels[name][entry["id"]] = (f["grasps/transforms"][()], f["grasps/qualities/flex/object_in_gripper"][()])
-    assert labels["local"].keys() == labels["cluster"].keys() == {"003_cracker_box", "005_tomato_soup_can"}
-    for object_id, (transforms, held) in labels["local"].items():
-        assert np.array_equal(transforms, labels["cluster"][object_id][0]) and np.array_equal(held, labels["cluster"][object_id][1])
+                flex = f["grasps/qualities/flex"]
+                labels[name][entry["id"]] = {key: flex[key][()] for key in flex} | {"transforms": f["grasps/transforms"][()]}
+    assert not driver_objects.exists() and moved_away.is_dir()
+    assert labels["local"].keys() == labels["cluster"].keys() == {"box", "can"}
+    for object_id, fields in labels["local"].items():
+        assert len(fields["transforms"]) == 8
+        for key, value in fields.items():
+            assert np.array_equal(value, labels["cluster"][object_id][key], equal_nan=True), (object_id, key)
+    # Every file is the driver's; the workers planned and simulated from the objects the object store brought.
+    reports = [json.loads(line) for line in (tmp_path / "cluster" / "workers.jsonl").read_text().splitlines()]
+    assert len(reports) == 2 + 6 and len({r["pid"] for r in reports}) == 2 and all(r["rss_bytes"] > 0 for r in reports)
+    (materialised,) = {r["objects_dir"] for r in reports}
+    assert materialised.startswith(str(worker_cache / "transfer"))
