@@ -3,7 +3,9 @@
 Each case is the real dataset run (``dataset_run.generate_dataset``) of one object into a fresh
 directory: wall time from the first plan to the report (worker start-up included), and the per-stage
 seconds the workers report (reset, capture, plan, simulate, write), summed over workers. The
-per-core rate divides by wall time x workers, so idle workers count against it.
+per-core rate divides by wall time x workers, so idle workers (starting up, or waiting while the
+only object is planned) count against it; the busy rate divides by the seconds the stages took, the
+rate of a core kept busy, as in a run of many objects where one worker plans while others simulate.
 
 ``shared_world_step_cost`` measures what a PyBullet step costs per hand-object pair when several
 pairs, far apart, share one world: the way to label many grasps per step where the step's fixed
@@ -52,6 +54,7 @@ def benchmark_dataset_case(config: Config, objects: ObjectSet, object_id: str, m
         "object": object_id, "mode": mode, "workers": workers, "grasps": n_grasps, "labelled": labelled,
         "untested": int(entry["untested"]), "held": int(entry["held"]), "wall_s": wall_s,
         "labels_per_s_per_core": labelled / (wall_s * workers),
+        "busy_labels_per_s_per_core": labelled / sum(times.values()),
         "simulated_labels_per_s_per_core": labelled / times["simulate"] if times["simulate"] > 0 else None,
         "stage_s": times,
     }
@@ -74,6 +77,7 @@ def benchmark_dataset(config: Config, objects: ObjectSet, object_id: str, grasps
             "repeats": len(cases),
             "wall_s": statistics.median(c["wall_s"] for c in cases),
             "labels_per_s_per_core": statistics.median(c["labels_per_s_per_core"] for c in cases),
+            "busy_labels_per_s_per_core": statistics.median(c["busy_labels_per_s_per_core"] for c in cases),
             "simulated_labels_per_s_per_core": statistics.median(c["simulated_labels_per_s_per_core"] or 0.0 for c in cases),
             "stage_s": {stage: statistics.median(c["stage_s"][stage] for c in cases) for stage in STAGES},
         })

@@ -67,6 +67,7 @@ def test_dataset_bench_writes_rates_breakdown_projection_and_shared_world_cost(t
     (case,) = report["cases"]
     assert case["mode"] == "hand" and case["workers"] == 1 and case["labelled"] + case["untested"] == 4
     assert case["wall_s"] > 0 and case["labels_per_s_per_core"] > 0 and case["simulated_labels_per_s_per_core"] > 0
+    assert case["busy_labels_per_s_per_core"] >= case["labels_per_s_per_core"]
     assert set(case["stage_s"]) == {"reset", "capture", "plan", "simulate", "write"} and case["stage_s"]["simulate"] > 0
     assert set(report["projection"]["hours_by_cores"]) == {"2", "64"}
     assert [row["pairs"] for row in report["shared_world"]] == [1, 2] and all(row["step_ms"] > 0 for row in report["shared_world"])
