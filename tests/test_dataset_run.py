@@ -42,5 +42,5 @@ def test_chunks_simulated_in_any_order_join_to_the_labels_of_one_pass(labeller, 
     for field in dataclasses.fields(whole.grasps):
         a, b = getattr(whole.grasps, field.name), getattr(parts.grasps, field.name)
         assert (np.array_equal(a, b, equal_nan=True) if isinstance(a, np.ndarray) else a == b), field.name
-    assert len(whole.grasps.held) == 14 and 0 < whole.grasps.held.sum() < 14
+    assert len(whole.grasps.held) == 14 and whole.grasps.held.any()
     assert set(whole.times_s) == {"reset", "capture", "plan", "simulate"} and whole.times_s["simulate"] > 0

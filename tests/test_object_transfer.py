@@ -103,7 +103,7 @@ def test_workers_of_one_node_share_one_materialised_folder_and_a_damaged_one_is_
     mesh = Path(sets[0].get("025_mug").urdf_path).parent / "textured.obj"
     mesh.write_bytes(b"truncated")
     repaired = materialise(packed, tmp_path / "cache")
-    assert mesh.read_bytes() == (embedded_ycb_dir() / "025_mug" / "textured.obj").read_bytes()
+    assert mesh.read_bytes() == (load_object_set().get("025_mug").urdf_path.parent / "textured.obj").read_bytes()
     assert repaired.checksum() == packed.checksum
 
 
