@@ -24,6 +24,7 @@ from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, ob
 from .export import planner_frames_from_acronym
 from .objects import ObjectSet
 from .run_directory import WorkerReport
+from .runtime import ray_worker_stopped
 
 # The report's coverage figure: grasps closer than this, and turned less, count as one.
 DISTINCT_TRANSLATION_M = 0.01
@@ -159,9 +160,7 @@ class _RayWorkers:
     def __init__(self, config: Config, objects: ObjectSet, packed: Any):
         import ray
 
-        from .runtime import ray_worker_stopped
-
-        self.ray, self.stopped = ray, ray_worker_stopped
+        self.ray = ray
         actor = ray.remote(num_cpus=1)(_RayLabeller)
         packed_ref = ray.put(packed)  # once: each node that runs an actor fetches it
         self.idle = [actor.remote(config.to_dict(), packed_ref) for _ in range(config.run.workers)]
@@ -188,7 +187,7 @@ class _RayWorkers:
         try:
             result, report = self.ray.get(ref)
         except self.ray.exceptions.RayActorError as exc:
-            raise self.stopped(exc) from exc
+            raise ray_worker_stopped(exc) from exc
         self._dispatch()
         return kind, result, report
 

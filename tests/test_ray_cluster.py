@@ -77,14 +77,9 @@ def _exported_files(out):
     return {path.relative_to(out).as_posix(): path.read_bytes() for folder in ("grasps", "frames") for path in sorted((out / folder).iterdir())}
 
 
-@pytest.mark.slow
-def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_path, ycb_dir, ray_cluster, worker_cache, monkeypatch):
-    local = _study(tmp_path, "local", ycb_dir)
-    # The driver's objects leave their folder once Ray is connected, before any actor starts: the workers can
-    # get them from the object store only.
-    driver_objects, moved_away = tmp_path / "driver_objects", tmp_path / "moved_away"
-    shutil.copytree(ycb_dir, driver_objects)
-    checksum = load_object_set(driver_objects).subset(["005_tomato_soup_can"]).checksum()
+def _moving_away_once_connected(driver_objects, moved_away):
+    """A ``runtime.ray_session`` that moves the driver's objects folder away once Ray is connected, before
+    any actor starts: the workers can get the objects from the object store only."""
     ray_session = runtime.ray_session
 
     @contextlib.contextmanager
@@ -93,6 +88,18 @@ def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_pat
             shutil.move(driver_objects, moved_away)
             yield
 
+    return session_then_move_the_folder
+
+
+@pytest.mark.slow
+def test_a_study_on_a_cluster_joined_by_address_writes_the_local_records(tmp_path, ycb_dir, ray_cluster, worker_cache, monkeypatch):
+    local = _study(tmp_path, "local", ycb_dir)
+    # The driver's objects leave their folder once Ray is connected, before any actor starts: the workers can
+    # get them from the object store only.
+    driver_objects, moved_away = tmp_path / "driver_objects", tmp_path / "moved_away"
+    shutil.copytree(ycb_dir, driver_objects)
+    checksum = load_object_set(driver_objects).subset(["005_tomato_soup_can"]).checksum()
+    session_then_move_the_folder = _moving_away_once_connected(driver_objects, moved_away)
     monkeypatch.setattr(runtime, "ray_session", session_then_move_the_folder)
     clustered = _study(tmp_path, "cluster", driver_objects, backend="ray", ray_address=ray_cluster, workers=2)
     assert not driver_objects.exists() and moved_away.is_dir()
@@ -126,14 +133,7 @@ def test_a_dataset_of_your_meshes_on_a_cluster_joined_by_address_writes_the_loca
     trimesh.creation.cylinder(0.03, 0.1, sections=24).export(meshes / "can.obj")
     driver_objects, moved_away = tmp_path / "driver_objects", tmp_path / "moved_away"
     shutil.copytree(meshes, driver_objects)
-    ray_session = runtime.ray_session
-
-    @contextlib.contextmanager
-    def session_then_move_the_folder(*args):
-        with ray_session(*args):
-            shutil.move(driver_objects, moved_away)
-            yield
-
+    session_then_move_the_folder = _moving_away_once_connected(driver_objects, moved_away)
     labels = {}
     common = ["--out", "--grasps-per-object", "8", "--captures", "1", "--pairs", "2000", "--no-progress"]
     runs = {"local": (meshes, ["--backend", "local"]),
