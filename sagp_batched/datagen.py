@@ -20,6 +20,7 @@ import time
 import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -30,6 +31,9 @@ from .export import acronym_gripper_transforms_object, planner_frames_from_acron
 from .objects import ObjectSet, ObjectSpec
 from .types import Grasp, GraspCandidates, PerceptionFailure
 from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
+
+if TYPE_CHECKING:
+    import trimesh
 
 # The tasks a dataset's zone ratings are asked for: t3 is t1 among distractors, which a dataset
 # of single objects does not place.
@@ -77,9 +81,22 @@ def _urdf_physics(spec: ObjectSpec) -> ObjectPhysics:
         scale = np.array([float(v) for v in (mesh_element.get("scale") or "1 1 1").split()])
         mesh = trimesh.load(Path(spec.urdf_path).parent / mesh_element.get("filename"), force="mesh")
         mesh.apply_scale(scale)
-        volume = float(sum(part.convex_hull.volume for part in mesh.split(only_watertight=False)))
+        volume = float(sum(_hull_volume(part) for part in mesh.split(only_watertight=False)))
     density = mass / volume if volume > 0 else math.nan
     return ObjectPhysics(mass, density, friction, com, inertia, volume)  # type: ignore[arg-type]
+
+
+def _hull_volume(part: "trimesh.Trimesh") -> float:
+    """The volume of a mesh part's convex hull; a part lying in one plane (a stray triangle or
+    sheet in a scanned mesh) has none, and qhull refuses to build its hull."""
+    from scipy.spatial import QhullError
+
+    if len(part.vertices) < 4:
+        return 0.0
+    try:
+        return float(part.convex_hull.volume)
+    except QhullError:
+        return 0.0
 
 
 @dataclass

@@ -89,3 +89,23 @@ def test_split_files_list_every_object_once_and_the_split_is_stable(tmp_path):
 def test_a_torn_progress_line_is_skipped_so_its_object_runs_again(tmp_path):
     (tmp_path / "objects.jsonl").write_text('{"object": "a", "labelled": 3}\n{"object": "b", "lab')
     assert list(read_progress(tmp_path)) == ["a"]
+
+
+def test_a_stray_flat_part_in_a_collision_mesh_adds_no_volume_and_raises_nothing(tmp_path):
+    """Scanned meshes carry stray triangles; qhull cannot build their hull, and they hold no volume."""
+    import trimesh
+
+    from sagp_batched.datagen import object_physics
+    from sagp_batched.objects import ObjectSpec
+
+    box = trimesh.creation.box(extents=(0.1, 0.05, 0.02))
+    stray = trimesh.Trimesh(vertices=[[0.3, 0, 0], [0.31, 0, 0], [0.3, 0.01, 0]], faces=[[0, 1, 2]])
+    trimesh.util.concatenate([box, stray]).export(tmp_path / "collision.obj")
+    (tmp_path / "model.urdf").write_text(
+        '<robot name="o"><link name="base"><inertial><mass value="0.2"/><origin xyz="0 0 0"/>'
+        '<inertia ixx="1e-4" iyy="1e-4" izz="1e-4" ixy="0" ixz="0" iyz="0"/></inertial>'
+        '<collision><geometry><mesh filename="collision.obj"/></geometry></collision></link></robot>')
+    spec = ObjectSpec("o", "o", tmp_path / "model.urdf", "box", False, 0.2, (0.1, 0.05, 0.02))
+    physics = object_physics(spec)
+    assert physics.volume_m3 == pytest.approx(1e-4, rel=1e-6)
+    assert physics.density_kg_m3 == pytest.approx(2000.0, rel=1e-6)
