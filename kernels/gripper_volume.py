@@ -438,6 +438,8 @@ def table_penetration(
     through = (upper < table_top_z_m - TABLE_BOUND_SLACK_M) | (upper - drop < table_top_z_m - TABLE_BOUND_SLACK_M)
     clear = (lower >= table_top_z_m + TABLE_BOUND_SLACK_M) & (lower - drop >= table_top_z_m + TABLE_BOUND_SLACK_M)
     poses, slots = (~(through | clear)).nonzero(as_tuple=True)
+    if not poses.numel():
+        return through
     # MKL picks another summation order for GEMMs of fewer than 4 rows; padding the batch to 8
     # rows keeps the exhaustive check's rounding.
     padded = torch.cat((poses, poses.new_zeros(max(0, 8 - poses.numel()))))

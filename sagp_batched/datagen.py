@@ -259,6 +259,13 @@ class ObjectLabeller:
         times["capture"] += time.perf_counter() - clock
         clock = time.perf_counter()
         classified = classify_grasps(cloud, config, config.dataset.seed + pose_index, n_grasps, taken_object=taken)
+        if not len(classified):
+            times["plan"] += time.perf_counter() - clock
+            planner = config.planner
+            if not classified.pool_size:
+                return (f"capture {pose_index}: no antipodal candidate (opposed contacts "
+                        f"{planner.min_width_m * 1000:.0f}-{planner.max_width_m * 1000:.0f} mm apart) in its cloud")
+            return f"capture {pose_index}: each of its {classified.pool_size} candidate poses repeats a grasp of an earlier capture"
         decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
         shown = rating_image(cloud, decomposition, config.rating)
         ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, decomposition.describe()) for task in DATASET_TASKS}

@@ -129,6 +129,9 @@ def _report_markdown(out_dir, manifest, summary, entries, pictures, plots) -> st
     ]
     if manifest["skipped_objects"]:
         lines += ["## Objects that could not serve", "", *[f"- `{path}`: {why}" for path, why in manifest["skipped_objects"]], ""]
+    skipped_captures = [(e["object"], why) for e in entries for why in e.get("skipped_captures", [])]
+    if skipped_captures:
+        lines += ["## Captures that gave no labels", "", *[f"- `{object_id}` {why}" for object_id, why in skipped_captures], ""]
     lines += ["## Plots", "", *[f"![{p.stem}]({p.relative_to(out_dir).as_posix()})" for p in plots], ""]
     lines += ["## Labelled grasps on each object (held green, dropped red)", "",
               *[f"![{p.stem}]({p.relative_to(out_dir).as_posix()})" for p in pictures], ""]
@@ -202,7 +205,8 @@ def draw_object_grasps(h5_path: Path, meshes_dir: Path, picture: Path) -> Path:
     figure = plt.figure(figsize=(6, 6))
     axis = figure.add_subplot(projection="3d")
     axis.add_collection3d(Poly3DCollection(mesh.vertices[faces], facecolor=(0.7, 0.7, 0.75, 0.35), edgecolor="none"))
-    axis.add_collection3d(Line3DCollection(segments.reshape(-1, 2, 3), colors=colours, linewidths=0.8))
+    if len(shown):
+        axis.add_collection3d(Line3DCollection(segments.reshape(-1, 2, 3), colors=colours, linewidths=0.8))
     # Framed on the object with a gripper's length around it: markers reaching further are cut, not the object shrunk.
     centre, half = mesh.bounds.mean(axis=0), mesh.extents.max() / 2 + PICTURE_MARGIN_M
     for setter, c in zip((axis.set_xlim, axis.set_ylim, axis.set_zlim), centre):

@@ -44,3 +44,29 @@ def test_chunks_simulated_in_any_order_join_to_the_labels_of_one_pass(labeller, 
         assert (np.array_equal(a, b, equal_nan=True) if isinstance(a, np.ndarray) else a == b), field.name
     assert len(whole.grasps.held) == 14 and whole.grasps.held.any()
     assert set(whole.times_s) == {"reset", "capture", "plan", "simulate"} and whole.times_s["simulate"] > 0
+
+
+def test_a_capture_without_candidates_is_skipped_with_its_reason(labeller):
+    """An object the hand's width range offers no antipodal pair is a skipped capture, not an error."""
+    narrow = load_config("dataset", overrides={"dataset": {"captures_per_object": 1},
+                                               "planner": {"n_pairs": 3000, "min_width_m": 0.0699, "max_width_m": 0.0699}})
+    skipping = ObjectLabeller(narrow, labeller.objects)
+    try:
+        plan = skipping.plan_object("005_tomato_soup_can", 6)
+    finally:
+        skipping.close()
+    assert plan.poses == [] and len(plan.skipped_poses) == 1
+    assert "no antipodal candidate" in plan.skipped_poses[0] and "70-70 mm" in plan.skipped_poses[0]
+    assert object_labels(plan, []).grasps.transforms.shape[0] == 0
+
+
+def test_a_table_check_of_no_poses_returns_no_verdicts():
+    import torch
+
+    from sagp_batched.planner import hand_geometry
+    from sagp_batched_kernels.gripper_volume import table_penetration
+
+    config = load_config("dataset")
+    points = hand_geometry(config.planner).vertices()
+    through = table_penetration(torch.zeros(0, 3), torch.zeros(0, 4, 3, 3), points, config.execution.pregrasp_offset_m, 0.6)
+    assert through.shape == (0, 4)
