@@ -6,14 +6,14 @@ The public API: build a scene, perceive, plan, zone, rate, score, execute::
     config = load_config("paper")
     scene = Scene(config)
     scene.reset(load_object_set("../shared/ycb").get("025_mug"), trial=0)
-    grasps = plan(capture(scene, config), config, seed=0)   # GraspCandidates, ranked by S_geom
+    grasps = plan(capture(scene, config), config, seed=0).candidates   # GraspCandidates, ranked by S_geom
     attempt = execute_grasp(scene, config, grasps[0])      # grasps[0] is the best Grasp
 """
 from .config import GEOMETRY_ONLY_WEIGHTS, Config, ConfigError, ScoreWeights, load_config
 from .execution import execute_grasp, execute_ranked
 from .objects import ObjectSet, ObjectSpec, load_object_set
 from .perception import capture
-from .planner import plan, plan_batch
+from .planning import PlanResult, plan, plan_batch
 from .rating import ZoneRating, get_rater
 from .scene import Scene
 from .scoring import score_candidates
@@ -25,7 +25,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "GEOMETRY_ONLY_WEIGHTS", "CameraData", "Config", "ConfigError", "Grasp", "GraspAttempt", "GraspCandidates", "ObjectSet",
-    "ObjectSpec", "PerceivedCloud", "PerceptionFailure", "Scene", "ScoreWeights", "ZoneDecomposition", "ZoneRating",
+    "ObjectSpec", "PerceivedCloud", "PerceptionFailure", "PlanResult", "Scene", "ScoreWeights", "ZoneDecomposition", "ZoneRating",
     "assign_zones", "capture", "execute_grasp", "execute_ranked", "get_rater", "load_config", "load_object_set",
     "plan", "plan_batch", "run_study", "score_candidates",
 ]

@@ -25,7 +25,7 @@ from ._open3d import o3d
 from .config import Config
 from .ik import PandaIK, link_moved_by
 from .objects import ObjectSpec
-from .planner import plan, plan_batch
+from .planning import PlanStageTimes, plan, plan_batch
 from .reference import plan_reference
 from .robot import PANDA
 from .types import PerceivedCloud
@@ -85,6 +85,10 @@ def _median(values: list[float]) -> float:
     return float(statistics.median(values))
 
 
+def _stage_seconds(times: PlanStageTimes, stage: str) -> float:
+    return getattr(times, f"{stage}_s")
+
+
 def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkSettings) -> list[dict[str, Any]]:
     rows = []
     for n_pairs in settings.pairs:
@@ -93,14 +97,13 @@ def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkS
         totals, stages, counts = [], {stage: [] for stage in STAGES}, {}
         ik_targets = []
         for repeat in range(settings.repeats):
-            timings: dict[str, float] = {}
             start = time.perf_counter()
-            candidates = plan(cloud, pair_config, seed=repeat, timings=timings)
+            result = plan(cloud, pair_config, seed=repeat)
             totals.append(time.perf_counter() - start)
             for stage in STAGES:
-                stages[stage].append(timings[stage])
-            ik_targets.append(timings["ik_targets"])
-            counts = candidates.counts
+                stages[stage].append(_stage_seconds(result.times, stage))
+            ik_targets.append(result.times.ik_targets)
+            counts = result.counts.as_dict()
         batched_s = _median(totals)
         reference_s = None
         if n_pairs <= settings.reference_max_pairs:
@@ -146,18 +149,16 @@ def benchmark_plan_batch(
             stage_sums = dict.fromkeys(STAGES, 0.0)
             start = time.perf_counter()
             for cloud, seed in zip(batch, seeds):
-                timings: dict[str, float] = {}
-                plan(cloud, config, seed=seed, timings=timings)
+                times = plan(cloud, config, seed=seed).times
                 for stage in STAGES:
-                    stage_sums[stage] += timings[stage]
+                    stage_sums[stage] += _stage_seconds(times, stage)
             singles.append((time.perf_counter() - start) / batch_size)
-            timings = {}
             start = time.perf_counter()
-            plan_batch(batch, config, seeds, timings=timings)
+            times = plan_batch(batch, config, seeds)[0].times
             batched.append((time.perf_counter() - start) / batch_size)
             for stage in STAGES:
                 singles_stages[stage].append(stage_sums[stage] / batch_size)
-                batch_stages[stage].append(timings[stage] / batch_size)
+                batch_stages[stage].append(_stage_seconds(times, stage) / batch_size)
         singles_s, batch_s = _median(singles), _median(batched)
         rows.append(
             {
@@ -387,7 +388,7 @@ def benchmark_world(spec: ObjectSpec, config: Config, runs: int) -> dict[str, An
             cloud = capture(scene, config)
             timings["capture_s"].append(time.perf_counter() - start)
             start = time.perf_counter()
-            candidates = plan(cloud, config, seed=trial)
+            candidates = plan(cloud, config, seed=trial).candidates
             timings["plan_s"].append(time.perf_counter() - start)
             if len(candidates) == 0:
                 continue

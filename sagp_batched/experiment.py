@@ -131,7 +131,7 @@ class TrialRunner:
 
     def _run_unit(self, spec: ObjectSpec, unit: TrialUnit, result: UnitResult) -> None:
         from .perception import capture
-        from .planner import plan
+        from .planning import plan
         from .zone_marks import rating_image
         from .zones import assign_zones
 
@@ -149,7 +149,8 @@ class TrialRunner:
         perception_s = time.perf_counter() - start
 
         start = time.perf_counter()
-        candidates = plan(cloud, config, seed=candidate_seed(config, unit.trial))
+        planned = plan(cloud, config, seed=candidate_seed(config, unit.trial))
+        candidates = planned.candidates
         decomposition, candidates = assign_zones(cloud, candidates, config.zones)
         geometry_s = time.perf_counter() - start
 
@@ -186,7 +187,7 @@ class TrialRunner:
             ranked_by_method[method] = ranked
             method_rating_s = rating_s if method != "go" else 0.0
             times = (perception_s, geometry_s, method_rating_s, geometry_s + method_rating_s + time.perf_counter() - method_start)
-            summary = PlanSummary(candidates.counts, dict(zip(STAGE_TIMES, times)), rating.provenance_dict())
+            summary = PlanSummary(planned.counts.as_dict(), dict(zip(STAGE_TIMES, times)), rating.provenance_dict())
             if len(ranked) == 0:
                 emit(TrialRecord.build(spec, unit, method, config, plan=summary, failure_reason="no_candidates"))
                 continue

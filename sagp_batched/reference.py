@@ -2,7 +2,7 @@
 PyBullet's ``calculateInverseKinematics`` one pose at a time.
 
 It is the correctness oracle and speed baseline for ``planner.plan``'s published part: same random
-draws (``planner.sample_inputs``), same candidate tests and thresholds (antipodal filter, table,
+draws (``planning.sample_inputs``), same candidate tests and thresholds (antipodal filter, table,
 the 12 % gripper volume, grasp-pose IK), same order of trying candidates (S_geom order) and
 approaches (top-down-first prior), but no batching anywhere. It stops there: the planner's
 whole-motion reachability and swept-hand checks are beyond the published method. Geometry is
@@ -19,7 +19,7 @@ import torch
 
 from .config import Config
 from .ik import N_ARM_JOINTS
-from .planner import hand_geometry, jaw_width_limit, sample_inputs
+from .planning import hand_geometry, jaw_width_limit, sample_inputs
 from .robot import PANDA
 from .types import GraspCandidates, PerceivedCloud
 
@@ -34,6 +34,7 @@ class ReferencePlan:
     approaches: np.ndarray  # (A, K, 3) approach directions in prior order
     usable: np.ndarray  # (A, K) bool: clear of the table and under the occupancy limit
     ik_trials: list[dict] = field(default_factory=list)  # one per IK call: position, rotation, feasible
+    counts: dict[str, int] = field(default_factory=dict)  # sampled / antipodal / collision_free / ik_feasible
 
 
 class PyBulletPandaIK:
@@ -91,7 +92,7 @@ def _matrix_to_quat_xyzw(rotation: np.ndarray) -> np.ndarray:
 
 
 def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = None) -> ReferencePlan:
-    """Plan like ``planner.plan`` with loops; see the module docstring."""
+    """Plan like ``planning.plan`` with loops; see the module docstring."""
     planner = config.planner
     seed = planner.seed if seed is None else seed
     inputs = sample_inputs(cloud, planner, seed)
@@ -215,12 +216,6 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
         s_avoid=torch.zeros(count),
         s_task=torch.zeros(count),
         score=as_tensor(geom, (count,)),
-        counts={
-            "sampled": planner.n_pairs,
-            "antipodal": len(survivors),
-            "collision_free": sum(any(row) for row in usable_rows),
-            "ik_feasible": count,
-        },
     )
     return ReferencePlan(
         candidates=candidates,
@@ -229,4 +224,10 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
         approaches=np.array(all_approaches).reshape(len(survivors), planner.n_approaches, 3),
         usable=np.array(usable_rows, dtype=bool).reshape(len(survivors), planner.n_approaches),
         ik_trials=trials,
+        counts={
+            "sampled": planner.n_pairs,
+            "antipodal": len(survivors),
+            "collision_free": sum(any(row) for row in usable_rows),
+            "ik_feasible": count,
+        },
     )

@@ -234,7 +234,6 @@ class GraspCandidates:
     s_task: torch.Tensor  # (C,)
     score: torch.Tensor  # (C,) fused score the batch is ranked by
     zone_names: tuple[str, ...] = ()
-    counts: dict[str, int] = field(default_factory=dict)  # sampled / antipodal / collision_free / ik_feasible
     # (C,) int64 position of each candidate in the planner's output: it follows the candidates
     # through re-ranking, so every method's choices name the same candidate by the same id.
     candidate_id: torch.Tensor | None = None

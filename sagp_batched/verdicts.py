@@ -19,7 +19,7 @@ from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
 from .config import Config, DatasetConfig
 from .ik import panda_ik
 from .motion import grasp_waypoint_index, waypoint_count
-from .planner import check_motions, jaw_width_limit, screen_candidates
+from .planning import check_motions, jaw_width_limit, screen_candidates
 from .types import GraspCandidates, PerceivedCloud
 
 # The planner's verdicts on a grasp, in the order its checks run; a grasp's verdict is the first

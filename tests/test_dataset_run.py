@@ -63,7 +63,7 @@ def test_a_capture_without_candidates_is_skipped_with_its_reason(labeller):
 def test_a_table_check_of_no_poses_returns_no_verdicts():
     import torch
 
-    from sagp_batched.planner import hand_geometry
+    from sagp_batched.planning import hand_geometry
     from sagp_batched_kernels.gripper_volume import table_penetration
 
     config = load_config("dataset")

@@ -8,7 +8,7 @@ import torch
 
 from planner_clouds import box_surface
 from sagp_batched.config import Config
-from sagp_batched.planner import gripper_geometry
+from sagp_batched.planning import gripper_geometry
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
 from sagp_batched_kernels.gripper_volume import gripper_occupancy, gripper_occupancy_within

@@ -10,7 +10,7 @@ from planner_clouds import box_surface, cylinder_surface, make_cloud
 from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS
 from sagp_batched.robot import PANDA
-from sagp_batched.planner import gripper_geometry, hand_geometry, plan
+from sagp_batched.planning import gripper_geometry, hand_geometry, plan
 from sagp_batched_kernels.grasp_frames import grasp_rotations
 from sagp_batched_kernels.gripper_volume import gripper_occupancy
 from sagp_batched_kernels.hand_clearance import hand_clearance
@@ -85,9 +85,9 @@ def test_planner_keeps_no_grasp_whose_descent_hits_an_overhang():
     block, block_normals = box_surface((0.04, 0.04, 0.04), (0.55, 0.0, table + 0.02))
     shelf, _ = box_surface((0.12, 0.12, 0.004), (0.55, 0.0, table + 0.16))
     under_shelf = plan(make_cloud(block, block_normals, table, obstacles=shelf), CONFIG, seed=0)
-    assert len(under_shelf) > 0 and under_shelf.counts["rejected_hand"] > 0
-    assert (under_shelf.approach @ DOWN < math.cos(math.radians(30.0))).all()
-    free = plan(make_cloud(block, block_normals, table), CONFIG, seed=0)
+    assert len(under_shelf.candidates) > 0 and under_shelf.counts.rejected_hand > 0
+    assert (under_shelf.candidates.approach @ DOWN < math.cos(math.radians(30.0))).all()
+    free = plan(make_cloud(block, block_normals, table), CONFIG, seed=0).candidates
     assert (free.approach @ DOWN > 0.99).any()
 
 
@@ -141,7 +141,8 @@ def test_k_dop_clearance_is_a_lower_bound_of_the_distance_to_each_hull():
 def test_a_grasp_whose_pregrasp_is_out_of_reach_is_rejected_though_the_grasp_pose_is_reachable():
     """Reached from beyond the object (approach tilted 30 deg toward the robot) at 65 cm, the hand
     can close on the grasp, but the pre-grasp 10 cm back along the approach lies outside the arm's reach."""
-    from sagp_batched.planner import check_motions, panda_ik
+    from sagp_batched.ik import panda_ik
+    from sagp_batched.planning import check_motions
 
     tilt = math.radians(30.0)
     approach = torch.tensor([[-math.sin(tilt), 0.0, -math.cos(tilt)]])

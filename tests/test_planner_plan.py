@@ -1,4 +1,6 @@
 """The batched planner: API contract, determinism, batching, and agreement with the loop reference."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -6,7 +8,8 @@ import torch
 from planner_clouds import box_surface, cylinder_surface, make_cloud
 from sagp_batched.robot import PANDA
 from sagp_batched.config import Config
-from sagp_batched.planner import panda_ik, plan, plan_batch, screen_candidates
+from sagp_batched.ik import panda_ik
+from sagp_batched.planning import plan, plan_batch, screen_candidates
 
 CONFIG = Config()
 TABLE_Z = CONFIG.scene.table_top_z_m
@@ -25,11 +28,13 @@ def can_cloud():
 
 
 def test_plan_returns_feasible_candidates_ranked_by_geometry(box_cloud):
-    candidates = plan(box_cloud, CONFIG, seed=0)
+    result = plan(box_cloud, CONFIG, seed=0)
+    candidates, counts = result.candidates, result.counts
     assert 0 < len(candidates) <= CONFIG.planner.max_candidates
-    assert candidates.counts["sampled"] == CONFIG.planner.n_pairs
-    assert candidates.counts["sampled"] >= candidates.counts["antipodal"] >= candidates.counts["collision_free"]
-    assert candidates.counts["ik_feasible"] >= len(candidates)
+    assert counts.sampled == CONFIG.planner.n_pairs
+    assert counts.sampled >= counts.antipodal >= counts.collision_free
+    assert counts.ik_feasible >= len(candidates)
+    assert all(seconds >= 0 for seconds in dataclasses.astuple(result.times))
     assert (candidates.s_geom[:-1] >= candidates.s_geom[1:]).all()
     assert torch.equal(candidates.score, candidates.s_geom)
     assert (candidates.zone == -1).all() and (candidates.s_reach >= CONFIG.planner.min_reach).all()
@@ -43,8 +48,8 @@ def test_plan_returns_feasible_candidates_ranked_by_geometry(box_cloud):
 
 
 def test_plan_is_deterministic_for_a_seed(box_cloud):
-    first, second = plan(box_cloud, CONFIG, seed=11), plan(box_cloud, CONFIG, seed=11)
-    other = plan(box_cloud, CONFIG, seed=12)
+    first, second = plan(box_cloud, CONFIG, seed=11).candidates, plan(box_cloud, CONFIG, seed=11).candidates
+    other = plan(box_cloud, CONFIG, seed=12).candidates
     assert torch.equal(first.contacts_world, second.contacts_world)
     assert torch.equal(first.ik_solution, second.ik_solution)
     assert not torch.equal(first.contacts_world, other.contacts_world)
@@ -55,8 +60,9 @@ def test_plan_batch_matches_single_object_plans(box_cloud, can_cloud):
     for cloud, seed, result in ((box_cloud, 3, batched[0]), (can_cloud, 4, batched[1])):
         single = plan(cloud, CONFIG, seed=seed)
         assert result.counts == single.counts
-        assert torch.equal(result.contacts_world, single.contacts_world)
-        assert torch.allclose(result.rotation_world, single.rotation_world)
+        assert torch.equal(result.candidates.contacts_world, single.candidates.contacts_world)
+        assert torch.allclose(result.candidates.rotation_world, single.candidates.rotation_world)
+    assert batched[0].times is batched[1].times  # the call's stage times, shared
 
 
 def test_obstacle_points_in_the_finger_path_remove_candidates(can_cloud):
@@ -69,8 +75,8 @@ def test_obstacle_points_in_the_finger_path_remove_candidates(can_cloud):
     ring[:, :2] = centre[:2] + radial * (1 + 0.012 / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-9))
     crowded = make_cloud(points, can_cloud.normals_world.numpy(), TABLE_Z, "can", obstacles=np.concatenate([ring] * 2))
     blocked = plan(crowded, CONFIG, seed=5)
-    assert blocked.counts["antipodal"] == free.counts["antipodal"]
-    assert blocked.counts["collision_free"] < free.counts["collision_free"]
+    assert blocked.counts.antipodal == free.counts.antipodal
+    assert blocked.counts.collision_free < free.counts.collision_free
 
 
 def test_bad_cloud_is_named():

@@ -4,7 +4,7 @@ import torch
 
 from planner_clouds import box_surface, make_cloud
 from sagp_batched.config import Config, ConfigError, load_config
-from sagp_batched.planner import sample_inputs
+from sagp_batched.planning import sample_inputs
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.sampling import sample_pair_indices
 

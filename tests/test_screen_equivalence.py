@@ -20,8 +20,11 @@ from sagp_batched.benchmark import BenchmarkSettings, mesh_cloud
 from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS
 from sagp_batched.robot import PANDA
-from sagp_batched import planner
-from sagp_batched.planner import ScreenedCandidates, _MotionVerdicts, _ScreenVerdicts, gripper_geometry, hand_geometry, plan_batch, screen_candidates
+from sagp_batched.planning import (
+    CandidateStatus, ScreenedCandidates, SearchTuning, gripper_geometry, hand_geometry, plan, plan_batch, planner, screen_candidates,
+)
+from sagp_batched.planning.lookahead import MotionVerdicts, ScreenVerdicts
+from sagp_batched.planning.search import segment_exclusive_cumsum
 from sagp_batched_kernels import gripper_volume
 from sagp_batched_kernels.gripper_volume import table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance
@@ -125,18 +128,18 @@ def test_planning_with_verdicts_computed_ahead_returns_what_screening_one_window
     seeds = [3, 4]
     config = CONFIG.override("planner", n_pairs=2000)
     fast = plan_batch(clouds, config, seeds)
-    monkeypatch.setattr(_ScreenVerdicts, "block_sizes", lambda self, missing: missing)
+    monkeypatch.setattr(ScreenVerdicts, "block_sizes", lambda self, missing: missing)
     monkeypatch.setattr(ScreenedCandidates, "hand_clearance", dense_hand_clearance)
     assert_same_plans(fast, plan_batch(clouds, config, seeds))
-    assert sum(result.counts["rejected_hand"] for result in fast) > 0 and all(len(result) > 0 for result in fast)
+    assert sum(result.counts.rejected_hand for result in fast) > 0 and all(len(result.candidates) > 0 for result in fast)
 
 
 def assert_same_plans(got: list, expected: list) -> None:
     """The same candidates, frames, joint paths, margins, clearances and counts, bit for bit."""
-    for plan, reference in zip(got, expected, strict=True):
-        assert plan.counts == reference.counts
+    for result, reference in zip(got, expected, strict=True):
+        assert result.counts == reference.counts
         for field in ("contacts_world", "s_geom", "approach", "rotation_world", "joint_path", "s_reach", "hand_clearance_m"):
-            assert torch.equal(getattr(plan, field), getattr(reference, field)), field
+            assert torch.equal(getattr(result.candidates, field), getattr(reference.candidates, field)), field
 
 
 def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_pending_grasps_returns(ycb_clouds, monkeypatch):
@@ -156,9 +159,9 @@ def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_p
         if missing.any():
             self.store(pending[missing], slots[missing], check(pending[missing], slots[missing]))
 
-    monkeypatch.setattr(_MotionVerdicts, "ensure", pending_only)
+    monkeypatch.setattr(MotionVerdicts, "ensure", pending_only)
     assert_same_plans(ahead, plan_batch(clouds, config, seeds))
-    assert sum(result.counts["rejected_grasp_ik"] + result.counts["rejected_motion"] for result in ahead) > 0
+    assert sum(result.counts.rejected_grasp_ik + result.counts.rejected_motion for result in ahead) > 0
     assert len(ahead_batches) < len(batches)
 
 
@@ -177,20 +180,20 @@ def previous_lookahead(self, pending, slots, search, screens, check):
     small = rows.numel() < 32
     if small:
         ahead[rows] = search.usable[rows] & (torch.arange(self.ready.shape[1]) >= slots[missing, None])
-    decided = search.screened & screens.any_usable & (search.status != planner.UNDECIDED)
-    exhausted = torch.zeros(n_objects).index_add_(0, candidate_object, (decided & (search.status == planner.EXHAUSTED)).float())
+    decided = search.screened & screens.any_usable & (search.status != CandidateStatus.UNDECIDED)
+    exhausted = torch.zeros(n_objects).index_add_(0, candidate_object, (decided & (search.status == CandidateStatus.EXHAUSTED)).float())
     share = (exhausted + 0.4) / (torch.zeros(n_objects).index_add_(0, candidate_object, decided.float()) + 4)
     per_object = torch.zeros(n_objects).index_add_(0, candidate_object[rows], torch.ones(rows.numel()))
     extra = (1.25 * per_object * share).ceil().to(torch.int64)
     if small:
         spare = max(0, 32 - int(ahead.sum())) / int((per_object > 0).sum())
         extra = torch.where(per_object > 0, extra.clamp_min(math.ceil(spare)), extra)
-    beyond = ~search.screened & (search.status == planner.UNDECIDED)  # the window's candidates are all screened
+    beyond = ~search.screened & (search.status == CandidateStatus.UNDECIDED)  # the window's candidates are all screened
     past_count = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, (beyond & screens.ready & screens.any_usable).long())
     if ((extra - past_count) > 0).any() and (beyond & ~screens.ready).any():
         screens.compute_ahead(beyond & ~screens.ready, (extra - past_count).clamp_min(0))
     past = beyond & screens.ready & screens.any_usable
-    chosen = (past & (planner._segment_exclusive_cumsum(past.long(), candidate_object, n_objects) < extra[candidate_object])).nonzero().squeeze(1)
+    chosen = (past & (segment_exclusive_cumsum(past.long(), candidate_object, n_objects) < extra[candidate_object])).nonzero().squeeze(1)
     ahead[chosen, screens.usable[chosen].to(torch.int8).argmax(dim=1)] = True
     check_rows, check_slots = (ahead & ~self.ready).nonzero(as_tuple=True)
     self.store(check_rows, check_slots, check(check_rows, check_slots))
@@ -199,14 +202,14 @@ def previous_lookahead(self, pending, slots, search, screens, check):
 def test_lookahead_sized_by_the_observed_losses_plans_alike_in_fewer_motion_rounds_and_screening_calls(ycb_clouds, monkeypatch):
     """Once an object's losses to the motion checks are observed, a round checks every approach its
     expected candidates may need and the window screens them in its own blocks, which grow by at
-    least ``MIN_BLOCK_GROWTH``: against the previous rule (``previous_lookahead``, blocks growing by
+    least ``SearchTuning.min_block_growth``: against the previous rule (``previous_lookahead``, blocks growing by
     halves for the window alone) the plans are the same, in fewer motion rounds and screening calls.
     A cracker box loses ~40 % of its screened candidates to grasp IK and motion; the mug screens all
     of its candidates and still lacks feasible ones, while the others screen further ahead."""
     clouds = [ycb_clouds["003_cracker_box"], ycb_clouds["005_tomato_soup_can"], ycb_clouds["box beside the mug"], ycb_clouds["025_mug"]]
     seeds = [1, 2, 3, 0]
     calls = {"screen": 0, "motion": 0}
-    check_motions, compute = planner.check_motions, _ScreenVerdicts.compute
+    check_motions, compute = planner.check_motions, ScreenVerdicts.compute
 
     def counted_check(*args, **kwargs):
         calls["motion"] += 1
@@ -217,15 +220,14 @@ def test_lookahead_sized_by_the_observed_losses_plans_alike_in_fewer_motion_roun
         return compute(self, rows)
 
     monkeypatch.setattr(planner, "check_motions", counted_check)
-    monkeypatch.setattr(_ScreenVerdicts, "compute", counted_compute)
+    monkeypatch.setattr(ScreenVerdicts, "compute", counted_compute)
     sized = plan_batch(clouds, CONFIG, seeds)
     sized_calls, calls["screen"], calls["motion"] = dict(calls), 0, 0
-    monkeypatch.setattr(_MotionVerdicts, "ensure", previous_lookahead)
-    monkeypatch.setattr(_MotionVerdicts, "screening_shortfall", lambda self, search, screens: torch.zeros(len(clouds), dtype=torch.int64))
-    monkeypatch.setattr(_ScreenVerdicts, "MIN_BLOCK_GROWTH", 0)
-    assert_same_plans(sized, plan_batch(clouds, CONFIG, seeds))
-    assert all(result.counts["rejected_grasp_ik"] + result.counts["rejected_motion"] > 20 for result in sized[:3])
-    assert len(sized[3]) < CONFIG.planner.max_candidates
+    monkeypatch.setattr(MotionVerdicts, "ensure", previous_lookahead)
+    monkeypatch.setattr(MotionVerdicts, "screening_shortfall", lambda self, search, screens: torch.zeros(len(clouds), dtype=torch.int64))
+    assert_same_plans(sized, plan_batch(clouds, CONFIG, seeds, tuning=SearchTuning(min_block_growth=0)))
+    assert all(result.counts.rejected_grasp_ik + result.counts.rejected_motion > 20 for result in sized[:3])
+    assert len(sized[3].candidates) < CONFIG.planner.max_candidates
     assert sized_calls["motion"] < calls["motion"] and sized_calls["screen"] < calls["screen"], (sized_calls, calls)
 
 
@@ -262,11 +264,11 @@ def test_volumes_counted_only_where_the_table_is_clear_give_the_verdicts_of_coun
     assert expected.any() and not expected.all() and (clear_of_table & ~under_limit).any()
 
 
-def assert_identical_candidates(got, expected) -> None:
-    """Every tensor field (and the counts and zone names) equal, bit for bit, dtypes included."""
-    assert got.counts == expected.counts and got.zone_names == expected.zone_names
-    for field in dataclasses.fields(expected):
-        value, reference = getattr(got, field.name), getattr(expected, field.name)
+def assert_identical_plans(got, expected) -> None:
+    """Every tensor field of the candidates (and the counts and zone names) equal, bit for bit, dtypes included."""
+    assert got.counts == expected.counts and got.candidates.zone_names == expected.candidates.zone_names
+    for field in dataclasses.fields(expected.candidates):
+        value, reference = getattr(got.candidates, field.name), getattr(expected.candidates, field.name)
         if isinstance(reference, torch.Tensor):
             assert value.dtype == reference.dtype and torch.equal(value, reference), field.name
         else:
@@ -282,8 +284,8 @@ def test_each_cloud_of_a_batch_is_planned_as_it_is_alone(ycb_clouds):
     config = CONFIG.override("planner", n_pairs=3000)
     batched = plan_batch(clouds, config, seeds)
     for cloud, seed, result in zip(clouds, seeds, batched, strict=True):
-        assert_identical_candidates(result, planner.plan(cloud, config, seed=seed))
+        assert_identical_plans(result, plan(cloud, config, seed=seed))
     (alone,) = plan_batch(clouds[-1:], config, seeds[-1:])
-    assert_identical_candidates(alone, planner.plan(clouds[-1], config, seed=seeds[-1]))
+    assert_identical_plans(alone, plan(clouds[-1], config, seed=seeds[-1]))
     # Full plans, short ones and an empty one (the mug at this seed) alike.
-    assert sum(len(result) > 0 for result in batched) >= 4 and len({len(result) for result in batched}) > 2
+    assert sum(len(result.candidates) > 0 for result in batched) >= 4 and len({len(result.candidates) for result in batched}) > 2

@@ -30,7 +30,7 @@ def test_every_grasp_the_planner_returns_is_classified_feasible(can_cloud):
     config, cloud = can_cloud
     config = dataclasses.replace(config, dataset=dataclasses.replace(config.dataset, nms_translation_m=0.0, feasible_fraction=1.0))
     classified = classify_grasps(cloud, config, seed=7, n_grasps=100_000)
-    planned = plan(cloud, config, seed=7)
+    planned = plan(cloud, config, seed=7).candidates
     assert len(planned) > 0 and classified.covering_size == classified.pool_size
     feasible = classified.candidates.select(classified.verdict == VERDICTS.index("feasible"))
     for i in range(len(planned)):

@@ -139,7 +139,7 @@ def test_the_executed_joint_path_is_the_planned_one(can_scene):
 
     config = Config()
     can_scene.restore_state()
-    candidates = plan(capture(can_scene, config), config, seed=0)
+    candidates = plan(capture(can_scene, config), config, seed=0).candidates
     assert len(candidates) > 0 and candidates.joint_path.shape[1:] == (19, 7)
     attempts = execute_ranked(can_scene, config, candidates[:1])
     details = attempts[0].details

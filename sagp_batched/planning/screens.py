@@ -1,0 +1,203 @@
+"""Antipodal candidates of several clouds and the screens that need no IK: the table, the 12 %
+gripper volume, and the real hand swept along the descent, each computed for the rows asked for."""
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from sagp_batched_kernels.antipodal import antipodal_pairs
+from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
+from sagp_batched_kernels.gripper_volume import gripper_occupancy_within, table_cover, table_penetration
+from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
+
+from ..config import Config, PlannerConfig
+from ..hand import DOP_DIRECTIONS, HandGeometry
+from ..robot import PANDA
+from ..types import PerceivedCloud
+from .gripper import gripper_geometry, hand_geometry, jaw_width_limit
+from .sampling import sample_inputs
+
+# Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
+# the table and the arm most often, so they are the prior's first choice.
+WORLD_DOWN = torch.tensor([0.0, 0.0, -1.0])
+
+
+@dataclass
+class ScreenedCandidates:
+    """Antipodal candidates of several clouds before IK, ranked by S_geom within each cloud.
+
+    Rows are sorted by cloud, then S_geom descending (sampling order among ties); approaches are
+    in prior order (most downward first).
+    """
+
+    object_index: torch.Tensor  # (A,) int64 cloud of each candidate
+    pair_indices: torch.Tensor  # (A, 2) int64 point indices within its cloud
+    contacts_world: torch.Tensor  # (A, 2, 3)
+    centre_world: torch.Tensor  # (A, 3) contact midpoints, the grasp centres
+    closing_axis: torch.Tensor  # (A, 3)
+    width_m: torch.Tensor  # (A,)
+    s_geom: torch.Tensor  # (A,)
+    # (A, K, 3) approaches and (A, K, 3, 3) grasp frames, written for a candidate the first time
+    # ``frames`` is asked for it (unwritten rows are uninitialised memory, never read)
+    approach_buffer: torch.Tensor
+    rotation_buffer: torch.Tensor
+    framed: torch.Tensor  # (A,) bool: the candidate's rows of the buffers are written
+    occupancy_points: torch.Tensor  # (B, M, 3) per-cloud occupancy subsets (object then obstacles), NaN-padded
+    occupancy_total: torch.Tensor  # (B,) object points of each subset: the occupancy fractions' denominator
+    hand_check_points: torch.Tensor  # (B, H, 3) per-cloud points for the swept-hand check, NaN-padded
+    hand_screen_points: torch.Tensor  # (B, S, 3) their coarse subsets, NaN-padded
+    planner: PlannerConfig
+    pregrasp_offset_m: float
+    table_top_z_m: float
+    sampling_s: float  # seconds spent drawing the pairs and subsets
+    antipodal_s: float  # seconds spent on the antipodal filter and the ranking
+
+    @property
+    def n_candidates(self) -> int:
+        return self.width_m.shape[0]
+
+    @property
+    def n_objects(self) -> int:
+        return self.occupancy_points.shape[0]
+
+    def frames(self, rows: torch.Tensor, slots: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Approach directions (R, K, 3), in prior order, and grasp frames (R, K, 3, 3) of candidates
+        ``rows``; with ``slots`` (R,), only those approaches: (R, 3) and (R, 3, 3).
+
+        Computed the first time a candidate is asked for: a plan reaches a small share of a large
+        cloud's candidates, and a candidate's frames do not depend on which others are framed with it.
+        """
+        new = rows[~self.framed[rows]]
+        if new.numel():
+            new = new.unique()  # a candidate may be asked for once per approach
+            closing_axis = self.closing_axis[new]
+            approach = approach_directions(closing_axis, self.planner.n_approaches, WORLD_DOWN)
+            self.approach_buffer[new] = approach
+            self.rotation_buffer[new] = grasp_rotations(closing_axis[:, None, :], approach)
+            self.framed[new] = True
+        if slots is None:
+            return self.approach_buffer[rows], self.rotation_buffer[rows]
+        return self.approach_buffer[rows, slots], self.rotation_buffer[rows, slots]
+
+    @property
+    def approach(self) -> torch.Tensor:
+        """(A, K, 3) every candidate's approaches (framing all of them; for references and tests)."""
+        return self.frames(torch.arange(self.n_candidates))[0]
+
+    @property
+    def rotation_world(self) -> torch.Tensor:
+        """(A, K, 3, 3) every candidate's grasp frames (framing all of them; for references and tests)."""
+        return self.frames(torch.arange(self.n_candidates))[1]
+
+    def clear_of_table(self, rows: torch.Tensor, rotation: torch.Tensor | None = None) -> torch.Tensor:
+        """(R, K) bool: the hand of candidates ``rows`` stays above the table at the grasp and the
+        pre-grasp (fingers and the rest by their own clearances), and the jaws fit the width.
+        ``rotation``: their (R, K, 3, 3) frames, where the caller has them (default: ``frames``).
+        """
+        planner = self.planner
+        (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(hand_geometry(planner))
+        centre = self.centre_world[rows]
+        rotation = self.frames(rows)[1] if rotation is None else rotation
+        through_table = table_penetration(
+            centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m, fingers_cover
+        ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m, rest_cover)
+        return ~through_table & (self.width_m[rows] <= jaw_width_limit(planner))[:, None]
+
+    def table_and_volume_ok(self, rows: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: candidates ``rows`` clear the table and their gripper volumes are under the
+        published 12 % limit. Volumes are counted only for the poses that clear the table."""
+        rotation = self.frames(rows)[1]  # gathered once for both checks
+        return self.volume_within(rows, rotation, self.clear_of_table(rows, rotation))
+
+    def volume_within(self, rows: torch.Tensor, rotation: torch.Tensor, poses: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: the gripper volumes of candidates ``rows`` in frames ``rotation`` (R, K, 3, 3) hold at
+        most ``occupancy_max_fraction`` of their cloud's points; counted only where ``poses`` (R, K) is True."""
+        planner = self.planner
+        return gripper_occupancy_within(
+            self.occupancy_points, self.object_index[rows], self.centre_world[rows], rotation,
+            self.width_m[rows], gripper_geometry(planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
+            planner.occupancy_chunk_elements, poses,
+        )
+
+    def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
+        """Whether the real hand (its collision hulls) swept along the descent of candidates ``rows``
+        with approaches ``slots`` comes within the margin of the scene's object and obstacle points,
+        and its clearance from them (exact where not blocked). The coarse subset is probed first:
+        most blocked grasps (a mug's) strike one of its points."""
+        low, high = hand_geometry(self.planner).swept((0.0, 0.0, -self.pregrasp_offset_m))
+        return hand_clearance(
+            self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.frames(rows, slots)[1],
+            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
+        )
+
+    @property
+    def usable(self) -> torch.Tensor:
+        """(A, K) bool: the published screen (table, 12 % volume) on every candidate, eagerly (for
+        references and benchmarks); the candidate search adds the swept hand and the motion."""
+        return self.table_and_volume_ok(torch.arange(self.n_candidates))
+
+
+def screen_candidates(clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int]) -> ScreenedCandidates:
+    """Sampling and the antipodal filter for all clouds at once; the screens run on demand."""
+    planner = config.planner
+    clock = time.perf_counter()
+    n_objects = len(clouds)
+    sampled = [sample_inputs(cloud, planner, seed) for cloud, seed in zip(clouds, seeds)]
+    point_offsets = torch.tensor([0] + [cloud.n_points for cloud in clouds]).cumsum(0)[:-1]
+    pairs = torch.cat([s.pair_indices + offset for s, offset in zip(sampled, point_offsets)])
+    pair_object = torch.arange(n_objects).repeat_interleave(planner.n_pairs)
+    points = torch.cat([cloud.points_world.to(torch.float32) for cloud in clouds])
+    normals = torch.cat([cloud.normals_world.to(torch.float32) for cloud in clouds])
+    sampled_at = time.perf_counter()
+
+    pair_eval = antipodal_pairs(points, normals, pairs, planner.min_width_m, planner.max_width_m, planner.max_contact_angle_deg)
+    antipodal = pair_eval["antipodal"].nonzero().squeeze(1)
+    # Rank by S_geom within each object; stable sorts keep sampling order among ties.
+    antipodal = antipodal[torch.sort(pair_eval["s_geom"][antipodal], descending=True, stable=True).indices]
+    if n_objects > 1:  # one object's candidates are already grouped
+        antipodal = antipodal[torch.sort(pair_object[antipodal], stable=True).indices]
+    candidate_object = pair_object[antipodal]
+    contacts = points[pairs[antipodal]]  # (A, 2, 3)
+    n_candidates = antipodal.numel()
+    return ScreenedCandidates(
+        object_index=candidate_object,
+        pair_indices=pairs[antipodal] - point_offsets[candidate_object, None],
+        contacts_world=contacts,
+        centre_world=contacts.mean(dim=1),  # once for every candidate, not per block of candidates
+        closing_axis=pair_eval["closing_axis"][antipodal],
+        width_m=pair_eval["width_m"][antipodal],
+        s_geom=pair_eval["s_geom"][antipodal],
+        approach_buffer=torch.empty(n_candidates, planner.n_approaches, 3),
+        rotation_buffer=torch.empty(n_candidates, planner.n_approaches, 3, 3),
+        framed=torch.zeros(n_candidates, dtype=torch.bool),
+        occupancy_points=_padded([s.occupancy_points for s in sampled]),
+        occupancy_total=torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32),
+        hand_check_points=_padded([s.hand_check_points for s in sampled]),
+        hand_screen_points=_padded([s.hand_screen_points for s in sampled]),
+        planner=planner,
+        pregrasp_offset_m=config.execution.pregrasp_offset_m,
+        table_top_z_m=config.scene.table_top_z_m,
+        sampling_s=sampled_at - clock,
+        antipodal_s=time.perf_counter() - sampled_at,
+    )
+
+
+@functools.lru_cache(maxsize=4)
+def _table_check_points(hand: HandGeometry) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
+    """The fingers' and the other links' hull vertices (grasp frame) the table check tests, each
+    with its ``table_cover``: built once per hand, not on every block of candidates."""
+    fingers = hand.vertices(PANDA.finger_links)
+    rest = hand.vertices(tuple(name for name in hand.links if name not in PANDA.finger_links))
+    return (fingers, table_cover(fingers)), (rest, table_cover(rest))
+
+
+def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
+    """(B, max N, 3) the point sets stacked, shorter ones padded with NaN rows (never inside anything)."""
+    padded = torch.full((len(point_sets), max(len(points) for points in point_sets), 3), float("nan"))
+    for index, points in enumerate(point_sets):
+        padded[index, : len(points)] = points
+    return padded
