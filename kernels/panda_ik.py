@@ -37,6 +37,7 @@ from typing import NamedTuple
 import torch
 
 N_BRANCHES = 8  # 2 elbow (q4) x 2 forearm (q5) x 2 shoulder (q2) branches per q7
+N_JOINTS = 7  # the arm this closed form solves: the Panda's seven revolute joints
 # A cosine or sine this far beyond +-1 still counts as a real solution at the extreme (straight elbow,
 # q5 = +-pi/2): float32 rounding of a pose FK produced there overshoots by ~1e-7, and the clamped
 # answer misses the pose by a few micrometres, which the caller's forward-kinematics check sees.

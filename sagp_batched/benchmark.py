@@ -27,7 +27,7 @@ from .ik import PandaIK, link_moved_by
 from .objects import ObjectSpec
 from .planning import PlanStageTimes, plan, plan_batch
 from .reference import plan_reference
-from .robot import PANDA
+from .robot import robot_of
 from .types import PerceivedCloud
 
 STAGES = ("sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion")
@@ -207,8 +207,8 @@ def reachable_ik_targets(ik: PandaIK, table_top_z_m: float, count: int, seed: in
 
 def shoulder_world(ik: PandaIK) -> torch.Tensor:
     """(3,) world position of the shoulder (origin of the link joint 2 moves, on joint 1's axis, so fixed)."""
-    frames = ik.chain.forward_kinematics(torch.zeros(1, 7), end_only=False)
-    return frames[link_moved_by(ik.chain, PANDA.arm_joints[1])].get_matrix()[0, :3, 3] + ik.base_xyz_world
+    frames = ik.chain.forward_kinematics(torch.zeros(1, ik.n_joints), end_only=False)
+    return frames[link_moved_by(ik.chain, ik.robot.arm_joints[1])].get_matrix()[0, :3, 3] + ik.base_xyz_world
 
 
 def reach_bound_from_shoulder_m(ik: PandaIK) -> float:
@@ -219,7 +219,7 @@ def reach_bound_from_shoulder_m(ik: PandaIK) -> float:
     """
     names = ik.chain.get_frame_names(exclude_fixed=False)
     bound = 0.0
-    for name in names[names.index(link_moved_by(ik.chain, PANDA.arm_joints[1])) + 1 :]:
+    for name in names[names.index(link_moved_by(ik.chain, ik.robot.arm_joints[1])) + 1 :]:
         frame = ik.chain.find_frame(name)
         for offset in (frame.joint.offset, frame.link.offset):
             if offset is not None:
@@ -287,8 +287,8 @@ def pk_pseudo_inverse_solve(ik: PandaIK, config: Config, seed: int = 0) -> IKSol
             max_iterations=30,
             early_stopping_any_converged=True,
             regularlization=1e-6,
-            pos_tolerance=PANDA.ik_position_tolerance_m,
-            rot_tolerance=PANDA.ik_rotation_tolerance_rad,
+            pos_tolerance=ik.robot.ik_position_tolerance_m,
+            rot_tolerance=ik.robot.ik_rotation_tolerance_rad,
         )
 
     def solve(positions_world: torch.Tensor, rotations_world: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -332,7 +332,7 @@ def measure_ik_solver(
         durations.append(time.perf_counter() - start)
     position_error, rotation_error = pose_errors(ik, joints, reachable)
     inside = inside_joint_limits(ik, joints)
-    success = (position_error <= PANDA.ik_position_tolerance_m) & (rotation_error <= PANDA.ik_rotation_tolerance_rad) & inside
+    success = (position_error <= ik.robot.ik_position_tolerance_m) & (rotation_error <= ik.robot.ik_rotation_tolerance_rad) & inside
     _, claimed_unreachable = solve(unreachable.positions_world, unreachable.rotations_world)
     seconds = _median(durations)
     return IKSolverMeasures(
@@ -349,7 +349,7 @@ def measure_ik_solver(
 
 def benchmark_ik_solvers(config: Config, settings: BenchmarkSettings) -> tuple[IKTargets, IKTargets, list[IKSolverMeasures]]:
     """The planner's ``PandaIK.solve`` and pk's ``PseudoInverseIK`` on the same reachable / unreachable targets."""
-    ik = PandaIK(config.planner, config.scene.robot_base_xyz_m)
+    ik = PandaIK(config.ik, robot_of(config))
     reachable = reachable_ik_targets(ik, config.scene.table_top_z_m, settings.ik_targets, seed=0)
     unreachable = unreachable_ik_targets(ik, settings.ik_unreachable_targets, settings.ik_unreachable_min_distance_m, seed=1)
     solvers = (("PandaIK", panda_ik_solve(ik)), ("pk.PseudoInverseIK 10x30", pk_pseudo_inverse_solve(ik, config)))
@@ -360,12 +360,13 @@ def benchmark_ik_solvers(config: Config, settings: BenchmarkSettings) -> tuple[I
 def benchmark_ik(config: Config, settings: BenchmarkSettings) -> dict[str, Any]:
     """IK figures on targets of known reachability (see ``benchmark_ik_solvers``), as a JSON-ready dict."""
     _, _, measures = benchmark_ik_solvers(config, settings)
+    robot = robot_of(config)
     return {
         "reachable_targets": settings.ik_targets,
         "unreachable_targets": settings.ik_unreachable_targets,
         "unreachable_min_distance_from_shoulder_m": settings.ik_unreachable_min_distance_m,
-        "pos_tolerance_m": PANDA.ik_position_tolerance_m,
-        "rot_tolerance_rad": PANDA.ik_rotation_tolerance_rad,
+        "pos_tolerance_m": robot.ik_position_tolerance_m,
+        "rot_tolerance_rad": robot.ik_rotation_tolerance_rad,
         "solvers": [m.figures() for m in measures],
     }
 

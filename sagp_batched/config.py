@@ -150,9 +150,11 @@ class SceneConfig(_Section):
     gravity_m_s2: float = setting(-9.81)
     table_size_m: tuple[float, float] = setting((1.2, 0.8), above=0, shape=(2,))
     table_top_z_m: float = setting(0.625, above=0)
-    # Table centre in world x/y; the Panda stands at the table's near long edge, facing +x.
+    # Table centre in world x/y; the robot's base stands at its near long edge, facing +x.
     table_center_xy_m: tuple[float, float] = setting((0.5, 0.0), shape=(2,))
-    robot_base_xyz_m: tuple[float, float, float] = setting((-0.05, 0.0, 0.625), shape=(3,))
+    # The robot (``sagp_batched/data/robots/<robot>.toml``): its URDF, joints, links, base pose,
+    # home joints, tolerances and gripper boxes.
+    robot: str = setting("panda", non_empty=True)
     # Comfortable Panda workspace for tabletop grasps: 0.4-0.65 m ahead, +-0.2 m sideways.
     object_x_range_m: tuple[float, float] = setting((0.45, 0.65), shape=(2,), ordered=True)
     object_y_range_m: tuple[float, float] = setting((-0.2, 0.2), shape=(2,), ordered=True)
@@ -163,8 +165,6 @@ class SceneConfig(_Section):
     solver_iterations: int = setting(100, at_least=1)
     # A plain box table gets a wood colour so RGB crops look like a tabletop scene.
     table_rgba: tuple[float, float, float, float] = setting((0.72, 0.58, 0.42, 1.0), at_least=0, at_most=1, shape=(4,))
-    # Arm turned to face -x (away from the table) with the elbow folded: clear of all cameras and objects.
-    robot_home_joints: tuple[float, ...] = setting((-2.8, -0.6, 0.0, -2.6, 0.0, 2.0, 0.785), shape=(7,))
     # Objects start this far above the table so they never begin interpenetrating it.
     drop_clearance_m: float = setting(0.002, at_least=0)
     distractor_count_range: tuple[int, int] = setting((3, 4), at_least=0, shape=(2,), ordered=True)
@@ -238,33 +238,10 @@ class PlannerConfig(_Section):
     occupancy_max_fraction: float = setting(0.12, at_least=0, at_most=1)
     max_candidates: int = setting(200, at_least=1)
     min_reach: float = setting(0.5, at_least=0, at_most=1)
-    # Grasp IK solves the Panda's closed form at this many joint-7 values evenly spread over its
-    # range (plus the reference posture's), and at the finer count for targets that none of them
-    # reaches (a narrow joint-7 window). On FK of 2,000 random in-limit configurations (1 thread)
-    # 8 to 24 samples all solve 99.95 %; 16 run ~28,000 targets/s and 12 ~35,000/s, but with 12 the
-    # motion check rejects 308 grasps instead of 273 (the sum under ik_limit_margin_rad). A 256
-    # fine grid found the one target 128 misses (a 0.012 rad window between two joint limits).
-    ik_q7_samples: int = setting(16, at_least=1)
-    ik_q7_fine_samples: int = setting(128, at_least=1)
     seed: int = setting(0, at_least=0)
-    # The boxes of the published 12 % gripper-volume proxy, sized to the hulls PyBullet collides
-    # the hand with (panda.urdf's meshes/collision/{hand,finger}.obj): from the grasp target the
-    # finger hulls reach 0.0073 m beyond it, the hand hull's face is 0.039 m short of it and the
-    # hull is 0.092 m deep, 0.063 m wide and 0.204 m across; a finger hull is 0.021 m wide, 0.026 m
-    # thick at the hand and 0.014 m at the tip. Executability is checked on the hulls themselves
-    # (``sagp_batched.hand``), not on these boxes. The fingers' open width is the robot's
-    # (``sagp_batched/data/robots/panda.toml``).
     # Each open finger must clear its contact by this much to descend without brushing the object:
     # a 7.9 cm pair under an 8 cm jaw passes the published width filter but hits the fingers in practice.
     jaw_clearance_m: float = setting(0.005, at_least=0)
-    finger_width_m: float = setting(0.021, above=0)
-    # A box needs one thickness: the hull's at mid-length of the 0.046 m that shows below the hand.
-    finger_thickness_m: float = setting(0.02, above=0)
-    finger_length_m: float = setting(0.046, above=0)
-    fingertip_offset_m: float = setting(0.007, at_least=0)
-    palm_width_m: float = setting(0.065, above=0)
-    palm_span_m: float = setting(0.204, above=0)
-    palm_depth_m: float = setting(0.092, above=0)
     # Cloud points within this of a contact plane belong to the grasped surface (3 mm voxels + normal noise).
     contact_clearance_m: float = setting(0.004, at_least=0)
     # The occupancy fraction is estimated on a seeded subset of at most this many object points
@@ -273,23 +250,6 @@ class PlannerConfig(_Section):
     # (candidate, approach, point) triples the occupancy check holds at once: chunks of ~3 MB of
     # float32 coordinates stay in cache and measured 2x faster than 4M-element chunks.
     occupancy_chunk_elements: int = setting(262_144, at_least=1)
-    # Damped-least-squares steps for closed-form answers that float32 forward kinematics puts
-    # outside the tolerance: none at 5 mm, ~1 % at a 1 um tolerance, which 3 steps bring inside.
-    ik_polish_iterations: int = setting(3, at_least=0)
-    # Grasp solutions at least this far from every joint limit (or as far as the preferred posture
-    # is) are chosen before nearer ones: the motion check's path IK clamps at the limits. Summed
-    # over 3 seeds of the cracker box, soup can and mug at 5,000 pairs, motion-check rejections
-    # were 460 without a margin and 273 at 0.4 rad (0.2: 358, 0.3: 323, 0.6: 392, measured before
-    # the 0.01 rad rounding allowance); the iterative solver this replaced had 234 motion and
-    # 1,182 grasp-IK rejections, against 473 grasp-IK rejections now.
-    ik_limit_margin_rad: float = setting(0.4, at_least=0)
-    # The whole executed motion (pre-grasp, descent, lift) is solved from the grasp solution by
-    # damped least squares: waypoints lie at most 20 cm from the grasp; on captured YCB grasps 4
-    # steps bring every waypoint within 0.01 mm (3 steps: 0.5 mm, 2 steps miss 15 %).
-    path_ik_iterations: int = setting(5, at_least=0)
-    # Damping of the damped-least-squares steps of path IK and grasp polish (rad-scale): keeps
-    # steps bounded near singular wrist poses.
-    ik_damping: float = setting(0.01, above=0)
     # The hand's collision hulls (derived from the robot URDF) swept along the descent must keep
     # this far from every object and obstacle point: the cloud's 3 mm voxels put the true surface
     # up to ~2 mm from its points.
@@ -305,14 +265,45 @@ class PlannerConfig(_Section):
     # Height every other link (hand, wrist, forearm, elbow) must keep above the table at every
     # waypoint of the motion: PyBullet reports contacts within its 4 mm collision margin.
     arm_table_clearance_m: float = setting(0.005, at_least=0)
-    # Links of the arm checked against the table along the motion (links 0-2 stand above the base).
-    arm_table_links: tuple[str, ...] = setting(("panda_link3", "panda_link4", "panda_link5", "panda_link6", "panda_link7", "panda_hand"), unique=True)
     # Cell of the coarse subset of those points probed first (those nearest each swept hand): a
     # 2 cm cell still leaves points on every part the hand could strike, and most blocked grasps
     # hit one of them.
     hand_screen_voxel_m: float = setting(0.02, above=0)
     # (candidate, hull, direction, point) elements the swept-hand check holds at once.
     hand_check_chunk_elements: int = setting(4_194_304, at_least=1)
+
+
+@dataclass
+class IKConfig(_Section):
+    """The batched IK's settings: they, with the robot, make one ``PandaIK`` (built once and shared)."""
+
+    SECTION = "ik"
+
+    # Grasp IK solves the Panda's closed form at this many joint-7 values evenly spread over its
+    # range (plus the reference posture's), and at the finer count for targets that none of them
+    # reaches (a narrow joint-7 window). On FK of 2,000 random in-limit configurations (1 thread)
+    # 8 to 24 samples all solve 99.95 %; 16 run ~28,000 targets/s and 12 ~35,000/s, but with 12 the
+    # motion check rejects 308 grasps instead of 273 (the sum under limit_margin_rad). A 256
+    # fine grid found the one target 128 misses (a 0.012 rad window between two joint limits).
+    q7_samples: int = setting(16, at_least=1)
+    q7_fine_samples: int = setting(128, at_least=1)
+    # Damped-least-squares steps for closed-form answers that float32 forward kinematics puts
+    # outside the tolerance: none at 5 mm, ~1 % at a 1 um tolerance, which 3 steps bring inside.
+    polish_iterations: int = setting(3, at_least=0)
+    # Grasp solutions at least this far from every joint limit (or as far as the preferred posture
+    # is) are chosen before nearer ones: the motion check's path IK clamps at the limits. Summed
+    # over 3 seeds of the cracker box, soup can and mug at 5,000 pairs, motion-check rejections
+    # were 460 without a margin and 273 at 0.4 rad (0.2: 358, 0.3: 323, 0.6: 392, measured before
+    # the 0.01 rad rounding allowance); the iterative solver this replaced had 234 motion and
+    # 1,182 grasp-IK rejections, against 473 grasp-IK rejections now.
+    limit_margin_rad: float = setting(0.4, at_least=0)
+    # The whole executed motion (pre-grasp, descent, lift) is solved from the grasp solution by
+    # damped least squares: waypoints lie at most 20 cm from the grasp; on captured YCB grasps 4
+    # steps bring every waypoint within 0.01 mm (3 steps: 0.5 mm, 2 steps miss 15 %).
+    path_iterations: int = setting(5, at_least=0)
+    # Damping of the damped-least-squares steps of path IK and grasp polish (rad-scale): keeps
+    # steps bounded near singular wrist poses.
+    damping: float = setting(0.01, above=0)
 
 
 @dataclass
@@ -600,6 +591,7 @@ class Config:
     camera: CameraConfig = field(default_factory=CameraConfig)
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
+    ik: IKConfig = field(default_factory=IKConfig)
     weights: ScoreWeights = field(default_factory=ScoreWeights)
     execution: ExecutionConfig = field(default_factory=ExecutionConfig)
     zones: ZonesConfig = field(default_factory=ZonesConfig)
@@ -706,4 +698,7 @@ def load_config(profile: str | Path | None = None, overrides: dict[str, dict[str
             raise ConfigError(f"profile {path}: {exc}", exc.setting) from exc
     if overrides:
         config = _merge(config, {s: {k: v for k, v in d.items() if v is not None} for s, d in overrides.items()}, "")
+    from .robot import load_robot  # the robot module reads config types: imported here, not at the top
+
+    load_robot(config.scene.robot)  # a robot no file describes is refused before any work
     return config

@@ -95,15 +95,16 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
     closed on its own copy of the object (resting on its own table), the pairs ``spacing_m`` apart."""
     from .hand import hand_to_grasp_target_m
     from .labelling import ObjectPlacement, floating_hand_urdf
-    from .robot import PANDA
+    from .robot import robot_of
     from .scene import Scene, command_fingers, configure_physics, create_table
 
     with Scene(config) as scene:
         scene.reset(objects.get(object_id), trial=config.dataset.seed)
         placement = ObjectPlacement.from_scene(scene)
         top_z = pybullet.getAABB(scene.target_id, physicsClientId=scene.client)[1][2]
-    hand_urdf = str(floating_hand_urdf(PANDA, config.labelling.hand_urdf_cache_dir))
-    grasp_offset_m = hand_to_grasp_target_m(PANDA.urdf_path)
+    robot = robot_of(config)
+    hand_urdf = str(floating_hand_urdf(robot, config.labelling.hand_urdf_cache_dir))
+    grasp_offset_m = hand_to_grasp_target_m(robot)
     down = (1.0, 0.0, 0.0, 0.0)  # the hand's approach axis pointing at the table
     rows = []
     for count in pair_counts:
@@ -129,7 +130,7 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
                                           physicsClientId=client)
                 names = {pybullet.getJointInfo(hand, j, physicsClientId=client)[1].decode(): j
                          for j in range(pybullet.getNumJoints(hand, physicsClientId=client))}
-                command_fingers(client, hand, [names[n] for n in PANDA.finger_joints], 0.0, config.execution.gripper_force_n)
+                command_fingers(client, hand, [names[n] for n in robot.finger_joints], 0.0, config.execution.gripper_force_n)
             for _ in range(steps // 4):  # the fingers close and the contacts form before the timing
                 pybullet.stepSimulation(physicsClientId=client)
             contacts = len(pybullet.getContactPoints(physicsClientId=client))

@@ -35,7 +35,7 @@ from .config import Config, ExecutionConfig, ShakeConfig
 from .ik import panda_ik
 from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
-from .robot import PANDA
+from .robot import RobotDescription
 from .scene import Scene
 from .types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
 
@@ -85,7 +85,8 @@ class _ArmIK:
         reached_position, reached_quat = self.scene.grasptarget_pose()
         position_error = float(np.linalg.norm(reached_position - position))
         rotation_error = math.radians(_quat_angle_deg(reached_quat, quat))
-        valid = inside and position_error <= PANDA.ik_position_tolerance_m and rotation_error <= PANDA.ik_rotation_tolerance_rad
+        robot = self.scene.robot
+        valid = inside and position_error <= robot.ik_position_tolerance_m and rotation_error <= robot.ik_rotation_tolerance_rad
         return valid, position_error, rotation_error
 
     def _pybullet(self, position: np.ndarray, quat: np.ndarray, seed: np.ndarray) -> np.ndarray | None:
@@ -114,7 +115,7 @@ class _ArmIK:
         result = panda_ik(self.config).solve(
             torch.tensor(position, dtype=torch.float32).view(1, 3),
             torch.tensor(rotation, dtype=torch.float32).view(1, 3, 3),
-            torch.tensor(seed, dtype=torch.float32).view(1, 7),
+            torch.tensor(seed, dtype=torch.float32).view(1, -1),
         )
         arm_joints = result.joints[0].double().numpy()
         return arm_joints if self.check(arm_joints, position, quat)[0] else None
@@ -122,7 +123,7 @@ class _ArmIK:
     def _seeds(self, given: Sequence[np.ndarray]) -> Iterator[np.ndarray]:
         lower, upper = self.lower[self.arm_slots], self.upper[self.arm_slots]
         yield from (np.clip(seed, lower, upper) for seed in given)
-        yield np.asarray(PANDA.ik_reference_joints, dtype=float)
+        yield np.asarray(self.scene.robot.ik_reference_joints, dtype=float)
         yield (lower + upper) / 2.0
         for _ in range(self.config.execution.ik_random_restarts):
             yield self.rng.uniform(lower, upper)
@@ -334,7 +335,7 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     "pregrasp", "descent", "close", "lift", "shake").
     """
     execution = config.execution
-    quat, waypoints, joint_path = checked_grasp(grasp, execution)
+    quat, waypoints, joint_path = checked_grasp(grasp, execution, scene.robot)
     width_m = grasp.width_m
     grasp_index = grasp_waypoint_index(execution)
     client, target = scene.client, scene.target_id
@@ -349,7 +350,7 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
         scene.set_arm_joints(start_joints)
         return finish(False, "unreachable", "plan")
 
-    scene.set_finger_width(PANDA.open_width_m)
+    scene.set_finger_width(scene.robot.open_width_m)
     scene.set_arm_joints(joint_path[0])
     pybullet.performCollisionDetection(physicsClientId=client)
     if any(_robot_contacts(scene, body) for body in (scene.table_id, target, *scene.distractor_ids)):
@@ -416,7 +417,7 @@ def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: 
     rotation = Rotation.from_quat(start[1]).as_matrix()
     hand_to_world = np.kron(np.eye(2), rotation)  # twist in the lifted grasp frame -> world
     # Damping of the planner's damped-least-squares steps: bounded joint offsets near a singular wrist.
-    damping = config.planner.ik_damping
+    damping = config.ik.damping
     joint_offsets = jacobian.T @ np.linalg.solve(jacobian @ jacobian.T + damping**2 * np.eye(6), hand_to_world)  # (7, 6)
     object_start = relative_pose(start, scene.centre_of_mass(scene.target_id))
     hand_poses = []
@@ -430,7 +431,7 @@ def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: 
     details["shake_achieved_peak_accelerations"] = achieved_shake_peaks(profile, frame_offsets(start, hand_poses))
 
 
-def checked_grasp(grasp: Grasp, execution: ExecutionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def checked_grasp(grasp: Grasp, execution: ExecutionConfig, robot: RobotDescription) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(unit quaternion, (W, 3) motion waypoints, (W, 7) planned joints or None) of a grasp, or
     ``InvalidGraspError`` naming what is malformed."""
     position = as_finite_vector(grasp.position_world, 3, "position_world")
@@ -438,8 +439,8 @@ def checked_grasp(grasp: Grasp, execution: ExecutionConfig) -> tuple[np.ndarray,
     approach = as_finite_vector(grasp.approach, 3, "approach")
     if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
         raise InvalidGraspError("quat_xyzw and approach must be non-zero")
-    if not 0.0 <= grasp.width_m <= PANDA.open_width_m:
-        raise InvalidGraspError(f"width_m {grasp.width_m} is outside the gripper's 0..{PANDA.open_width_m} m")
+    if not 0.0 <= grasp.width_m <= robot.open_width_m:
+        raise InvalidGraspError(f"width_m {grasp.width_m} is outside the gripper's 0..{robot.open_width_m} m")
     quat = quat / np.linalg.norm(quat)
     approach = approach / np.linalg.norm(approach)
     waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), execution)[0].double().numpy()

@@ -45,7 +45,7 @@ from scipy.spatial.transform import Rotation
 
 from .hand import hand_to_grasp_target_m
 from .objects import ObjectSpec
-from .robot import PANDA
+from .robot import load_robot
 from .run_directory import write_file_atomically
 from .types import GraspAttempt, GraspCandidates, PerceivedCloud
 
@@ -57,6 +57,12 @@ from .types import GraspAttempt, GraspCandidates, PerceivedCloud
 ACRONYM_FROM_PLANNER_ROTATION = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 # A candidate no simulation has run: kept under ``candidates/`` only, never as a grasp label.
 UNTESTED = -1
+
+
+def _acronym_hand_offset_m() -> float:
+    """How far ACRONYM's gripper origin (the Franka hand's) lies behind the contacts: the files
+    describe the Franka Panda's gripper (``gripper/type``) whichever robot ran the grasps."""
+    return hand_to_grasp_target_m(load_robot("panda"))
 
 
 def acronym_gripper_transforms_object(candidates_object: GraspCandidates) -> np.ndarray:
@@ -72,7 +78,7 @@ def acronym_gripper_transforms_object(candidates_object: GraspCandidates) -> np.
     rotation_planner = candidates_object.rotation_world.double().numpy()
     # The executed grasp closed its fingers at the grasp target, 0.105 m along panda_hand's z axis
     # in the robot's URDF, so the exported poses put the contacts there too.
-    hand_offset = hand_to_grasp_target_m(PANDA.urdf_path)
+    hand_offset = _acronym_hand_offset_m()
     transforms = np.tile(np.eye(4), (len(candidates_object), 1, 1))
     transforms[:, :3, :3] = rotation_planner @ ACRONYM_FROM_PLANNER_ROTATION
     transforms[:, :3, 3] = candidates_object.position_world.double().numpy() - hand_offset * rotation_planner[:, :, 2]
@@ -83,7 +89,7 @@ def planner_frames_from_acronym(acronym_transforms: np.ndarray) -> tuple[np.ndar
     """(C, 3) grasp centres and (C, 3, 3) planner grasp frames (y = closing axis, z = approach) of
     (C, 4, 4) ACRONYM gripper poses: the inverse of ``acronym_gripper_transforms_object``, same frame."""
     rotation = acronym_transforms[:, :3, :3] @ ACRONYM_FROM_PLANNER_ROTATION.T
-    centre = acronym_transforms[:, :3, 3] + hand_to_grasp_target_m(PANDA.urdf_path) * acronym_transforms[:, :3, 2]
+    centre = acronym_transforms[:, :3, 3] + _acronym_hand_offset_m() * acronym_transforms[:, :3, 2]
     return centre, rotation
 
 

@@ -24,7 +24,7 @@ import pytorch_kinematics as pk
 import torch
 from scipy.spatial import ConvexHull
 
-from .robot import PANDA
+from .robot import RobotDescription
 
 log = logging.getLogger(__name__)
 
@@ -124,27 +124,28 @@ def link_hulls(urdf_path: Path, links: tuple[str, ...]) -> dict[str, np.ndarray]
 
 
 @functools.lru_cache(maxsize=4)
-def hand_to_grasp_target_m(urdf_path: Path) -> float:
+def hand_to_grasp_target_m(robot: RobotDescription) -> float:
     """Distance (m) of the grasp target from the hand link's origin along the hand's z axis (the
-    approach), from ``urdf_path``; the grasp target must lie on that axis with the hand's orientation."""
-    chain = quiet_urdf(pk.build_chain_from_urdf, urdf_path).to(dtype=torch.float64)
+    approach), from the robot's URDF; the grasp target must lie on that axis with the hand's orientation."""
+    chain = quiet_urdf(pk.build_chain_from_urdf, robot.urdf_path).to(dtype=torch.float64)
     poses = chain.forward_kinematics(torch.zeros(1, len(chain.get_joint_parameter_names()), dtype=torch.float64))
-    hand_to_target = (torch.linalg.inv(poses[PANDA.hand_link].get_matrix()[0]) @ poses[PANDA.grasp_target_link].get_matrix()[0]).numpy()
+    hand_to_target = (torch.linalg.inv(poses[robot.hand_link].get_matrix()[0]) @ poses[robot.grasp_target_link].get_matrix()[0]).numpy()
     if not np.allclose(hand_to_target[:3, :3], np.eye(3), atol=1e-6) or not np.allclose(hand_to_target[:2, 3], 0.0, atol=1e-6):
-        raise ValueError(f"{urdf_path}: {PANDA.grasp_target_link} is not on {PANDA.hand_link}'s z axis with its orientation")
+        raise ValueError(f"{robot.urdf_path}: {robot.grasp_target_link} is not on {robot.hand_link}'s z axis with its orientation")
     return float(hand_to_target[2, 3])
 
 
 @functools.lru_cache(maxsize=4)
-def load_hand_geometry(urdf_path: Path, open_width_m: float, links: tuple[str, ...] = PANDA.hand_collision_links) -> HandGeometry:
-    """The hand's collision hulls from ``urdf_path`` with the fingers ``open_width_m`` apart."""
+def load_hand_geometry(robot: RobotDescription) -> HandGeometry:
+    """The collision hulls of the robot's hand links, in the grasp frame with the fingers fully open."""
+    urdf_path, open_width_m, links = robot.urdf_path, robot.open_width_m, robot.hand_collision_links
     chain = quiet_urdf(pk.build_chain_from_urdf, urdf_path)
     joint_names = chain.get_joint_parameter_names()
     joints = torch.zeros(1, len(joint_names), dtype=torch.float64)
-    for name in PANDA.finger_joints:
+    for name in robot.finger_joints:
         joints[0, joint_names.index(name)] = open_width_m / 2.0
     poses = chain.to(dtype=torch.float64).forward_kinematics(joints)
-    grasp_from_base = torch.linalg.inv(poses[PANDA.grasp_target_link].get_matrix()[0]).numpy()
+    grasp_from_base = torch.linalg.inv(poses[robot.grasp_target_link].get_matrix()[0]).numpy()
     hulls = []
     for name, vertices in link_hulls(urdf_path, links).items():
         transform = grasp_from_base @ poses[name].get_matrix()[0].numpy()

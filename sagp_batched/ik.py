@@ -14,24 +14,17 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import astuple, dataclass
-from typing import Sequence
 
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched_kernels.panda_ik import PandaArmGeometry, panda_ik_closed_form, wrist_in_reach
+from sagp_batched_kernels.panda_ik import N_JOINTS, PandaArmGeometry, panda_ik_closed_form, wrist_in_reach
 from sagp_batched_kernels.serial_kinematics import SerialChain, geometric_jacobian, serial_chain, serial_chain_frames
 
-from .config import Config, PlannerConfig, SceneConfig
+from .config import Config, IKConfig
 from .hand import quiet_urdf
-from .robot import PANDA, RobotDescription
+from .robot import RobotDescription, robot_of
 
-N_ARM_JOINTS = 7
-# The closed form holds for joint frames of this shape: modified Denavit-Hartenberg twist angles,
-# and the a and d entries it models (all others zero).
-_PANDA_TWIST_RAD = (0.0, -math.pi / 2, math.pi / 2, math.pi / 2, -math.pi / 2, math.pi / 2, math.pi / 2)
-_MODELLED_A = (False, False, False, True, True, False, True)
-_MODELLED_D = (True, False, True, False, True, False, False)
 
 
 @dataclass
@@ -56,9 +49,9 @@ class PathResult:
     lowest_link_z_m: torch.Tensor | None = None
 
 
-def _panda_chain() -> pk.SerialChain:
-    """The Panda arm chain up to its grasp target."""
-    return quiet_urdf(lambda text: pk.build_serial_chain_from_urdf(text, PANDA.grasp_target_link), PANDA.urdf_path)
+def arm_chain(robot: RobotDescription) -> pk.SerialChain:
+    """The robot's arm chain up to its grasp target."""
+    return quiet_urdf(lambda text: pk.build_serial_chain_from_urdf(text, robot.grasp_target_link), robot.urdf_path)
 
 
 def link_moved_by(chain: pk.SerialChain, joint_name: str) -> str:
@@ -107,18 +100,19 @@ class ChainFrames:
         return geometric_jacobian(poses, self.joint_frames, self.axes, len(self.names) - 1)
 
 
-def panda_arm_geometry(chain: pk.SerialChain) -> PandaArmGeometry:
-    """The link offsets of ``chain``'s seven arm joints, checked against the frame layout the closed form assumes.
+def panda_arm_geometry(chain: pk.SerialChain, robot: RobotDescription) -> PandaArmGeometry:
+    """The link offsets of ``chain``'s arm joints, checked against the frame layout the closed form assumes.
 
-    Each joint frame's offset from its parent must be Rx(alpha) Tx(a) Tz(d) with the Panda's twist
-    angles alpha, and a and d zero wherever the closed form does not model them.
+    Each joint frame's offset from its parent must be Rx(alpha) Tx(a) Tz(d) with the robot's twist
+    angles alpha, and a and d zero wherever the robot description says they are.
     """
     joint_names = chain.get_joint_parameter_names()
-    if len(joint_names) != N_ARM_JOINTS:
-        raise ValueError(f"expected {N_ARM_JOINTS} arm joints, got {joint_names}")
+    if tuple(joint_names) != robot.arm_joints or len(joint_names) != N_JOINTS:
+        raise ValueError(f"{robot.name}: the closed-form IK solves {N_JOINTS} arm joints; the chain has {joint_names}, "
+                         f"the robot names {list(robot.arm_joints)}")
     offsets = [chain.find_frame(name).joint.offset.get_matrix()[0].double() for name in chain.get_frame_names()]
     a, d = [], []
-    for offset, twist in zip(offsets, _PANDA_TWIST_RAD):
+    for offset, twist in zip(offsets, robot.joint_twist_rad):
         cos, sin = math.cos(twist), math.sin(twist)
         twist_rotation = torch.tensor([[1.0, 0.0, 0.0], [0.0, cos, -sin], [0.0, sin, cos]], dtype=torch.float64)
         a_0_d = twist_rotation.T @ offset[:3, 3]
@@ -126,7 +120,7 @@ def panda_arm_geometry(chain: pk.SerialChain) -> PandaArmGeometry:
             raise ValueError("the chain's joint frames do not match the Panda layout the closed-form IK assumes")
         a.append(float(a_0_d[0]))
         d.append(float(a_0_d[2]))
-    if any(abs(value) > 1e-6 for value, modelled in zip(a + d, _MODELLED_A + _MODELLED_D) if not modelled):
+    if any(abs(value) > 1e-6 for value, modelled in zip(a + d, robot.joint_has_a + robot.joint_has_d) if not modelled):
         raise ValueError("the chain's joint frames carry offsets the closed-form IK does not model")
     return PandaArmGeometry(
         shoulder_height_m=d[0], upper_arm_m=d[2], elbow_offset_m=a[3], elbow_return_m=a[4], forearm_m=d[4], wrist_offset_m=a[6]
@@ -136,35 +130,28 @@ def panda_arm_geometry(chain: pk.SerialChain) -> PandaArmGeometry:
 class PandaIK:
     """Inverse kinematics of the Panda arm to ``panda_grasptarget``, batched over targets.
 
-    The robot base stands at ``robot_base_xyz_m`` in the world with identity orientation (facing +x).
-    ``robot`` gives the tolerances an answer must meet and the posture answers stay near.
+    The robot's base stands at its ``base_xyz_m`` in the world with identity orientation (facing
+    +x); ``robot`` also gives the tolerances an answer must meet and the posture answers stay near.
     """
 
-    def __init__(
-        self,
-        config: PlannerConfig,
-        robot_base_xyz_m: Sequence[float] = SceneConfig.robot_base_xyz_m,
-        robot: RobotDescription = PANDA,
-    ):
-        reference = torch.tensor(robot.ik_reference_joints, dtype=torch.float32)
-        if reference.shape != (N_ARM_JOINTS,):
-            raise ValueError(f"{robot.name}: ik_reference_joints must hold {N_ARM_JOINTS} joint values, got {len(robot.ik_reference_joints)}")
+    def __init__(self, config: IKConfig, robot: RobotDescription):
         self.config = config
         self.robot = robot
-        self.chain = _panda_chain()
+        self.n_joints = robot.n_arm_joints
+        self.chain = arm_chain(robot)
         self.frames = ChainFrames.of(self.chain)
         self.lower, self.upper = (torch.tensor(bound, dtype=torch.float32) for bound in self.chain.get_joint_limits())
-        self.reference_joints = reference.clamp(self.lower, self.upper)
-        self.base_xyz_world = torch.tensor(robot_base_xyz_m, dtype=torch.float32)
-        self.arm_geometry = panda_arm_geometry(self.chain)
+        self.reference_joints = torch.tensor(robot.ik_reference_joints, dtype=torch.float32).clamp(self.lower, self.upper)
+        self.base_xyz_world = torch.tensor(robot.base_xyz_m, dtype=torch.float32)
+        self.arm_geometry = panda_arm_geometry(self.chain, robot)
         # The closed form runs in float64: near its singularities (elbow straight at its extreme,
         # sin q5 = +-1) float32 input rounding alone moves the answer by ~1e-3 rad.
-        chain64 = _panda_chain().to(dtype=torch.float64)  # ``to`` converts in place: a chain of its own
-        frames = chain64.forward_kinematics(torch.zeros(1, N_ARM_JOINTS, dtype=torch.float64), end_only=False)
-        link7_in_target = frames[PANDA.grasp_target_link].get_matrix()[0].inverse() @ frames[link_moved_by(self.chain, PANDA.arm_joints[-1])].get_matrix()[0]
+        chain64 = arm_chain(robot).to(dtype=torch.float64)  # ``to`` converts in place: a chain of its own
+        frames = chain64.forward_kinematics(torch.zeros(1, self.n_joints, dtype=torch.float64), end_only=False)
+        link7_in_target = frames[robot.grasp_target_link].get_matrix()[0].inverse() @ frames[link_moved_by(self.chain, robot.arm_joints[-1])].get_matrix()[0]
         self._link7_in_target = link7_in_target  # (4, 4): fixed flange, hand and grasp-target offsets
-        self._q7_grid = torch.linspace(float(self.lower[6]), float(self.upper[6]), config.ik_q7_samples, dtype=torch.float64)
-        self._q7_fine_grid = torch.linspace(float(self.lower[6]), float(self.upper[6]), config.ik_q7_fine_samples, dtype=torch.float64)
+        self._q7_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_samples, dtype=torch.float64)
+        self._q7_fine_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_fine_samples, dtype=torch.float64)
 
     def forward(self, joints: torch.Tensor) -> torch.Tensor:
         """(N, 7) arm joints -> (N, 4, 4) pose of ``panda_grasptarget`` in the world frame."""
@@ -206,7 +193,7 @@ class PandaIK:
         """(M, 7) float64 closed-form solution per target, and (M,) bool: one exists.
 
         The solution nearest in joint space to ``preferred`` (M, 7) among those keeping
-        ``ik_limit_margin_rad`` from every joint limit (or as far as ``preferred`` itself keeps, if
+        ``limit_margin_rad`` from every joint limit (or as far as ``preferred`` itself keeps, if
         less), else among all. Joint 7 takes the (K,) ``q7_grid`` values and the preferred
         posture's own, which the nearest solution most often has.
         """
@@ -216,7 +203,7 @@ class PandaIK:
         candidates = solutions.joints.flatten(1, 2)  # (M, (K + 1) * 8, 7)
         valid = solutions.valid.flatten(1)
         # Less 0.01 rad, so that float32 rounding of a target does not rule out the preferred posture itself.
-        required_margin = self._limit_margin(preferred).clamp_max(self.config.ik_limit_margin_rad) - 0.01
+        required_margin = self._limit_margin(preferred).clamp_max(self.config.limit_margin_rad) - 0.01
         near_limit = self._limit_margin(candidates) < required_margin[:, None]
         # Squared joint distances stay under 7 (2 pi)^2 < 300: the offset ranks every solution
         # clear of the limits before any near them.
@@ -260,8 +247,8 @@ class PandaIK:
         Returns:
             ``IKResult``; per target the closed-form solution inside the limits nearest in joint
             space to the preferred posture (``preferred_joints``), preferring those clear of the
-            limits by ``ik_limit_margin_rad``, over ``ik_q7_samples`` values of joint 7
-            (``ik_q7_fine_samples`` for targets with none), judged by forward kinematics. A
+            limits by ``limit_margin_rad``, over ``q7_samples`` values of joint 7
+            (``q7_fine_samples`` for targets with none), judged by forward kinematics. A
             target without any solution keeps the preferred posture and its errors.
         """
         n_targets = positions_world.shape[0]
@@ -270,17 +257,17 @@ class PandaIK:
                 f"positions_world must be (N, 3) and rotations_world (N, 3, 3), got "
                 f"{tuple(positions_world.shape)} and {tuple(rotations_world.shape)}"
             )
-        if seed_joints is not None and seed_joints.shape != (n_targets, N_ARM_JOINTS):
-            raise ValueError(f"seed_joints must be ({n_targets}, {N_ARM_JOINTS}), got {tuple(seed_joints.shape)}")
+        if seed_joints is not None and seed_joints.shape != (n_targets, self.n_joints):
+            raise ValueError(f"seed_joints must be ({n_targets}, {self.n_joints}), got {tuple(seed_joints.shape)}")
         if n_targets == 0:
             empty = torch.zeros(0)
-            return IKResult(torch.zeros(0, N_ARM_JOINTS), torch.zeros(0, dtype=torch.bool), empty, empty, empty)
+            return IKResult(torch.zeros(0, self.n_joints), torch.zeros(0, dtype=torch.bool), empty, empty, empty)
         positions_base = positions_world.to(torch.float32) - self.base_xyz_world
         rotations = rotations_world.to(torch.float32)
         preferred = self.preferred_joints(positions_base, seed_joints)
 
         rotation_link7, position_link7 = self._link7_targets(positions_base, rotations)
-        joints = torch.zeros(n_targets, N_ARM_JOINTS, dtype=torch.float64)
+        joints = torch.zeros(n_targets, self.n_joints, dtype=torch.float64)
         found = torch.zeros(n_targets, dtype=torch.bool)
         # Targets beyond the arm's reach at every joint-7 value have no solution on either grid.
         in_reach = wrist_in_reach(rotation_link7, position_link7, self.arm_geometry).nonzero().squeeze(1)
@@ -302,7 +289,7 @@ class PandaIK:
         polish = missed.nonzero().squeeze(1)
         if polish.numel():
             joints[polish] = self._damped_least_squares(
-                joints[polish], positions_base[polish], rotations[polish], self.config.ik_polish_iterations
+                joints[polish], positions_base[polish], rotations[polish], self.config.polish_iterations
             )
             position_error[polish], rotation_error[polish] = self._pose_errors(joints[polish], positions_base[polish], rotations[polish])
         inside_limits = ((joints >= self.lower) & (joints <= self.upper)).all(dim=1)
@@ -330,7 +317,7 @@ class PandaIK:
     ) -> torch.Tensor:
         """(M, 7) joints after ``iterations`` damped-least-squares steps from (M, 7) ``joints`` toward
         (M, 3) base-frame positions and (M, 3, 3) orientations, clamped to the joint limits after every step."""
-        damping = torch.eye(6) * self.config.ik_damping**2
+        damping = torch.eye(6) * self.config.damping**2
         for _ in range(iterations):
             poses = self.frames.poses(joints)
             jacobian, pose = self.frames.jacobian(poses), poses[-1]
@@ -353,7 +340,7 @@ class PandaIK:
         motion's start value, and of the (up to 8) solutions the one nearest in joint space to
         ``start_joints`` (the grasp solution) is kept: the same branch. A waypoint with no solution
         at that joint-7 value (a joint limit in the way), and every waypoint without
-        ``hold_joint7``, takes ``path_ik_iterations`` damped-least-squares steps on
+        ``hold_joint7``, takes ``path_iterations`` damped-least-squares steps on
         the chain's geometric Jacobian from the start joints instead, which move every joint, 7
         included, the least. The caller checks that neighbouring waypoints stay close in joint
         space. All N x W waypoints are solved in one batch and judged by forward kinematics,
@@ -368,7 +355,7 @@ class PandaIK:
             ``PathResult`` with (N, W, ...) tensors.
         """
         n_motions, n_waypoints = positions_world.shape[:2]
-        if start_joints.shape != (n_motions, N_ARM_JOINTS) or rotations_world.shape != (n_motions, 3, 3):
+        if start_joints.shape != (n_motions, self.n_joints) or rotations_world.shape != (n_motions, 3, 3):
             raise ValueError(
                 f"start_joints must be (N, 7) and rotations_world (N, 3, 3) for positions_world (N, W, 3), got "
                 f"{tuple(start_joints.shape)}, {tuple(rotations_world.shape)} and {tuple(positions_world.shape)}"
@@ -390,14 +377,14 @@ class PandaIK:
         missing = (~found).nonzero().squeeze(1)
         if missing.numel():
             joints[missing] = self._damped_least_squares(
-                start[missing], target_position[missing], target_rotation[missing], self.config.path_ik_iterations
+                start[missing], target_position[missing], target_rotation[missing], self.config.path_iterations
             )
         # One forward-kinematics pass judges the answers and places the links.
         link_poses = self.frames.poses(joints)
         position_error, rotation_error = _errors_of_pose(link_poses[-1], target_position, target_rotation)
         lowest = None if hulls is None else self._lowest_hull_z(link_poses, hulls).view(n_motions, n_waypoints)
         return PathResult(
-            joints=joints.view(n_motions, n_waypoints, N_ARM_JOINTS),
+            joints=joints.view(n_motions, n_waypoints, self.n_joints),
             position_error_m=position_error.view(n_motions, n_waypoints),
             rotation_error_rad=rotation_error.view(n_motions, n_waypoints),
             lowest_link_z_m=lowest,
@@ -405,14 +392,14 @@ class PandaIK:
 
 
 @functools.lru_cache(maxsize=4)
-def _cached_ik(planner_values: tuple, robot_base_xyz_m: tuple[float, float, float]) -> PandaIK:
-    return PandaIK(PlannerConfig(*planner_values), robot_base_xyz_m)
+def _cached_ik(ik_values: tuple, robot: RobotDescription) -> PandaIK:
+    return PandaIK(IKConfig(*ik_values), robot)
 
 
 def panda_ik(config: Config) -> PandaIK:
-    """The ``PandaIK`` of this configuration, built once per distinct planner and base settings
+    """The ``PandaIK`` of this configuration, built once per distinct ``[ik]`` settings and robot
     and shared by planning and execution."""
-    return _cached_ik(astuple(config.planner), tuple(config.scene.robot_base_xyz_m))
+    return _cached_ik(astuple(config.ik), robot_of(config))
 
 
 def _squared_distances(candidates: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:

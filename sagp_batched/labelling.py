@@ -56,7 +56,7 @@ from .execution import (
 from .hand import hand_to_grasp_target_m
 from .motion import grasp_waypoint_index
 from .objects import ObjectLoadError, ObjectSpec
-from .robot import PANDA, RobotDescription
+from .robot import RobotDescription, robot_of
 from .scene import Scene, command_fingers, configure_physics, create_table
 from .types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError
 
@@ -194,8 +194,9 @@ class _HandWorld:
     def __init__(self, config: Config):
         self.config = config
         self.client = pybullet.connect(pybullet.DIRECT)
-        self.hand_urdf = str(floating_hand_urdf(PANDA, config.labelling.hand_urdf_cache_dir))
-        self.grasp_offset_m = hand_to_grasp_target_m(PANDA.urdf_path)
+        self.robot = robot_of(config)
+        self.hand_urdf = str(floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir))
+        self.grasp_offset_m = hand_to_grasp_target_m(self.robot)
         self._object_urdfs: dict[str, str] = {}
 
     def _object_urdf(self, spec: ObjectSpec) -> str:
@@ -229,15 +230,15 @@ class _HandWorld:
         self.rest_com = np.array(placement.com_position_world)
         self.hand = pybullet.loadURDF(self.hand_urdf, physicsClientId=client)
         names = {pybullet.getJointInfo(self.hand, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(self.hand, physicsClientId=client))}
-        self.finger_joints = tuple(names[name] for name in PANDA.finger_joints)
+        self.finger_joints = tuple(names[name] for name in self.robot.finger_joints)
         # The constraint holds the grasp target; PyBullet pins a base by its inertial frame.
         inertial = pybullet.getDynamicsInfo(self.hand, -1, physicsClientId=client)[3:5]
         self.target_in_base = pybullet.multiplyTransforms(*pybullet.invertTransform(*inertial), [0.0, 0.0, self.grasp_offset_m], [0.0, 0.0, 0.0, 1.0])
         base = pybullet.multiplyTransforms(list(pregrasp), list(quat), *pybullet.invertTransform(*self.target_in_base))
         pybullet.resetBasePositionAndOrientation(self.hand, *base, physicsClientId=client)
         for joint in self.finger_joints:
-            pybullet.resetJointState(self.hand, joint, PANDA.open_width_m / 2.0, physicsClientId=client)
-        self._command_fingers(PANDA.open_width_m)
+            pybullet.resetJointState(self.hand, joint, self.robot.open_width_m / 2.0, physicsClientId=client)
+        self._command_fingers(self.robot.open_width_m)
         set_finger_friction(client, self.hand, self.finger_joints, config.execution)
         self.constraint = pybullet.createConstraint(
             self.hand, -1, -1, -1, pybullet.JOINT_FIXED, [0.0, 0.0, 0.0],
@@ -393,7 +394,7 @@ def _hand_targets(grasps: Sequence[Grasp], config: Config) -> list[tuple[np.ndar
     index = grasp_waypoint_index(config.execution)
     targets = []
     for grasp in grasps:
-        quat, waypoints, _ = checked_grasp(grasp, config.execution)
+        quat, waypoints, _ = checked_grasp(grasp, config.execution, robot_of(config))
         targets.append((waypoints[0], waypoints[index], quat))
     return targets
 

@@ -37,7 +37,7 @@ import sys
 import tempfile
 import time
 import xml.etree.ElementTree as ElementTree
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +49,7 @@ from scipy.spatial.transform import Rotation
 
 from .objects import CACHE_DIR_ENV  # noqa: F401 (callers name the variable through this module)
 from .objects import INDEX_METADATA_KEYS, ObjectSet, ObjectSetError, ObjectSpec, RestingPose, sagp_cache_root
-from .robot import PANDA
+from .robot import load_robot
 
 log = logging.getLogger(__name__)
 
@@ -103,7 +103,7 @@ class MeshImportSettings:
     #: Resting poses less probable than this are dropped (the most probable one is always kept).
     min_resting_pose_probability: float = 0.01
     #: An object each of whose convex parts is wider than this in every direction cannot be grasped: the Panda's open hand.
-    max_grasp_width_m: float = PANDA.open_width_m
+    max_grasp_width_m: float = field(default_factory=lambda: load_robot().open_width_m)
     #: Cache root (objects go under ``<root>/objects/``); ``None``: ``$SAGP_CACHE_DIR``, else ``~/.cache/sagp_batched``.
     cache_dir: Path | None = None
 

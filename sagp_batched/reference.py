@@ -18,9 +18,8 @@ import pybullet
 import torch
 
 from .config import Config
-from .ik import N_ARM_JOINTS
 from .planning import hand_geometry, jaw_width_limit, sample_inputs
-from .robot import PANDA
+from .robot import robot_of
 from .types import GraspCandidates, PerceivedCloud
 
 
@@ -42,12 +41,13 @@ class PyBulletPandaIK:
 
     def __init__(self, config: Config):
         self.config = config
+        self.description = robot = robot_of(config)
         self.client = pybullet.connect(pybullet.DIRECT)
         self.robot = pybullet.loadURDF(
-            str(PANDA.urdf_path), basePosition=config.scene.robot_base_xyz_m, useFixedBase=True, physicsClientId=self.client
+            str(robot.urdf_path), basePosition=robot.base_xyz_m, useFixedBase=True, physicsClientId=self.client
         )
         joints = [pybullet.getJointInfo(self.robot, j, physicsClientId=self.client) for j in range(pybullet.getNumJoints(self.robot, physicsClientId=self.client))]
-        self.end_link = next(j[0] for j in joints if j[12].decode() == PANDA.grasp_target_link)
+        self.end_link = next(j[0] for j in joints if j[12].decode() == robot.grasp_target_link)
         self.movable = [j[0] for j in joints if j[2] != pybullet.JOINT_FIXED]
         self.lower = np.array([joints[j][8] for j in self.movable])
         self.upper = np.array([joints[j][9] for j in self.movable])
@@ -82,7 +82,7 @@ class PyBulletPandaIK:
         rotation_error = 2.0 * math.acos(min(1.0, abs(relative[3])))
         joints = np.array(solution)
         inside = bool(np.all(joints >= self.lower - 1e-6) and np.all(joints <= self.upper + 1e-6))
-        return joints[:N_ARM_JOINTS], position_error, rotation_error if inside else math.pi
+        return joints[: self.description.n_arm_joints], position_error, rotation_error if inside else math.pi
 
 
 def _matrix_to_quat_xyzw(rotation: np.ndarray) -> np.ndarray:
@@ -95,7 +95,9 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
     """Plan like ``planning.plan`` with loops; see the module docstring."""
     planner = config.planner
     seed = planner.seed if seed is None else seed
-    inputs = sample_inputs(cloud, planner, seed)
+    robot = robot_of(config)
+    boxes = robot.gripper_boxes
+    inputs = sample_inputs(cloud, robot, planner, seed)
     points = cloud.points_world.double().numpy()
     normals = cloud.normals_world.double().numpy()
     min_cos = math.cos(math.radians(planner.max_contact_angle_deg))
@@ -115,15 +117,15 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
 
     occupancy_points = inputs.occupancy_points.double().numpy()
     down = np.array([0.0, 0.0, -1.0])
-    finger_z_max = planner.fingertip_offset_m
-    finger_z_min = finger_z_max - planner.finger_length_m
-    palm_z_min = finger_z_min - planner.palm_depth_m
-    finger_y_max = PANDA.open_width_m / 2 + planner.finger_thickness_m
+    finger_z_max = boxes.fingertip_offset_m
+    finger_z_min = finger_z_max - boxes.finger_length_m
+    palm_z_min = finger_z_min - boxes.palm_depth_m
+    finger_y_max = robot.open_width_m / 2 + boxes.finger_thickness_m
     # The table check tests the hand's collision hulls (derived from the robot's URDF), as the
     # planner does: the fingers and the rest of the hand each with their own clearance.
-    hand = hand_geometry(planner)
+    hand = hand_geometry(robot)
     table_levels = [
-        (hull.double().numpy(), planner.finger_table_clearance_m if name in PANDA.finger_links else planner.arm_table_clearance_m)
+        (hull.double().numpy(), planner.finger_table_clearance_m if name in robot.finger_links else planner.arm_table_clearance_m)
         for name, hull in zip(hand.links, hand.hull_vertices)
     ]
 
@@ -154,17 +156,17 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
             local = (occupancy_points - centre) @ rotation
             abs_x, abs_y, z = np.abs(local[:, 0]), np.abs(local[:, 1]), local[:, 2]
             in_fingers = (
-                (abs_x <= planner.finger_width_m / 2)
+                (abs_x <= boxes.finger_width_m / 2)
                 & (abs_y >= width / 2 + planner.contact_clearance_m)
                 & (abs_y <= finger_y_max)
                 & (z >= finger_z_min)
                 & (z <= finger_z_max)
             )
-            under_palm = (abs_x <= planner.palm_width_m / 2) & (abs_y <= planner.palm_span_m / 2)
+            under_palm = (abs_x <= boxes.palm_width_m / 2) & (abs_y <= boxes.palm_span_m / 2)
             in_palm = under_palm & (z >= palm_z_min) & (z <= finger_z_min)
             occupied = int(np.count_nonzero(in_fingers | in_palm))
             row_usable.append(not through_table and occupied <= planner.occupancy_max_fraction * inputs.occupancy_total
-                              and width <= jaw_width_limit(planner))
+                              and width <= jaw_width_limit(robot, planner))
             row_rotations.append(rotation)
         ranked_pairs.append((i, j))
         s_geoms.append(-negative_quality)
@@ -187,7 +189,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
                 rotation = rotations_rows[rank][slot]
                 joints, position_error, rotation_error = ik.solve(centre, _matrix_to_quat_xyzw(rotation))
                 s_reach = (1.0 + math.cos(rotation_error)) / 2.0
-                feasible = (position_error < PANDA.ik_position_tolerance_m and rotation_error < PANDA.ik_rotation_tolerance_rad
+                feasible = (position_error < robot.ik_position_tolerance_m and rotation_error < robot.ik_rotation_tolerance_rad
                             and s_reach >= planner.min_reach)
                 trials.append({"rank": rank, "slot": slot, "position": centre, "rotation": rotation, "feasible": feasible})
                 if feasible:
@@ -210,7 +212,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, seed: int | None = Non
         approach=as_tensor([all_approaches[r][s] for r, s, *_ in chosen], (count, 3)),
         rotation_world=as_tensor([rotations_rows[r][s] for r, s, *_ in chosen], (count, 3, 3)),
         s_reach=as_tensor([reach for *_, reach in chosen], (count,)),
-        ik_solution=as_tensor([joints for _, _, joints, _ in chosen], (count, N_ARM_JOINTS)),
+        ik_solution=as_tensor([joints for _, _, joints, _ in chosen], (count, robot.n_arm_joints)),
         zone=torch.full((count,), -1, dtype=torch.int64),
         s_afford=torch.zeros(count),
         s_avoid=torch.zeros(count),

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from .config import Config, SceneConfig
 from .objects import ObjectLoadError, ObjectSpec
-from .robot import PANDA, body_indices
+from .robot import body_indices, robot_of
 
 
 class ScenePlacementError(RuntimeError):
@@ -75,10 +75,11 @@ def _resting_rotation(spec: ObjectSpec, index: int) -> np.ndarray | None:
 
 
 class Scene:
-    """Table, Panda and objects in one PyBullet client; ``reset`` builds a trial's settled scene."""
+    """Table, robot and objects in one PyBullet client; ``reset`` builds a trial's settled scene."""
 
     def __init__(self, config: Config, gui: bool = False):
         self.config = config
+        self.robot = robot_of(config)  # before connecting: an unknown robot leaves no client behind
         self.client = pybullet.connect(pybullet.GUI if gui else pybullet.DIRECT)
         self.robot_id: int = -1
         self.table_id: int = -1
@@ -112,7 +113,7 @@ class Scene:
         ``distractor_max_distance_m`` of the target without footprint overlap. The arm waits in its
         home pose, clear of the cameras.
         """
-        scene_config = self.config.scene
+        scene_config, robot = self.config.scene, self.robot
         client = self.client
         pybullet.resetSimulation(physicsClientId=client)
         configure_physics(client, scene_config)
@@ -121,12 +122,12 @@ class Scene:
         self.target_spec = target
         self.table_id = create_table(client, scene_config)
         self.robot_id = pybullet.loadURDF(
-            str(PANDA.urdf_path), basePosition=scene_config.robot_base_xyz_m, useFixedBase=True, physicsClientId=client
+            str(robot.urdf_path), basePosition=robot.base_xyz_m, useFixedBase=True, physicsClientId=client
         )
-        self.robot_indices = body_indices(PANDA, self.robot_id, client)
+        self.robot_indices = body_indices(robot, self.robot_id, client)
         self._arm_max_forces = tuple(pybullet.getJointInfo(self.robot_id, j, physicsClientId=client)[10] for j in self.robot_indices.arm_joints)
-        self.set_arm_joints(scene_config.robot_home_joints)
-        self.set_finger_width(PANDA.open_width_m)
+        self.set_arm_joints(robot.home_joints)
+        self.set_finger_width(robot.open_width_m)
 
         rng = np.random.default_rng(scene_config.seed_base + trial)
         x = rng.uniform(*scene_config.object_x_range_m)
@@ -154,8 +155,8 @@ class Scene:
             raise RuntimeError("Scene.restore_state called before reset/save_state")
         pybullet.restoreState(self._state_id, physicsClientId=self.client)
         # saveState keeps joint positions and velocities, not motor targets.
-        self.command_arm(self.config.scene.robot_home_joints)
-        self.command_fingers(PANDA.open_width_m)
+        self.command_arm(self.robot.home_joints)
+        self.command_fingers(self.robot.open_width_m)
 
     # -- robot -----------------------------------------------------------------------------------
     def arm_joints(self) -> np.ndarray:

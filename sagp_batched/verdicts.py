@@ -50,10 +50,10 @@ class ClassifiedGrasps:
         return [VERDICTS[v] for v in self.verdict.tolist()]
 
 
-def _reason(verdict: str, planner, clearance_m: float, too_wide: bool) -> str:
+def _reason(verdict: str, planner, jaw_limit_m: float, clearance_m: float, too_wide: bool) -> str:
     if verdict == "table":
         if too_wide:
-            return f"table: contacts wider than the open jaws can descend around ({jaw_width_limit(planner):.3f} m)"
+            return f"table: contacts wider than the open jaws can descend around ({jaw_limit_m:.3f} m)"
         return "table: the hand passes below the table's clearance at the grasp or the pre-grasp"
     if verdict == "volume":
         return f"volume: the closed gripper's volume holds more than {planner.occupancy_max_fraction:.0%} of the cloud's points"
@@ -138,7 +138,7 @@ def classify_grasps(
         swept = screened.hand_clearance(rows[undecided], slots[undecided])
         clearance[undecided] = swept.clearance_m
         verdict[undecided[swept.blocked]] = VERDICTS.index("hand_sweep")
-    joint_path = torch.zeros(n, waypoint_count(config.execution), 7)
+    joint_path = torch.zeros(n, waypoint_count(config.execution), screened.robot.n_arm_joints)
     s_reach = torch.zeros(n)
     undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
     if undecided.numel():
@@ -155,7 +155,8 @@ def classify_grasps(
     picked = torch.cat([order[verdict[order] == v][:quota] for v, quota in quotas.items()] or [torch.zeros(0, dtype=torch.int64)])
     picked = picked.sort().values  # back in S_geom order
     chosen_rows = rows[picked]
-    too_wide = screened.width_m[chosen_rows] > jaw_width_limit(planner)
+    jaw_limit_m = jaw_width_limit(screened.robot, planner)
+    too_wide = screened.width_m[chosen_rows] > jaw_limit_m
     candidates = GraspCandidates(
         contacts_world=screened.contacts_world[chosen_rows],
         closing_axis=screened.closing_axis[chosen_rows],
@@ -174,7 +175,7 @@ def classify_grasps(
         score=screened.s_geom[chosen_rows].clone(),
     )
     reasons = tuple(
-        _reason(VERDICTS[v], planner, float(c), bool(w))
+        _reason(VERDICTS[v], planner, jaw_limit_m, float(c), bool(w))
         for v, c, w in zip(verdict[picked].tolist(), clearance[picked].tolist(), too_wide.tolist())
     )
     return ClassifiedGrasps(candidates, verdict[picked], reasons, n_candidates * n_approaches, n)

@@ -109,3 +109,14 @@ def test_every_numeric_setting_refuses_an_out_of_range_value_by_name(section, ke
 def test_sections_made_in_code_are_checked_like_profiles():
     with pytest.raises(ConfigError, match=r"planner.n_pairs must be between 1 and 5,000,000, got 0"):
         dataclasses.replace(Config().planner, n_pairs=0)
+
+
+def test_the_robot_is_read_from_its_file_and_an_unknown_one_is_refused_by_name():
+    from sagp_batched.robot import load_robot
+
+    robot = load_robot("panda")
+    assert robot.n_arm_joints == len(robot.arm_joints) == len(robot.home_joints) == len(robot.joint_twist_rad)
+    assert robot.base_xyz_m == (-0.05, 0.0, 0.625) and robot.gripper_boxes.finger_width_m == 0.021
+    with pytest.raises(ConfigError, match="unknown robot 'ur5'") as caught:
+        load_config(overrides={"scene": {"robot": "ur5"}})
+    assert caught.value.setting == "scene.robot" and "\n" not in str(caught.value)

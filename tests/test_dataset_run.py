@@ -64,9 +64,10 @@ def test_a_table_check_of_no_poses_returns_no_verdicts():
     import torch
 
     from sagp_batched.planning import hand_geometry
+    from sagp_batched.robot import load_robot
     from sagp_batched_kernels.gripper_volume import table_penetration
 
     config = load_config("dataset")
-    points = hand_geometry(config.planner).vertices()
+    points = hand_geometry(load_robot()).vertices()
     through = table_penetration(torch.zeros(0, 3), torch.zeros(0, 4, 3, 3), points, config.execution.pregrasp_offset_m, 0.6)
     assert through.shape == (0, 4)

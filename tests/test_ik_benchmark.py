@@ -3,7 +3,7 @@ import pytest
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched.robot import PANDA
+from sagp_batched.robot import load_robot
 from sagp_batched.benchmark import (
     BenchmarkSettings,
     benchmark_ik,
@@ -16,6 +16,8 @@ from sagp_batched.benchmark import (
 from sagp_batched.config import Config
 from sagp_batched.ik import PandaIK
 
+ROBOT = load_robot()
+
 CONFIG = Config()
 SETTINGS = BenchmarkSettings(
     pairs=(), repeats=1, reference_max_pairs=0, cloud_points=0, object_xy_m=(0.55, 0.0), ik_targets=50, ik_unreachable_targets=50
@@ -24,7 +26,7 @@ SETTINGS = BenchmarkSettings(
 
 @pytest.fixture(scope="module")
 def ik():
-    return PandaIK(CONFIG.planner, CONFIG.scene.robot_base_xyz_m)
+    return PandaIK(CONFIG.ik, ROBOT)
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +40,7 @@ def test_reachable_targets_are_fk_of_in_limit_joints_above_the_table(ik):
     assert ((targets.source_joints >= ik.lower) & (targets.source_joints <= ik.upper)).all()
     # pk forward kinematics of the source joints, from the chain directly, in the world frame.
     reached = ik.chain.forward_kinematics(targets.source_joints).get_matrix()
-    reached_position_world = reached[:, :3, 3] + torch.tensor(CONFIG.scene.robot_base_xyz_m)
+    reached_position_world = reached[:, :3, 3] + torch.tensor(ROBOT.base_xyz_m)
     assert torch.allclose(reached_position_world, targets.positions_world, atol=1e-6)
     assert torch.allclose(reached[:, :3, :3], targets.rotations_world, atol=1e-6)
     assert (targets.positions_world[:, 2] > CONFIG.scene.table_top_z_m).all()
@@ -66,7 +68,7 @@ def _within_tolerance(ik, joints, targets):
     position_error = (reached[:, :3, 3] + ik.base_xyz_world.double() - targets.positions_world.double()).norm(dim=1)
     relative = reached[:, :3, :3] @ targets.rotations_world.double().transpose(1, 2)
     rotation_error = pk.matrix_to_axis_angle(relative).norm(dim=1)
-    return (position_error <= PANDA.ik_position_tolerance_m) & (rotation_error <= PANDA.ik_rotation_tolerance_rad)
+    return (position_error <= ROBOT.ik_position_tolerance_m) & (rotation_error <= ROBOT.ik_rotation_tolerance_rad)
 
 
 def test_success_rate_is_the_fraction_within_tolerance_by_forward_kinematics(ik, solved):
@@ -100,7 +102,7 @@ def test_planner_ik_success_flag_passes_the_independent_check(ik, solved):
 def test_report_has_the_figures_per_solver():
     report = benchmark_ik(CONFIG, SETTINGS)
     assert report["reachable_targets"] == 50 and report["unreachable_targets"] == 50
-    assert report["pos_tolerance_m"] == PANDA.ik_position_tolerance_m
+    assert report["pos_tolerance_m"] == ROBOT.ik_position_tolerance_m
     for row in report["solvers"]:
         assert set(row) == {
             "solver", "seconds_median", "targets_per_s", "success_rate", "claimed_success_rate",

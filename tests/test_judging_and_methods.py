@@ -50,16 +50,18 @@ def test_the_robot_is_described_once_and_its_joints_are_found_by_name_in_the_loa
     import pybullet
 
     from sagp_batched.hand import hand_to_grasp_target_m
-    from sagp_batched.robot import PANDA, body_indices
+    from sagp_batched.robot import body_indices, load_robot
+
+    robot = load_robot()
 
     client = pybullet.connect(pybullet.DIRECT)
     try:
-        body = pybullet.loadURDF(str(PANDA.urdf_path), useFixedBase=True, physicsClientId=client)
-        indices = body_indices(PANDA, body, client)
+        body = pybullet.loadURDF(str(robot.urdf_path), useFixedBase=True, physicsClientId=client)
+        indices = body_indices(robot, body, client)
         names = {pybullet.getJointInfo(body, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(body, physicsClientId=client))}
-        assert indices.arm_joints == tuple(names[name] for name in PANDA.arm_joints) and len(indices.arm_joints) == 7
-        assert pybullet.getJointInfo(body, indices.grasp_target_link, physicsClientId=client)[12].decode() == PANDA.grasp_target_link
+        assert indices.arm_joints == tuple(names[name] for name in robot.arm_joints) and len(indices.arm_joints) == 7
+        assert pybullet.getJointInfo(body, indices.grasp_target_link, physicsClientId=client)[12].decode() == robot.grasp_target_link
     finally:
         pybullet.disconnect(client)
     # The grasp target's offset from the hand comes from the URDF (pybullet_data's is 0.105 m).
-    assert abs(hand_to_grasp_target_m(PANDA.urdf_path) - 0.105) < 1e-6
+    assert abs(hand_to_grasp_target_m(robot) - 0.105) < 1e-6

@@ -10,6 +10,9 @@ from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations, scene_points_about
 from sagp_batched_kernels.gripper_volume import gripper_occupancy, table_penetration
 from sagp_batched_kernels.sampling import sample_pair_indices
+from sagp_batched.robot import load_robot
+
+ROBOT = load_robot()
 
 PLANNER = Config().planner
 DOWN = torch.tensor([0.0, 0.0, -1.0])
@@ -91,7 +94,7 @@ def test_approaches_are_perpendicular_and_rotations_right_handed():
 
 
 def test_grasp_through_the_table_is_rejected():
-    hand = hand_geometry(PLANNER)
+    hand = hand_geometry(ROBOT)
     hulls = hand.vertices()
     table_z = 0.625
     centre = torch.tensor([[0.5, 0.0, table_z + 0.04]])
@@ -114,7 +117,7 @@ def test_grasp_through_the_table_is_rejected():
 
 def test_finger_sweeping_through_a_protrusion_is_rejected():
     """A 4 cm box with a thin fin sticking out next to one contact: the finger must not sweep through it."""
-    geometry = gripper_geometry(PLANNER)
+    geometry = gripper_geometry(ROBOT, PLANNER)
     body, _ = _box((0.04, 0.04, 0.04))
     fin = torch.cartesian_prod(
         torch.linspace(-0.005, 0.005, 6), torch.linspace(0.026, 0.05, 12), torch.linspace(-0.02, 0.02, 12)
@@ -135,7 +138,7 @@ def test_finger_sweeping_through_a_protrusion_is_rejected():
 
 
 def test_occupancy_ignores_nan_padding_and_matches_across_chunks():
-    geometry = gripper_geometry(PLANNER)
+    geometry = gripper_geometry(ROBOT, PLANNER)
     points, normals = _box()
     pairs = sample_pair_indices(len(points), 3000, torch.Generator().manual_seed(5))
     result = _evaluate(points, normals, pairs)

@@ -13,6 +13,9 @@ from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
 from sagp_batched_kernels.gripper_volume import gripper_occupancy, gripper_occupancy_within
 from sagp_batched_kernels.sampling import sample_pair_indices
+from sagp_batched.robot import load_robot
+
+ROBOT = load_robot()
 
 PLANNER = Config().planner
 DOWN = torch.tensor([0.0, 0.0, -1.0])
@@ -41,7 +44,7 @@ def _limits_at_the_counts(counts, seed):
 def test_verdicts_equal_counting_on_a_grid_box_whose_points_lie_on_the_gripper_faces(spacing_m, box_centre_m):
     points, normals = (torch.as_tensor(array, dtype=torch.float32) for array in box_surface((0.05, 0.06, 0.1), box_centre_m, spacing_m))
     centre, rotation, width = _grasps(points, normals, seed=0)
-    geometry = gripper_geometry(PLANNER)
+    geometry = gripper_geometry(ROBOT, PLANNER)
     index = torch.zeros(len(centre), dtype=torch.int64)
     poses = torch.rand(rotation.shape[:2], generator=torch.Generator().manual_seed(1)) < 0.7
     counts = gripper_occupancy(points[None], index, centre, rotation, width, geometry, 10**6).total
@@ -69,7 +72,7 @@ def test_verdicts_equal_counting_across_padded_scenes_and_frames_without_one_clo
     rotation = rotation.clone()
     rotation[scrambled] = rotation[scrambled].roll(1, dims=-1)
     index = torch.arange(len(centre)) % 2
-    geometry = gripper_geometry(PLANNER)
+    geometry = gripper_geometry(ROBOT, PLANNER)
     # Most poses counted: the candidates' groups of poses sharing a closing axis take every size.
     poses = torch.rand(rotation.shape[:2], generator=generator) < 0.85
     counts = gripper_occupancy(scenes, index, centre, rotation, width, geometry, 10**6).total

@@ -3,14 +3,16 @@ import pytest
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched.ik import N_ARM_JOINTS, _panda_chain, link_moved_by, panda_arm_geometry
-from sagp_batched.robot import PANDA
+from sagp_batched.ik import arm_chain, link_moved_by, panda_arm_geometry
+from sagp_batched.robot import load_robot
 from sagp_batched_kernels.panda_ik import N_BRANCHES, panda_ik_closed_form, wrist_in_reach
+
+ROBOT = load_robot()
 
 
 @pytest.fixture(scope="module")
 def chain64():
-    return _panda_chain().to(dtype=torch.float64)
+    return arm_chain(ROBOT).to(dtype=torch.float64)
 
 
 @pytest.fixture(scope="module")
@@ -20,15 +22,15 @@ def limits(chain64):
 
 def _random_joints(limits, count, seed):
     lower, upper = limits
-    return lower + (upper - lower) * torch.rand(count, N_ARM_JOINTS, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+    return lower + (upper - lower) * torch.rand(count, ROBOT.n_arm_joints, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
 
 
 def _link7_pose(chain64, joints):
-    return chain64.forward_kinematics(joints, end_only=False)[link_moved_by(chain64, PANDA.arm_joints[-1])].get_matrix()
+    return chain64.forward_kinematics(joints, end_only=False)[link_moved_by(chain64, ROBOT.arm_joints[-1])].get_matrix()
 
 
 def test_arm_geometry_is_read_from_the_urdf_chain():
-    geometry = panda_arm_geometry(_panda_chain())
+    geometry = panda_arm_geometry(arm_chain(ROBOT), ROBOT)
     expected = (0.333, 0.316, 0.0825, -0.0825, 0.384, 0.088)  # Franka's published Denavit-Hartenberg a and d
     assert geometry == pytest.approx(expected, abs=1e-6)
 
@@ -36,8 +38,8 @@ def test_arm_geometry_is_read_from_the_urdf_chain():
 def test_one_branch_recovers_the_joints_that_made_the_pose(chain64, limits):
     joints = _random_joints(limits, 5000, seed=0)
     pose = _link7_pose(chain64, joints)
-    solutions = panda_ik_closed_form(pose[:, :3, :3], pose[:, :3, 3], joints[:, 6:], panda_arm_geometry(_panda_chain()), *limits)
-    assert solutions.joints.shape == (5000, 1, N_BRANCHES, N_ARM_JOINTS)
+    solutions = panda_ik_closed_form(pose[:, :3, :3], pose[:, :3, 3], joints[:, 6:], panda_arm_geometry(arm_chain(ROBOT), ROBOT), *limits)
+    assert solutions.joints.shape == (5000, 1, N_BRANCHES, ROBOT.n_arm_joints)
     difference = (solutions.joints[:, 0] - joints[:, None]).abs().amax(dim=-1)  # (N, 8)
     closest = difference.argmin(dim=1)
     assert difference.min(dim=1).values.max() < 1e-4
@@ -47,7 +49,7 @@ def test_one_branch_recovers_the_joints_that_made_the_pose(chain64, limits):
 def test_every_valid_solution_reaches_the_pose_inside_the_limits(chain64, limits):
     pose = _link7_pose(chain64, _random_joints(limits, 500, seed=1))
     q7 = torch.linspace(float(limits[0][6]), float(limits[1][6]), 16, dtype=torch.float64).expand(500, 16)
-    solutions = panda_ik_closed_form(pose[:, :3, :3], pose[:, :3, 3], q7, panda_arm_geometry(_panda_chain()), *limits)
+    solutions = panda_ik_closed_form(pose[:, :3, :3], pose[:, :3, 3], q7, panda_arm_geometry(arm_chain(ROBOT), ROBOT), *limits)
     target_row = solutions.valid.nonzero()[:, 0]
     valid_joints = solutions.joints[solutions.valid]
     assert len(valid_joints) > 500  # several solutions per pose: the arm is redundant
@@ -60,7 +62,7 @@ def test_every_valid_solution_reaches_the_pose_inside_the_limits(chain64, limits
 def test_shoulder_straight_up_is_solved_despite_the_joint_1_3_singularity(chain64, limits):
     joints = torch.tensor([[0.4, 0.0, 0.3, -1.5, 0.2, 1.5, 0.5]], dtype=torch.float64)  # q2 = 0: only q1 + q3 is defined
     pose = _link7_pose(chain64, joints)
-    solutions = panda_ik_closed_form(pose[:, :3, :3], pose[:, :3, 3], joints[:, 6:], panda_arm_geometry(_panda_chain()), *limits)
+    solutions = panda_ik_closed_form(pose[:, :3, :3], pose[:, :3, 3], joints[:, 6:], panda_arm_geometry(arm_chain(ROBOT), ROBOT), *limits)
     reached = _link7_pose(chain64, solutions.joints[solutions.valid])
     assert len(reached) > 0
     assert (reached[:, :3, 3] - pose[0, :3, 3]).norm(dim=1).max() < 1e-9
@@ -68,7 +70,7 @@ def test_shoulder_straight_up_is_solved_despite_the_joint_1_3_singularity(chain6
 
 
 def test_a_pose_beyond_reach_has_no_valid_solution(chain64, limits):
-    geometry = panda_arm_geometry(_panda_chain())
+    geometry = panda_arm_geometry(arm_chain(ROBOT), ROBOT)
     pose = _link7_pose(chain64, _random_joints(limits, 50, seed=2))
     shoulder = torch.tensor([0.0, 0.0, geometry.shoulder_height_m], dtype=torch.float64)
     direction = torch.nn.functional.normalize(pose[:, :3, 3] - shoulder, dim=1)
@@ -79,23 +81,23 @@ def test_a_pose_beyond_reach_has_no_valid_solution(chain64, limits):
 
 
 def test_a_chain_with_a_different_joint_layout_is_refused():
-    chain = _panda_chain()
+    chain = arm_chain(ROBOT)
     frame = chain.find_frame("panda_link3")
     # A 5 cm offset between joints 2 and 3 along x (a2), which the Panda lacks.
     frame.joint.offset = frame.joint.offset.compose(pk.Transform3d(pos=torch.tensor([0.05, 0.0, 0.0])))
     with pytest.raises(ValueError, match="does not model"):
-        panda_arm_geometry(chain)
+        panda_arm_geometry(chain, ROBOT)
 
 
 # The wrist-reach test rules out only targets the closed form has no solution for at any q7.
 
 def test_every_pose_the_arm_reaches_is_in_reach(chain64, limits):
     pose = _link7_pose(chain64, _random_joints(limits, 5000, seed=0))
-    assert wrist_in_reach(pose[:, :3, :3], pose[:, :3, 3], panda_arm_geometry(_panda_chain())).all()
+    assert wrist_in_reach(pose[:, :3, :3], pose[:, :3, 3], panda_arm_geometry(arm_chain(ROBOT), ROBOT)).all()
 
 
 def test_targets_out_of_reach_have_no_solution_at_any_q7_and_the_test_is_tight(chain64, limits):
-    geometry = panda_arm_geometry(_panda_chain())
+    geometry = panda_arm_geometry(arm_chain(ROBOT), ROBOT)
     pose = _link7_pose(chain64, _random_joints(limits, 400, seed=1))
     shoulder = torch.tensor([0.0, 0.0, geometry.shoulder_height_m], dtype=torch.float64)
     direction = torch.nn.functional.normalize(pose[:, :3, 3] - shoulder, dim=1)

@@ -5,17 +5,20 @@ import time
 import pytest
 import torch
 
-from sagp_batched.ik import N_ARM_JOINTS, ChainFrames, _panda_chain
+from sagp_batched.ik import ChainFrames, arm_chain
+from sagp_batched.robot import load_robot
+
+ROBOT = load_robot()
 
 
 @pytest.fixture(scope="module")
 def chain():
-    return _panda_chain()
+    return arm_chain(ROBOT)
 
 
 def _random_joints(chain, count, seed, dtype=torch.float32):
     lower, upper = (torch.tensor(bound, dtype=dtype) for bound in chain.get_joint_limits())
-    return lower + (upper - lower) * torch.rand(count, N_ARM_JOINTS, generator=torch.Generator().manual_seed(seed), dtype=dtype)
+    return lower + (upper - lower) * torch.rand(count, ROBOT.n_arm_joints, generator=torch.Generator().manual_seed(seed), dtype=dtype)
 
 
 def _matrices(frames):
@@ -36,7 +39,7 @@ def test_every_frame_pose_matches_pytorch_kinematics_to_a_micrometre_in_float32(
 
 
 def test_poses_and_jacobian_match_pytorch_kinematics_to_rounding_in_float64(chain):
-    chain64 = _panda_chain().to(dtype=torch.float64)
+    chain64 = arm_chain(ROBOT).to(dtype=torch.float64)
     joints = _random_joints(chain64, 2000, seed=1, dtype=torch.float64)
     frames = ChainFrames.of(chain64)
     poses = frames.poses(joints)

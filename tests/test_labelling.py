@@ -15,9 +15,11 @@ from sagp_batched.config import ConfigError, ShakeConfig, load_config
 from sagp_batched.execution import execute_grasp, shake_profile
 from sagp_batched.labelling import ObjectPlacement, floating_hand_urdf, grasps_from_poses, label_grasps_arm, label_grasps_hand
 from sagp_batched.objects import load_object_set
-from sagp_batched.robot import PANDA
+from sagp_batched.robot import load_robot
 from sagp_batched.scene import Scene
 from sagp_batched.types import InvalidGraspError
+
+ROBOT = load_robot()
 
 DOWN = np.array([0.0, 0.0, -1.0])
 STILL = ShakeConfig(linear_peak_acceleration_m_s2=(0.0, 0.0, 0.0), angular_peak_acceleration_rad_s2=(0.0, 0.0, 0.0))
@@ -236,12 +238,12 @@ def test_labelling_settings_load_from_a_profile_section_and_bad_ones_are_clear_e
 
 
 def test_the_floating_hand_urdf_is_the_robot_s_hand_alone_with_absolute_mesh_paths(tmp_path):
-    path = floating_hand_urdf(PANDA, tmp_path)
-    assert floating_hand_urdf(PANDA, tmp_path) == path and len(list(tmp_path.iterdir())) == 1
+    path = floating_hand_urdf(ROBOT, tmp_path)
+    assert floating_hand_urdf(ROBOT, tmp_path) == path and len(list(tmp_path.iterdir())) == 1
     robot = ElementTree.parse(path).getroot()
-    assert {link.get("name") for link in robot.iter("link")} == {PANDA.hand_link, *PANDA.finger_links, PANDA.grasp_target_link}
+    assert {link.get("name") for link in robot.iter("link")} == {ROBOT.hand_link, *ROBOT.finger_links, ROBOT.grasp_target_link}
     assert {joint.get("name"): joint.get("type") for joint in robot.iter("joint") if joint.get("type") != "fixed"} == {
-        name: "prismatic" for name in PANDA.finger_joints
+        name: "prismatic" for name in ROBOT.finger_joints
     }
     assert not list(robot.iter("visual"))
     meshes = [Path(mesh.get("filename")) for mesh in robot.iter("mesh")]

@@ -9,11 +9,13 @@ import torch
 from planner_clouds import box_surface, cylinder_surface, make_cloud
 from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS
-from sagp_batched.robot import PANDA
+from sagp_batched.robot import load_robot
 from sagp_batched.planning import gripper_geometry, hand_geometry, plan
 from sagp_batched_kernels.grasp_frames import grasp_rotations
 from sagp_batched_kernels.gripper_volume import gripper_occupancy
 from sagp_batched_kernels.hand_clearance import hand_clearance
+
+ROBOT = load_robot()
 
 CONFIG = Config()
 PLANNER = CONFIG.planner
@@ -28,7 +30,7 @@ def _top_down(centre, closing=(0.0, 1.0, 0.0)):
 
 
 def _swept_hand(points, centre, rotation, descent_m=DESCENT_M):
-    low, high = hand_geometry(PLANNER).swept((0.0, 0.0, -descent_m))
+    low, high = hand_geometry(ROBOT).swept((0.0, 0.0, -descent_m))
     points = torch.as_tensor(points, dtype=torch.float32)
     return hand_clearance(points[None], points[None], torch.tensor([0]), centre, rotation[:, 0], DOP_DIRECTIONS, low, high,
                           PLANNER.hand_clearance_margin_m, 10**8)
@@ -50,7 +52,7 @@ def test_fingers_that_would_strike_the_mug_rim_on_the_way_down_are_caught():
     cup = _cup()
     centre, rotation = _top_down((0.0, 0.0, 0.05))
     occupancy = gripper_occupancy(torch.as_tensor(cup, dtype=torch.float32)[None], torch.tensor([0]), centre, rotation,
-                                  torch.tensor([0.07]), gripper_geometry(PLANNER), 10**7)
+                                  torch.tensor([0.07]), gripper_geometry(ROBOT, PLANNER), 10**7)
     # The SPEC's 12 % proxy alone accepts this grasp...
     assert occupancy.total.item() <= PLANNER.occupancy_max_fraction * len(cup)
     # ...the swept hand does not, and its clearance says it goes through the wall.
@@ -97,17 +99,17 @@ def test_the_hand_geometry_is_the_urdf_collision_shapes_as_pybullet_places_them(
     boxes a hull by turning its local box and pads it by a 4 mm contact margin, so the hand is
     posed axis-aligned (pointing down) and the margin is taken off; link 7 sits turned 45 deg
     about the approach, so its hull must lie inside PyBullet's box and match it along z."""
-    geometry = hand_geometry(PLANNER)
-    assert geometry.links == PANDA.hand_collision_links
+    geometry = hand_geometry(ROBOT)
+    assert geometry.links == ROBOT.hand_collision_links
     client = pybullet.connect(pybullet.DIRECT)
     try:
-        robot = pybullet.loadURDF(str(PANDA.urdf_path), useFixedBase=True, physicsClientId=client)
+        robot = pybullet.loadURDF(str(ROBOT.urdf_path), useFixedBase=True, physicsClientId=client)
         names = {pybullet.getJointInfo(robot, j, physicsClientId=client)[12].decode(): j
                  for j in range(pybullet.getNumJoints(robot, physicsClientId=client))}
-        for joint, angle in zip(range(7), PANDA.ik_reference_joints):
+        for joint, angle in zip(range(7), ROBOT.ik_reference_joints):
             pybullet.resetJointState(robot, joint, angle, physicsClientId=client)
         for finger in ("panda_leftfinger", "panda_rightfinger"):
-            pybullet.resetJointState(robot, names[finger], PANDA.open_width_m / 2, physicsClientId=client)
+            pybullet.resetJointState(robot, names[finger], ROBOT.open_width_m / 2, physicsClientId=client)
         state = pybullet.getLinkState(robot, names["panda_grasptarget"], computeForwardKinematics=True, physicsClientId=client)
         rotation = np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3)
         for name, hull in zip(geometry.links, geometry.hull_vertices):
@@ -125,7 +127,7 @@ def test_the_hand_geometry_is_the_urdf_collision_shapes_as_pybullet_places_them(
 
 
 def test_k_dop_clearance_is_a_lower_bound_of_the_distance_to_each_hull():
-    geometry = hand_geometry(PLANNER)
+    geometry = hand_geometry(ROBOT)
     low, high = geometry.swept((0.0, 0.0, 0.0))
     generator = torch.Generator().manual_seed(3)
     points = (torch.rand(4000, 3, generator=generator) - 0.5) * torch.tensor([0.3, 0.4, 0.5])
@@ -162,4 +164,4 @@ def test_a_grasp_whose_pregrasp_is_out_of_reach_is_rejected_though_the_grasp_pos
 
     reached = ik.forward(motion_down.joint_path[0])[:, :3, 3]
     waypoints = motion_waypoints(centre, DOWN.view(1, 3), CONFIG.execution)[0]
-    assert (reached - waypoints).norm(dim=1).max() < PANDA.ik_position_tolerance_m
+    assert (reached - waypoints).norm(dim=1).max() < ROBOT.ik_position_tolerance_m

@@ -9,13 +9,15 @@ import torch
 from sagp_batched.benchmark import reachable_ik_targets, shoulder_world
 from sagp_batched.config import Config
 from sagp_batched.ik import PandaIK
-from sagp_batched.robot import PANDA
+from sagp_batched.robot import load_robot
+
+ROBOT = load_robot()
 
 
 @pytest.fixture(scope="module")
 def ik():
     config = Config()
-    return PandaIK(config.planner, config.scene.robot_base_xyz_m)
+    return PandaIK(config.ik, ROBOT)
 
 
 @pytest.fixture(scope="module")
@@ -40,12 +42,12 @@ def test_at_least_99_percent_of_reachable_targets_are_solved(ik, reachable):
 def test_every_success_reproduces_its_target_through_forward_kinematics(ik, reachable):
     result = ik.solve(reachable.positions_world, reachable.rotations_world)
     position_error, angle = _pose_errors(ik, result.joints, reachable.positions_world, reachable.rotations_world)
-    assert position_error[result.success].max() < PANDA.ik_position_tolerance_m
-    assert angle[result.success].max() < PANDA.ik_rotation_tolerance_rad
+    assert position_error[result.success].max() < ROBOT.ik_position_tolerance_m
+    assert angle[result.success].max() < ROBOT.ik_rotation_tolerance_rad
     assert torch.allclose(result.position_error_m.double(), position_error, atol=1e-5)
     assert torch.allclose(result.rotation_error_rad.double(), angle, atol=2e-3)  # arccos is coarse near 0
     assert torch.allclose(result.s_reach, (1 + torch.cos(result.rotation_error_rad)) / 2)
-    assert (result.s_reach[result.success] > (1 + math.cos(PANDA.ik_rotation_tolerance_rad)) / 2).all()
+    assert (result.s_reach[result.success] > (1 + math.cos(ROBOT.ik_rotation_tolerance_rad)) / 2).all()
 
 
 def test_joints_are_always_inside_the_limits(ik, reachable):
@@ -85,9 +87,9 @@ def test_bad_shapes_are_named(ik):
 
 def test_polish_steps_bring_float32_rounding_misses_within_a_micrometre_tolerance(reachable):
     config = Config()
-    tight = dataclasses.replace(PANDA, ik_position_tolerance_m=1e-6, ik_rotation_tolerance_rad=1e-5)
-    unpolished = PandaIK(config.override("planner", ik_polish_iterations=0).planner, config.scene.robot_base_xyz_m, tight)
-    polished = PandaIK(config.planner, config.scene.robot_base_xyz_m, tight)
+    tight = dataclasses.replace(ROBOT, ik_position_tolerance_m=1e-6, ik_rotation_tolerance_rad=1e-5)
+    unpolished = PandaIK(config.override("ik", polish_iterations=0).ik, tight)
+    polished = PandaIK(config.ik, tight)
     before = unpolished.solve(reachable.positions_world, reachable.rotations_world).success
     after = polished.solve(reachable.positions_world, reachable.rotations_world).success
     assert not before.all()  # the closed form's float32 answers alone miss a micrometre on some targets
@@ -96,13 +98,13 @@ def test_polish_steps_bring_float32_rounding_misses_within_a_micrometre_toleranc
 
 def test_answers_keep_clear_of_the_joint_limits_where_another_solution_allows(ik, reachable):
     config = Config()
-    unguarded = PandaIK(config.override("planner", ik_limit_margin_rad=0.0).planner, config.scene.robot_base_xyz_m)
+    unguarded = PandaIK(config.override("ik", limit_margin_rad=0.0).ik, ROBOT)
     guarded = ik.solve(reachable.positions_world, reachable.rotations_world)
     plain = unguarded.solve(reachable.positions_world, reachable.rotations_world)
 
     def near_limit_fraction(joints):
         margin = torch.minimum(joints - ik.lower, ik.upper - joints).amin(dim=1)
-        return float((margin < config.planner.ik_limit_margin_rad - 0.01).double().mean())
+        return float((margin < config.ik.limit_margin_rad - 0.01).double().mean())
 
     # On these uniformly drawn configurations: 51 % of answers near a limit without the margin, 28 % with it.
     assert near_limit_fraction(guarded.joints) < near_limit_fraction(plain.joints)

@@ -6,10 +6,12 @@ import pytest
 import torch
 
 from planner_clouds import box_surface, cylinder_surface, make_cloud
-from sagp_batched.robot import PANDA
+from sagp_batched.robot import load_robot
 from sagp_batched.config import Config
 from sagp_batched.ik import panda_ik
 from sagp_batched.planning import plan, plan_batch, screen_candidates
+
+ROBOT = load_robot()
 
 CONFIG = Config()
 TABLE_Z = CONFIG.scene.table_top_z_m
@@ -44,7 +46,7 @@ def test_plan_returns_feasible_candidates_ranked_by_geometry(box_cloud):
     assert (candidates.approach[:, 2] < 0.5).all()
     # The stored joints put the grasp target on the grasp centre.
     reached = panda_ik(CONFIG).forward(candidates.ik_solution)
-    assert (reached[:, :3, 3] - candidates.position_world).norm(dim=1).max() < PANDA.ik_position_tolerance_m
+    assert (reached[:, :3, 3] - candidates.position_world).norm(dim=1).max() < ROBOT.ik_position_tolerance_m
 
 
 def test_plan_is_deterministic_for_a_seed(box_cloud):
@@ -109,7 +111,7 @@ def test_loop_reference_gives_the_same_candidates_and_mostly_agrees_on_ik(box_cl
             torch.tensor(np.array([t["rotation"] for t in poses]), dtype=torch.float32),
         )
         batched_feasible = (
-            (batched.position_error_m < PANDA.ik_position_tolerance_m) & (batched.s_reach >= CONFIG.planner.min_reach)
+            (batched.position_error_m < ROBOT.ik_position_tolerance_m) & (batched.s_reach >= CONFIG.planner.min_reach)
         ).numpy()
         agreement = (batched_feasible == np.array([t["feasible"] for t in poses])).mean()
         print(f"{cloud.object_id}: IK feasibility agreement {agreement:.1%} over {len(poses)} poses")

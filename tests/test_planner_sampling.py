@@ -7,6 +7,9 @@ from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.planning import sample_inputs
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.sampling import sample_pair_indices
+from sagp_batched.robot import load_robot
+
+ROBOT = load_robot()
 
 
 def test_unknown_pair_sampling_mode_is_a_config_error_naming_the_known_modes():
@@ -21,11 +24,11 @@ def test_sample_inputs_follows_the_configured_mode():
     cloud = make_cloud(points, normals, table_top_z_m=0.625)
     uniform_config = Config().override("planner", pair_sampling="uniform").planner
     guided_config = Config().override("planner", pair_sampling="guided").planner
-    uniform = sample_inputs(cloud, uniform_config, seed=3)
-    guided = sample_inputs(cloud, guided_config, seed=3)
+    uniform = sample_inputs(cloud, ROBOT, uniform_config, seed=3)
+    guided = sample_inputs(cloud, ROBOT, guided_config, seed=3)
     assert torch.equal(uniform.pair_indices, sample_pair_indices(cloud.n_points, uniform_config.n_pairs, torch.Generator().manual_seed(3)))
     assert guided.pair_indices.shape == uniform.pair_indices.shape
-    assert torch.equal(guided.pair_indices, sample_inputs(cloud, guided_config, seed=3).pair_indices)
+    assert torch.equal(guided.pair_indices, sample_inputs(cloud, ROBOT, guided_config, seed=3).pair_indices)
 
     def n_antipodal(pairs):
         planner = guided_config

@@ -19,7 +19,7 @@ from sagp_batched import load_object_set
 from sagp_batched.benchmark import BenchmarkSettings, mesh_cloud
 from sagp_batched.config import Config
 from sagp_batched.hand import DOP_DIRECTIONS
-from sagp_batched.robot import PANDA
+from sagp_batched.robot import load_robot
 from sagp_batched.planning import (
     CandidateStatus, ScreenedCandidates, SearchTuning, gripper_geometry, hand_geometry, plan, plan_batch, planner, screen_candidates,
 )
@@ -28,6 +28,8 @@ from sagp_batched.planning.search import segment_exclusive_cumsum
 from sagp_batched_kernels import gripper_volume
 from sagp_batched_kernels.gripper_volume import table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance
+
+ROBOT = load_robot()
 
 CONFIG = Config()
 TABLE_Z = CONFIG.scene.table_top_z_m
@@ -54,7 +56,7 @@ def ycb_clouds(ycb_dir, tmp_path_factory):
 
 def dense_hand_clearance(screened: ScreenedCandidates, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
     """The swept-hand definition on every point of the scene, one GEMM per candidate batch."""
-    low, high = hand_geometry(screened.planner).swept((0.0, 0.0, -screened.pregrasp_offset_m))
+    low, high = hand_geometry(screened.robot).swept((0.0, 0.0, -screened.pregrasp_offset_m))
     relative = screened.hand_check_points[screened.object_index[rows]] - screened.centre_world[rows, None, :]
     axes = DOP_DIRECTIONS @ screened.rotation_world[rows, slots].transpose(-1, -2)
     projection = (axes @ relative.transpose(1, 2))[:, None]
@@ -91,11 +93,11 @@ def test_the_culled_hand_check_blocks_exactly_the_grasps_every_point_blocks_and_
 @pytest.mark.parametrize("name", [*OBJECTS, "grid box"])
 def test_the_table_check_decides_every_pose_as_checking_every_hull_point_does(ycb_clouds, name):
     screened = screen_candidates([ycb_clouds[name]], CONFIG, [0])
-    hand = hand_geometry(CONFIG.planner)
+    hand = hand_geometry(ROBOT)
     centre, rotation = screened.centre_world, screened.rotation_world
     # A grid of table heights puts the table top close to many poses' lowest points.
     for table_z in np.linspace(TABLE_Z - 0.02, TABLE_Z + 0.06, 9):
-        for links in (PANDA.finger_links, tuple(n for n in hand.links if n not in PANDA.finger_links)):
+        for links in (ROBOT.finger_links, tuple(n for n in hand.links if n not in ROBOT.finger_links)):
             points = hand.vertices(links)
             through = table_penetration(centre, rotation, points, CONFIG.execution.pregrasp_offset_m, float(table_z))
             assert torch.equal(through, dense_table_penetration(centre, rotation, points, CONFIG.execution.pregrasp_offset_m, float(table_z)))
@@ -109,10 +111,10 @@ def test_the_table_check_decides_poses_whose_lowest_point_lies_exactly_at_the_ta
     a few poses each."""
     monkeypatch.setattr(gripper_volume, "TABLE_BLOCK_POSES", block_poses)
     screened = screen_candidates([ycb_clouds["025_mug"]], CONFIG, [0])
-    hand = hand_geometry(CONFIG.planner)
+    hand = hand_geometry(ROBOT)
     centre, rotation = screened.centre_world + torch.tensor(shift_m), screened.rotation_world
     retreat = CONFIG.execution.pregrasp_offset_m
-    for links in (PANDA.finger_links, tuple(n for n in hand.links if n not in PANDA.finger_links)):
+    for links in (ROBOT.finger_links, tuple(n for n in hand.links if n not in ROBOT.finger_links)):
         points = hand.vertices(links)
         lowest = (centre[:, 2, None, None] + rotation[..., 2, :] @ points.T).amin(dim=-1)
         heights = torch.cat((lowest.flatten()[::997], (lowest - retreat * rotation[..., 2, 2]).flatten()[::997]))
@@ -233,7 +235,7 @@ def test_lookahead_sized_by_the_observed_losses_plans_alike_in_fewer_motion_roun
 
 def dense_gripper_points(screened: ScreenedCandidates, rows: torch.Tensor) -> torch.Tensor:
     """(R, K) points inside the finger slabs plus points inside the palm, every point and approach."""
-    geometry = gripper_geometry(screened.planner)
+    geometry = gripper_geometry(screened.robot, screened.planner)
     n_approaches, n_points = screened.rotation_world.shape[1], screened.occupancy_points.shape[1]
     relative = screened.occupancy_points[screened.object_index[rows]] - screened.centre_world[rows, None, :]
     axes = screened.rotation_world[rows].transpose(-1, -2).reshape(rows.numel(), n_approaches * 3, 3)

@@ -8,13 +8,15 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from sagp_batched.robot import PANDA
+from sagp_batched.robot import load_robot
 from sagp_batched import Config, Grasp, GraspCandidates
 from sagp_batched.execution import InvalidGraspError, execute_grasp, execute_ranked
 from sagp_batched.objects import load_object_set
 from sagp_batched.scene import Scene
 
 from ycb_paths import YCB_DIR
+
+ROBOT = load_robot()
 DOWN = np.array([0.0, 0.0, -1.0])
 
 
@@ -84,7 +86,7 @@ def test_ranked_execution_stops_at_the_first_success(can_scene):
         approach=torch.tensor(DOWN, dtype=torch.float32).repeat(n, 1),
         rotation_world=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(n, 1, 1),
         s_reach=torch.ones(n),
-        ik_solution=torch.tensor(PANDA.ik_reference_joints, dtype=torch.float32).repeat(n, 1),
+        ik_solution=torch.tensor(ROBOT.ik_reference_joints, dtype=torch.float32).repeat(n, 1),
         zone=torch.full((n,), -1),
         s_afford=torch.zeros(n),
         s_avoid=torch.zeros(n),
@@ -109,7 +111,7 @@ def test_a_grasp_two_rankings_share_is_simulated_once_and_each_keeps_its_place(c
         closing_axis=torch.tensor([[0.0, 1.0, 0.0]]).repeat(2, 1), width_m=torch.full((2,), 0.068), s_geom=torch.ones(2),
         approach=torch.tensor(DOWN, dtype=torch.float32).repeat(2, 1),
         rotation_world=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(2, 1, 1),
-        s_reach=torch.ones(2), ik_solution=torch.tensor(PANDA.ik_reference_joints, dtype=torch.float32).repeat(2, 1),
+        s_reach=torch.ones(2), ik_solution=torch.tensor(ROBOT.ik_reference_joints, dtype=torch.float32).repeat(2, 1),
         zone=torch.full((2,), -1), s_afford=torch.zeros(2), s_avoid=torch.zeros(2), s_task=torch.zeros(2), score=torch.ones(2),
     )
     simulated = []

@@ -9,7 +9,7 @@ import numpy as np
 import pybullet
 import pytest
 
-from sagp_batched.robot import PANDA
+from sagp_batched.robot import load_robot
 from sagp_batched import Config
 from sagp_batched.objects import (
     PYBULLET_DATA_SET,
@@ -22,6 +22,8 @@ from sagp_batched.objects import (
 from sagp_batched.scene import Scene
 
 from ycb_paths import YCB_DIR, needs_ycb
+
+ROBOT = load_robot()
 
 
 @pytest.fixture(scope="module")
@@ -165,7 +167,7 @@ def test_restore_state_returns_to_the_settled_scene(scene, ycb):
     scene.reset(ycb.get("005_tomato_soup_can"), trial=1)
     settled = scene.object_link_pose(scene.target_id)[0]
     pybullet.resetBasePositionAndOrientation(scene.target_id, [0.5, 0.3, 1.0], [0, 0, 0, 1], physicsClientId=scene.client)
-    scene.set_arm_joints(PANDA.ik_reference_joints)
+    scene.set_arm_joints(ROBOT.ik_reference_joints)
     scene.restore_state()
     assert np.abs(scene.object_link_pose(scene.target_id)[0] - settled).max() < 1e-9
-    assert np.allclose(scene.arm_joints(), Config().scene.robot_home_joints, atol=1e-4)
+    assert np.allclose(scene.arm_joints(), ROBOT.home_joints, atol=1e-4)

@@ -7,11 +7,11 @@ from dataclasses import dataclass
 
 import torch
 
-from ..config import Config, PlannerConfig
+from ..config import Config
 from ..hand import link_hulls
 from ..ik import PandaIK
 from ..motion import grasp_waypoint_index, motion_waypoints
-from ..robot import PANDA
+from ..robot import RobotDescription
 
 
 @dataclass
@@ -64,7 +64,7 @@ def check_motions(centre: torch.Tensor, approach: torch.Tensor, rotation: torch.
     # joint 7 swings joints 1 and 3, are followed again with every joint free to move; a waypoint
     # out of reach at the held value was already given that chance inside ``follow``.
     # The arm at the grasp itself is placed once: a retried motion keeps its grasp joints.
-    grasp_lowest_z = ik.lowest_link_point_z(grasp_joints, _arm_hulls(planner))
+    grasp_lowest_z = ik.lowest_link_point_z(grasp_joints, _arm_hulls(ik.robot))
     joints, reached_all, motion_ok = _checked_motion(
         ik, grasp_joints, grasp_lowest_z, waypoints[candidates], rotation[candidates], grasp_index, config, hold_joint7=True
     )
@@ -107,7 +107,7 @@ def _checked_motion(
     between waypoints, and the arm's links clear of the table."""
     planner = config.planner
     others = torch.arange(waypoints.shape[1]) != grasp_index
-    hulls = _arm_hulls(planner)
+    hulls = _arm_hulls(ik.robot)
     path = ik.follow(grasp_joints, waypoints[:, others], rotation, hold_joint7=hold_joint7, hulls=hulls)
     joints = torch.zeros(grasp_joints.shape[0], waypoints.shape[1], grasp_joints.shape[1])
     joints[:, others], joints[:, grasp_index] = path.joints, grasp_joints
@@ -125,10 +125,6 @@ def _checked_motion(
 
 
 @functools.lru_cache(maxsize=4)
-def _arm_hulls_of(links: tuple[str, ...]) -> dict[str, torch.Tensor]:
-    return {name: torch.tensor(vertices, dtype=torch.float32) for name, vertices in link_hulls(PANDA.urdf_path, links).items()}
-
-
-def _arm_hulls(planner: PlannerConfig) -> dict[str, torch.Tensor]:
-    """Hull vertices of the links checked against the table, in their link frames (built once per link set)."""
-    return _arm_hulls_of(tuple(planner.arm_table_links))
+def _arm_hulls(robot: RobotDescription) -> dict[str, torch.Tensor]:
+    """Hull vertices of the links checked against the table, in their link frames (built once per robot)."""
+    return {name: torch.tensor(vertices, dtype=torch.float32) for name, vertices in link_hulls(robot.urdf_path, robot.table_check_links).items()}

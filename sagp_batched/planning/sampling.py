@@ -13,6 +13,7 @@ from sagp_batched_kernels.sampling import (
 )
 
 from ..config import PlannerConfig
+from ..robot import RobotDescription
 from ..types import PerceivedCloud
 from .gripper import jaw_width_limit
 
@@ -42,7 +43,7 @@ class SampledInputs:
     hand_screen_points: torch.Tensor  # (S, 3) a coarser subset of them, probed first
 
 
-def sample_inputs(cloud: PerceivedCloud, planner: PlannerConfig, seed: int) -> SampledInputs:
+def sample_inputs(cloud: PerceivedCloud, robot: RobotDescription, planner: PlannerConfig, seed: int) -> SampledInputs:
     """Draw the contact pairs and the occupancy subset of ``cloud`` from one generator seeded by ``seed``."""
     generator = torch.Generator().manual_seed(int(seed))
     if planner.pair_sampling == "guided":
@@ -54,7 +55,7 @@ def sample_inputs(cloud: PerceivedCloud, planner: PlannerConfig, seed: int) -> S
             planner.n_pairs,
             planner.pair_proposals,
             planner.min_width_m,
-            min(planner.max_width_m, jaw_width_limit(planner)),
+            min(planner.max_width_m, jaw_width_limit(robot, planner)),
             generator,
             planner.pair_proposal_chunk_elements,
         )

@@ -15,8 +15,8 @@ from sagp_batched_kernels.gripper_volume import gripper_occupancy_within, table_
 from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
 
 from ..config import Config, PlannerConfig
-from ..hand import DOP_DIRECTIONS, HandGeometry
-from ..robot import PANDA
+from ..hand import DOP_DIRECTIONS
+from ..robot import RobotDescription, robot_of
 from ..types import PerceivedCloud
 from .gripper import gripper_geometry, hand_geometry, jaw_width_limit
 from .sampling import sample_inputs
@@ -51,6 +51,7 @@ class ScreenedCandidates:
     hand_check_points: torch.Tensor  # (B, H, 3) per-cloud points for the swept-hand check, NaN-padded
     hand_screen_points: torch.Tensor  # (B, S, 3) their coarse subsets, NaN-padded
     planner: PlannerConfig
+    robot: RobotDescription
     pregrasp_offset_m: float
     table_top_z_m: float
     sampling_s: float  # seconds spent drawing the pairs and subsets
@@ -99,13 +100,13 @@ class ScreenedCandidates:
         ``rotation``: their (R, K, 3, 3) frames, where the caller has them (default: ``frames``).
         """
         planner = self.planner
-        (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(hand_geometry(planner))
+        (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(self.robot)
         centre = self.centre_world[rows]
         rotation = self.frames(rows)[1] if rotation is None else rotation
         through_table = table_penetration(
             centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m, fingers_cover
         ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m, rest_cover)
-        return ~through_table & (self.width_m[rows] <= jaw_width_limit(planner))[:, None]
+        return ~through_table & (self.width_m[rows] <= jaw_width_limit(self.robot, planner))[:, None]
 
     def table_and_volume_ok(self, rows: torch.Tensor) -> torch.Tensor:
         """(R, K) bool: candidates ``rows`` clear the table and their gripper volumes are under the
@@ -119,7 +120,7 @@ class ScreenedCandidates:
         planner = self.planner
         return gripper_occupancy_within(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], rotation,
-            self.width_m[rows], gripper_geometry(planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
+            self.width_m[rows], gripper_geometry(self.robot, planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
             planner.occupancy_chunk_elements, poses,
         )
 
@@ -128,7 +129,7 @@ class ScreenedCandidates:
         with approaches ``slots`` comes within the margin of the scene's object and obstacle points,
         and its clearance from them (exact where not blocked). The coarse subset is probed first:
         most blocked grasps (a mug's) strike one of its points."""
-        low, high = hand_geometry(self.planner).swept((0.0, 0.0, -self.pregrasp_offset_m))
+        low, high = hand_geometry(self.robot).swept((0.0, 0.0, -self.pregrasp_offset_m))
         return hand_clearance(
             self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.frames(rows, slots)[1],
             DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
@@ -143,10 +144,10 @@ class ScreenedCandidates:
 
 def screen_candidates(clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int]) -> ScreenedCandidates:
     """Sampling and the antipodal filter for all clouds at once; the screens run on demand."""
-    planner = config.planner
+    planner, robot = config.planner, robot_of(config)
     clock = time.perf_counter()
     n_objects = len(clouds)
-    sampled = [sample_inputs(cloud, planner, seed) for cloud, seed in zip(clouds, seeds)]
+    sampled = [sample_inputs(cloud, robot, planner, seed) for cloud, seed in zip(clouds, seeds)]
     point_offsets = torch.tensor([0] + [cloud.n_points for cloud in clouds]).cumsum(0)[:-1]
     pairs = torch.cat([s.pair_indices + offset for s, offset in zip(sampled, point_offsets)])
     pair_object = torch.arange(n_objects).repeat_interleave(planner.n_pairs)
@@ -179,6 +180,7 @@ def screen_candidates(clouds: Sequence[PerceivedCloud], config: Config, seeds: S
         hand_check_points=_padded([s.hand_check_points for s in sampled]),
         hand_screen_points=_padded([s.hand_screen_points for s in sampled]),
         planner=planner,
+        robot=robot,
         pregrasp_offset_m=config.execution.pregrasp_offset_m,
         table_top_z_m=config.scene.table_top_z_m,
         sampling_s=sampled_at - clock,
@@ -187,11 +189,12 @@ def screen_candidates(clouds: Sequence[PerceivedCloud], config: Config, seeds: S
 
 
 @functools.lru_cache(maxsize=4)
-def _table_check_points(hand: HandGeometry) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
+def _table_check_points(robot: RobotDescription) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
     """The fingers' and the other links' hull vertices (grasp frame) the table check tests, each
-    with its ``table_cover``: built once per hand, not on every block of candidates."""
-    fingers = hand.vertices(PANDA.finger_links)
-    rest = hand.vertices(tuple(name for name in hand.links if name not in PANDA.finger_links))
+    with its ``table_cover``: built once per robot, not on every block of candidates."""
+    hand = hand_geometry(robot)
+    fingers = hand.vertices(robot.finger_links)
+    rest = hand.vertices(tuple(name for name in hand.links if name not in robot.finger_links))
     return (fingers, table_cover(fingers)), (rest, table_cover(rest))
 
 
