@@ -77,7 +77,6 @@ def mesh_cloud(spec: ObjectSpec, config: Config, settings: BenchmarkSettings, ca
         object_id=spec.id,
         object_position_world=np.array([*settings.object_xy_m, config.scene.table_top_z_m]),
         object_quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]),
-        table_top_z_m=config.scene.table_top_z_m,
     )
 
 

@@ -195,6 +195,5 @@ def capture(scene: Scene, config: Config) -> PerceivedCloud:
         object_id=scene.target_spec.id,
         object_position_world=object_position,
         object_quat_xyzw=object_quat,
-        table_top_z_m=config.scene.table_top_z_m,
         obstacle_points_world=torch.as_tensor(obstacles_world, dtype=torch.float32),
     )

@@ -92,7 +92,6 @@ class PerceivedCloud:
     # results in the object frame (``midpoint_object``), never by the planner.
     object_position_world: np.ndarray  # (3,)
     object_quat_xyzw: np.ndarray  # (4,)
-    table_top_z_m: float
     # Points of other bodies on the table (t3 distractors): the gripper-volume check counts them.
     obstacle_points_world: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 3))
     # Pixel box (u0, v0, u1, v1) of ``crop_rgb`` in ``cameras[crop_camera_index]``: VLM-Direct projects

@@ -53,7 +53,7 @@ def cylinder_surface(radius_m, height_m, base_centre_m, spacing_m=0.004):
     return points, normals
 
 
-def make_cloud(points, normals, table_top_z_m, object_id="test_object", obstacles=None):
+def make_cloud(points, normals, object_id="test_object", obstacles=None):
     return PerceivedCloud(
         points_world=torch.as_tensor(points, dtype=torch.float32),
         normals_world=torch.as_tensor(normals, dtype=torch.float32),
@@ -63,6 +63,5 @@ def make_cloud(points, normals, table_top_z_m, object_id="test_object", obstacle
         object_id=object_id,
         object_position_world=np.asarray(points).mean(axis=0),
         object_quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]),
-        table_top_z_m=table_top_z_m,
         obstacle_points_world=torch.zeros(0, 3) if obstacles is None else torch.as_tensor(obstacles, dtype=torch.float32),
     )

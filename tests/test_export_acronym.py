@@ -85,7 +85,7 @@ def _trial(rng, n):
     cloud = PerceivedCloud(
         points_world=torch.zeros(0, 3), normals_world=torch.zeros(0, 3), view_index=torch.zeros(0, dtype=torch.int64),
         crop_rgb=np.zeros((1, 1, 3), np.uint8), cameras=[], object_id="box", object_position_world=object_position_world,
-        object_quat_xyzw=world_from_object.as_quat(), table_top_z_m=0.6,
+        object_quat_xyzw=world_from_object.as_quat(),
     )
     return candidates, cloud, contacts_object, width
 

@@ -39,7 +39,7 @@ def _cloud(points: torch.Tensor, position=(0.5, 0.02, 0.63), euler_deg=(0.0, 0.0
     return PerceivedCloud(
         points_world=points, normals_world=torch.zeros_like(points), view_index=torch.zeros(len(points), dtype=torch.int64),
         crop_rgb=np.zeros((1, 1, 3), np.uint8), cameras=[], object_id="box", object_position_world=np.array(position),
-        object_quat_xyzw=Rotation.from_euler("xyz", euler_deg, degrees=True).as_quat(), table_top_z_m=0.6,
+        object_quat_xyzw=Rotation.from_euler("xyz", euler_deg, degrees=True).as_quat(),
     )
 
 

@@ -86,10 +86,10 @@ def test_planner_keeps_no_grasp_whose_descent_hits_an_overhang():
     table = CONFIG.scene.table_top_z_m
     block, block_normals = box_surface((0.04, 0.04, 0.04), (0.55, 0.0, table + 0.02))
     shelf, _ = box_surface((0.12, 0.12, 0.004), (0.55, 0.0, table + 0.16))
-    under_shelf = plan(make_cloud(block, block_normals, table, obstacles=shelf), CONFIG, seed=0)
+    under_shelf = plan(make_cloud(block, block_normals, obstacles=shelf), CONFIG, seed=0)
     assert len(under_shelf.candidates) > 0 and under_shelf.counts.rejected_hand > 0
     assert (under_shelf.candidates.approach @ DOWN < math.cos(math.radians(30.0))).all()
-    free = plan(make_cloud(block, block_normals, table), CONFIG, seed=0).candidates
+    free = plan(make_cloud(block, block_normals), CONFIG, seed=0).candidates
     assert (free.approach @ DOWN > 0.99).any()
 
 

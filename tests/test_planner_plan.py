@@ -20,13 +20,13 @@ TABLE_Z = CONFIG.scene.table_top_z_m
 @pytest.fixture(scope="module")
 def box_cloud():
     points, normals = box_surface((0.06, 0.05, 0.15), (0.55, 0.0, TABLE_Z + 0.075))
-    return make_cloud(points, normals, TABLE_Z, "box")
+    return make_cloud(points, normals, "box")
 
 
 @pytest.fixture(scope="module")
 def can_cloud():
     points, normals = cylinder_surface(0.035, 0.1, (0.5, 0.1, TABLE_Z))
-    return make_cloud(points, normals, TABLE_Z, "can")
+    return make_cloud(points, normals, "can")
 
 
 def test_plan_returns_feasible_candidates_ranked_by_geometry(box_cloud):
@@ -75,14 +75,14 @@ def test_obstacle_points_in_the_finger_path_remove_candidates(can_cloud):
     radial = points[:, :2] - centre[:2]
     ring = points.copy()
     ring[:, :2] = centre[:2] + radial * (1 + 0.012 / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-9))
-    crowded = make_cloud(points, can_cloud.normals_world.numpy(), TABLE_Z, "can", obstacles=np.concatenate([ring] * 2))
+    crowded = make_cloud(points, can_cloud.normals_world.numpy(), "can", obstacles=np.concatenate([ring] * 2))
     blocked = plan(crowded, CONFIG, seed=5)
     assert blocked.counts.antipodal == free.counts.antipodal
     assert blocked.counts.collision_free < free.counts.collision_free
 
 
 def test_bad_cloud_is_named():
-    cloud = make_cloud(np.zeros((1, 3)), np.zeros((1, 3)), TABLE_Z, "lonely")
+    cloud = make_cloud(np.zeros((1, 3)), np.zeros((1, 3)), "lonely")
     with pytest.raises(ValueError, match="lonely"):
         plan(cloud, CONFIG)
 

@@ -21,7 +21,7 @@ def test_unknown_pair_sampling_mode_is_a_config_error_naming_the_known_modes():
 
 def test_sample_inputs_follows_the_configured_mode():
     points, normals = box_surface((0.05, 0.06, 0.1), (0.5, 0.0, 0.675))
-    cloud = make_cloud(points, normals, table_top_z_m=0.625)
+    cloud = make_cloud(points, normals)
     uniform_config = Config().override("planner", pair_sampling="uniform").planner
     guided_config = Config().override("planner", pair_sampling="guided").planner
     uniform = sample_inputs(cloud, ROBOT, uniform_config, seed=3)

@@ -38,7 +38,7 @@ def cloud(crop_box=CROP_BOX) -> PerceivedCloud:
         points_world=points, normals_world=torch.nn.functional.normalize(torch.randn(200, 3), dim=1),
         view_index=torch.zeros(200, dtype=torch.int64), crop_rgb=np.full((100, 100, 3), 90, np.uint8),
         cameras=[overhead_camera()], object_id="025_mug", object_position_world=np.array([0.5, 0.0, 0.65]),
-        object_quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), table_top_z_m=0.625, crop_box_px=crop_box,
+        object_quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), crop_box_px=crop_box,
     )
 
 

@@ -50,7 +50,7 @@ def ycb_clouds(ycb_dir, tmp_path_factory):
     clouds["mug beside the can"] = replace(clouds["025_mug"], obstacle_points_world=clouds["005_tomato_soup_can"].points_world + beside)
     clouds["box beside the mug"] = replace(clouds["003_cracker_box"], obstacle_points_world=clouds["025_mug"].points_world - beside)
     points, normals = box_surface((0.06, 0.05, 0.15), (0.55, 0.0, TABLE_Z + 0.075))
-    clouds["grid box"] = make_cloud(points, normals, TABLE_Z, "grid box")
+    clouds["grid box"] = make_cloud(points, normals, "grid box")
     return clouds
 
 

@@ -44,7 +44,7 @@ def synthetic_cloud(crop_box=CROP_BOX) -> PerceivedCloud:
         points_world=points, normals_world=torch.nn.functional.normalize(torch.randn(n, 3), dim=1),
         view_index=torch.zeros(n, dtype=torch.int64), crop_rgb=np.full((120, 120, 3), 90, np.uint8),
         cameras=[side_camera()], object_id="025_mug", object_position_world=np.array([0.5, 0.0, 0.65]),
-        object_quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), table_top_z_m=0.65, crop_box_px=crop_box,
+        object_quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), crop_box_px=crop_box,
     )
 
 
