@@ -176,15 +176,16 @@ class TrialRunner:
         attempts_by_method: dict[str, list] = {}
         executed: dict[int, GraspAttempt] = {}  # candidate id -> its attempt, shared by the methods that try it
         for method in unit.methods:
-            if rating_failure is not None and get_method(method).uses_rating:
+            declared = get_method(method)
+            if rating_failure is not None and declared.uses_rating:
                 emit(TrialRecord.build(spec, unit, method, config, error=rating_failure[0], traceback=rating_failure[1]))
                 continue
             method_start = time.perf_counter()
-            ranked = get_method(method).rank(
+            ranked = declared.rank(
                 RankingInputs(candidates, cloud, rating, decomposition, spec.name, unit.task, config, self._model_client)
             )
             ranked_by_method[method] = ranked
-            method_rating_s = rating_s if method != "go" else 0.0
+            method_rating_s = rating_s if declared.plan_time_counts_rating else 0.0
             times = (perception_s, geometry_s, method_rating_s, geometry_s + method_rating_s + time.perf_counter() - method_start)
             summary = PlanSummary(candidates.counts, dict(zip(STAGE_TIMES, times)), rating.provenance_dict())
             if len(ranked) == 0:
