@@ -29,6 +29,7 @@ from .config import Config
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from .export import acronym_gripper_transforms_object, planner_frames_from_acronym
 from .objects import ObjectSet, ObjectSpec
+from .seeds import capture_trial, labelling_seed
 from .types import Grasp, GraspCandidates, PerceptionFailure
 from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
 
@@ -218,7 +219,7 @@ class ObjectLabeller:
     def _reset_to_pose(self, spec: ObjectSpec, pose_index: int) -> None:
         """Capture ``pose_index`` places the object at a fresh seeded position and yaw, in its k-th
         stable resting pose where it lists several."""
-        self.scene.reset(spec, trial=self.config.dataset.seed + pose_index, resting_pose=pose_index % max(1, len(spec.resting_poses)))
+        self.scene.reset(spec, trial=capture_trial(self.config, pose_index), resting_pose=pose_index % max(1, len(spec.resting_poses)))
 
     def plan_object(self, object_id: str, n_grasps: int) -> ObjectPlan:
         """Plan ``n_grasps`` grasps of the object, split over its captures."""
@@ -258,7 +259,7 @@ class ObjectLabeller:
             return f"capture {pose_index}: {failure.reason}"
         times["capture"] += time.perf_counter() - clock
         clock = time.perf_counter()
-        classified = classify_grasps(cloud, config, config.dataset.seed + pose_index, n_grasps, taken_object=taken)
+        classified = classify_grasps(cloud, config, labelling_seed(config, pose_index), n_grasps, taken_object=taken)
         if not len(classified):
             times["plan"] += time.perf_counter() - clock
             planner = config.planner

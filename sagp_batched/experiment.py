@@ -23,7 +23,8 @@ from .judging import judge_task, place_grasp
 from .methods import RankingInputs, get_method
 from .objects import ObjectSet, ObjectSpec
 from .rating.types import ZoneRating, clipped, neutral_rating
-from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit, candidate_seed
+from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
+from .seeds import candidate_seed
 from .types import GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
 
 
