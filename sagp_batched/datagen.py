@@ -245,6 +245,7 @@ class ObjectLabeller:
         """Capture ``pose_index`` classified and rated; the reason instead where the capture failed."""
         from .labelling import ObjectPlacement
         from .perception import capture
+        from .rating.prompt import describe_zones
         from .zone_marks import rating_image
         from .zones import assign_zones
 
@@ -269,7 +270,8 @@ class ObjectLabeller:
             return f"capture {pose_index}: each of its {classified.pool_size} candidate poses repeats a grasp of an earlier capture"
         decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
         shown = rating_image(cloud, decomposition, config.rating)
-        ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, decomposition.describe()) for task in DATASET_TASKS}
+        descriptions = describe_zones(decomposition)
+        ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, descriptions) for task in DATASET_TASKS}
         placement = ObjectPlacement.from_scene(self.scene)
         times["plan"] += time.perf_counter() - clock
         return PosePlan(pose_index, placement.com_position_world, placement.com_quat_xyzw, zoned, cloud.object_from_world, classified, ratings)

@@ -133,6 +133,7 @@ class TrialRunner:
     def _run_unit(self, spec: ObjectSpec, unit: TrialUnit, result: UnitResult) -> None:
         from .perception import capture
         from .planner import plan
+        from .rating.prompt import describe_zones
         from .zone_marks import rating_image
         from .zones import assign_zones
 
@@ -162,7 +163,7 @@ class TrialRunner:
             zone_points = _zone_points_object(cloud, decomposition) if self.rater.uses_ground_truth else None
             # What the model sees: the crop with the zones drawn on it (set-of-mark prompting), or the plain crop.
             shown = rating_image(cloud, decomposition, config.rating)
-            rating = self.rater.rate(spec.id, spec.name, unit.task, shown, decomposition.describe(), zone_points)
+            rating = self.rater.rate(spec.id, spec.name, unit.task, shown, describe_zones(decomposition), zone_points)
         except TrialTimeout:
             raise
         except Exception as exc:  # fails the methods that rank by the rating only; the others run on
