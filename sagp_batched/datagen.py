@@ -29,6 +29,7 @@ from .config import Config
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from .export import acronym_gripper_transforms_object, planner_frames_from_acronym
 from .objects import ObjectSet, ObjectSpec
+from .seeds import capture_trial, labelling_seed
 from .types import Grasp, GraspCandidates, PerceptionFailure
 from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
 
@@ -218,7 +219,7 @@ class ObjectLabeller:
     def _reset_to_pose(self, spec: ObjectSpec, pose_index: int) -> None:
         """Capture ``pose_index`` places the object at a fresh seeded position and yaw, in its k-th
         stable resting pose where it lists several."""
-        self.scene.reset(spec, trial=self.config.dataset.seed + pose_index, resting_pose=pose_index % max(1, len(spec.resting_poses)))
+        self.scene.reset(spec, trial=capture_trial(self.config, pose_index), resting_pose=pose_index % max(1, len(spec.resting_poses)))
 
     def plan_object(self, object_id: str, n_grasps: int) -> ObjectPlan:
         """Plan ``n_grasps`` grasps of the object, split over its captures."""
@@ -244,6 +245,7 @@ class ObjectLabeller:
         """Capture ``pose_index`` classified and rated; the reason instead where the capture failed."""
         from .labelling import ObjectPlacement
         from .perception import capture
+        from .rating.prompt import describe_zones
         from .zone_marks import rating_image
         from .zones import assign_zones
 
@@ -258,7 +260,7 @@ class ObjectLabeller:
             return f"capture {pose_index}: {failure.reason}"
         times["capture"] += time.perf_counter() - clock
         clock = time.perf_counter()
-        classified = classify_grasps(cloud, config, config.dataset.seed + pose_index, n_grasps, taken_object=taken)
+        classified = classify_grasps(cloud, config, labelling_seed(config, pose_index), n_grasps, taken_object=taken)
         if not len(classified):
             times["plan"] += time.perf_counter() - clock
             planner = config.planner
@@ -268,7 +270,8 @@ class ObjectLabeller:
             return f"capture {pose_index}: each of its {classified.pool_size} candidate poses repeats a grasp of an earlier capture"
         decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
         shown = rating_image(cloud, decomposition, config.rating)
-        ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, decomposition.describe()) for task in DATASET_TASKS}
+        descriptions = describe_zones(decomposition)
+        ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, descriptions) for task in DATASET_TASKS}
         placement = ObjectPlacement.from_scene(self.scene)
         times["plan"] += time.perf_counter() - clock
         return PosePlan(pose_index, placement.com_position_world, placement.com_quat_xyzw, zoned, cloud.object_from_world, classified, ratings)

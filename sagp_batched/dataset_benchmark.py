@@ -25,6 +25,7 @@ import pybullet
 
 from .config import Config
 from .objects import ObjectSet
+from .seeds import capture_trial
 
 STAGES = ("reset", "capture", "plan", "simulate", "write")
 
@@ -99,7 +100,7 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
     from .scene import Scene, command_fingers, configure_physics, create_table
 
     with Scene(config) as scene:
-        scene.reset(objects.get(object_id), trial=config.dataset.seed)
+        scene.reset(objects.get(object_id), trial=capture_trial(config, pose_index=0))
         placement = ObjectPlacement.from_scene(scene)
         top_z = pybullet.getAABB(scene.target_id, physicsClientId=scene.client)[1][2]
     robot = robot_of(config)

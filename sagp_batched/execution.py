@@ -37,6 +37,7 @@ from .motion import grasp_waypoint_index, motion_waypoints
 from .perception import make_camera, render
 from .robot import RobotDescription
 from .scene import Scene
+from .seeds import ik_restart_seed
 from .types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
 
 # Joint-limit slack for accepting an IK solution: PyBullet clamps to the limits within float noise.
@@ -68,7 +69,7 @@ class _ArmIK:
         self.lower = np.array([i[8] for i in info])
         self.upper = np.array([i[9] for i in info])
         self.arm_slots = [movable.index(j) for j in scene.robot_indices.arm_joints]
-        self.rng = np.random.default_rng(config.scene.seed_base + (scene.trial or 0))
+        self.rng = np.random.default_rng(ik_restart_seed(config, scene.trial or 0))
         self.source = "pybullet"
 
     def _full(self, arm_joints: np.ndarray) -> list[float]:

@@ -23,7 +23,8 @@ from .judging import judge_task, place_grasp
 from .methods import RankingInputs, get_method
 from .objects import ObjectSet, ObjectSpec
 from .rating.types import ZoneRating, clipped, neutral_rating
-from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit, candidate_seed
+from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
+from .seeds import candidate_seed
 from .types import GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
 
 
@@ -132,6 +133,7 @@ class TrialRunner:
     def _run_unit(self, spec: ObjectSpec, unit: TrialUnit, result: UnitResult) -> None:
         from .perception import capture
         from .planning import plan
+        from .rating.prompt import describe_zones
         from .zone_marks import rating_image
         from .zones import assign_zones
 
@@ -162,7 +164,7 @@ class TrialRunner:
             zone_points = _zone_points_object(cloud, decomposition) if self.rater.uses_ground_truth else None
             # What the model sees: the crop with the zones drawn on it (set-of-mark prompting), or the plain crop.
             shown = rating_image(cloud, decomposition, config.rating)
-            rating = self.rater.rate(spec.id, spec.name, unit.task, shown, decomposition.describe(), zone_points)
+            rating = self.rater.rate(spec.id, spec.name, unit.task, shown, describe_zones(decomposition), zone_points)
         except TrialTimeout:
             raise
         except Exception as exc:  # fails the methods that rank by the rating only; the others run on
@@ -177,15 +179,16 @@ class TrialRunner:
         attempts_by_method: dict[str, list] = {}
         executed: dict[int, GraspAttempt] = {}  # candidate id -> its attempt, shared by the methods that try it
         for method in unit.methods:
-            if rating_failure is not None and get_method(method).uses_rating:
+            declared = get_method(method)
+            if rating_failure is not None and declared.uses_rating:
                 emit(TrialRecord.build(spec, unit, method, config, error=rating_failure[0], traceback=rating_failure[1]))
                 continue
             method_start = time.perf_counter()
-            ranked = get_method(method).rank(
+            ranked = declared.rank(
                 RankingInputs(candidates, cloud, rating, decomposition, spec.name, unit.task, config, self._model_client)
             )
             ranked_by_method[method] = ranked
-            method_rating_s = rating_s if method != "go" else 0.0
+            method_rating_s = rating_s if declared.plan_time_counts_rating else 0.0
             times = (perception_s, geometry_s, method_rating_s, geometry_s + method_rating_s + time.perf_counter() - method_start)
             summary = PlanSummary(planned.counts.as_dict(), dict(zip(STAGE_TIMES, times)), rating.provenance_dict())
             if len(ranked) == 0:

@@ -43,6 +43,10 @@ class Method:
     # Ranks by the zone rating: a trial whose rater failed fails this method; one without it runs
     # on (its record's rating, for judging, is then the neutral one).
     uses_rating: bool
+    # Its planning time (``times_s["rating"]`` and ``"total_plan"``) counts the zone rating's time: the
+    # published timing charges it to every method that consults a vision-language model, so only
+    # Geometry-Only, which plans without one, is timed without it.
+    plan_time_counts_rating: bool
     rank: Callable[[RankingInputs], GraspCandidates]  # the candidates scored and ranked, best first
 
 
@@ -72,10 +76,12 @@ def _rank_vlm_direct(inputs: RankingInputs) -> GraspCandidates:
 REGISTRY: dict[str, Method] = {
     method.name: method
     for method in (
-        Method("go", "Geometry-Only", needs_model=False, uses_rating=False, rank=_rank_geometry_only),
-        Method("sagp", "SAGP", needs_model=False, uses_rating=True, rank=_rank_sagp),
+        Method("go", "Geometry-Only", needs_model=False, uses_rating=False, plan_time_counts_rating=False,
+               rank=_rank_geometry_only),
+        Method("sagp", "SAGP", needs_model=False, uses_rating=True, plan_time_counts_rating=True, rank=_rank_sagp),
         # VLM-Direct's shortlist is drawn from the geometric ranking; the zone rating has no part in it.
-        Method("vd", "VLM-Direct", needs_model=True, uses_rating=False, rank=_rank_vlm_direct),
+        Method("vd", "VLM-Direct", needs_model=True, uses_rating=False, plan_time_counts_rating=True,
+               rank=_rank_vlm_direct),
     )
 }
 assert tuple(REGISTRY) == METHODS, "every method name of the types layer has exactly one registered method"

@@ -16,6 +16,7 @@ import numpy as np
 from .config import Config
 from .judging import GraspPlacement, TaskOutcome
 from .objects import ObjectSpec
+from .seeds import candidate_seed, scene_seed
 from .types import METHODS, TASKS, Grasp, GraspAttempt
 
 PLAN_COUNTS: tuple[str, ...] = ("sampled", "antipodal", "collision_free", "ik_feasible")
@@ -38,11 +39,6 @@ class TrialUnit:
 def record_key(record: dict[str, Any]) -> tuple[str, str, str, int]:
     """The (object, task, method, trial) a serialised record belongs to."""
     return (record["object"], record["task"], record["method"], int(record["trial"]))
-
-
-def candidate_seed(config: Config, trial: int) -> int:
-    """Seed of a trial's candidate set: fixed per trial so every method sees the same set."""
-    return config.planner.seed + config.scene.seed_base + trial
 
 
 @dataclass(frozen=True)
@@ -104,7 +100,7 @@ class TrialRecord:
             failure_reason = executed.attempts[-1].failure_reason
         return cls(
             object=spec.id, category=spec.category, asymmetric=spec.asymmetric, task=unit.task, method=method,
-            trial=unit.trial, seed=config.scene.seed_base + unit.trial, candidate_seed=candidate_seed(config, unit.trial),
+            trial=unit.trial, seed=scene_seed(config, unit.trial), candidate_seed=candidate_seed(config, unit.trial),
             plan=plan, executed=executed, failure_reason=failure_reason, error=error, traceback=traceback,
         )
 

@@ -2,7 +2,7 @@
 
 Each ``Scene`` owns its own PyBullet client (several may live in one process), so every call passes
 ``physicsClientId``. ``reset`` rebuilds the world from scratch with ``resetSimulation`` and draws
-poses from ``numpy.random.default_rng(seed_base + trial)``: the same trial gives the same settled
+poses from ``numpy.random.default_rng(seeds.scene_seed(config, trial))``: the same trial gives the same settled
 poses bit for bit.
 """
 from __future__ import annotations
@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from .config import Config, SceneConfig
 from .objects import ObjectLoadError, ObjectSpec
 from .robot import body_indices, robot_of
+from .seeds import scene_seed
 
 
 class ScenePlacementError(RuntimeError):
@@ -129,7 +130,7 @@ class Scene:
         self.set_arm_joints(robot.home_joints)
         self.set_finger_width(robot.open_width_m)
 
-        rng = np.random.default_rng(scene_config.seed_base + trial)
+        rng = np.random.default_rng(scene_seed(self.config, trial))
         x = rng.uniform(*scene_config.object_x_range_m)
         y = rng.uniform(*scene_config.object_y_range_m)
         yaw = rng.uniform(*scene_config.object_yaw_range_rad)

@@ -26,6 +26,7 @@ from . import provenance
 from .config import Config, ConfigError, load_config
 from .experiment import TrialRunner, UnitResult
 from .records import TrialRecord, TrialUnit, record_key
+from .seeds import candidate_seed, scene_seed
 from .run_directory import (
     CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, WORKERS_FILE, RunDirectoryError, RunLock, TrialWriter, WorkerReport, append_json_line,
     check_same_run, read_records,
@@ -257,8 +258,9 @@ def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], unit
     write_json(out_dir / CONFIG_FILE, config.to_dict())
     write_json(out_dir / PROVENANCE_FILE, provenance.collect(
         config.to_dict(),
-        scene_seeds=sorted({config.scene.seed_base + u.trial for u in units}),
-        candidate_seed_offset=config.planner.seed + config.scene.seed_base,
+        scene_seeds=sorted({scene_seed(config, u.trial) for u in units}),
+        # Trial t's candidate seed is this offset plus t.
+        candidate_seed_offset=candidate_seed(config, trial=0),
         objects={"source": objects.source, "checksum": checksum, "ids": list(dict.fromkeys(u.object_id for u in units))},
         methods=list(methods),
         not_run=not_run,

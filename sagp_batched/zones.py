@@ -46,7 +46,9 @@ from sagp_batched_kernels import zones as zone_kernels
 
 from ._open3d import o3d
 from .config import ZonesConfig
-from .types import LENGTH_ZONES, PROTRUSION, VERTICAL_ZONES, ZONE_NAMES, GraspCandidates, PerceivedCloud, protrusion_zone
+from .types import (
+    LENGTH_ZONES, PROTRUSION, SIDE_ZONES, VERTICAL_ZONES, ZONE_NAMES, GraspCandidates, PerceivedCloud, protrusion_zone,
+)
 
 # Zones every cloud has, in this order; its numbered protrusion zones follow them.
 GEOMETRIC_ZONES: tuple[str, ...] = tuple(name for name in ZONE_NAMES if name != PROTRUSION)
@@ -63,6 +65,38 @@ DEGENERATE_OUTCOMES = ("empty", "too_few_points", "collinear", "flat")
 
 class ZoneInputError(ValueError):
     """The cloud or the candidates handed to zoning are malformed (shape or non-finite values)."""
+
+
+@dataclass(frozen=True)
+class ZoneFacts:
+    """The measurements of one zone that holds points; ``kind`` ("side", "vertical", "length" or
+    "protrusion") says which of the optional ones it has."""
+
+    name: str
+    kind: str
+    point_count: int
+    # A vertical third's height, kept as the 0-d float32 tensor it is measured in (as
+    # ``ObjectFacts.height_m``) so the prompt's centimetres round as they always have.
+    height_m: torch.Tensor | None = None
+    width_m: float | None = None  # a third along a lying object's length: its extent across the object
+    # A protrusion: its height band above the object's lowest point, the side zone it sticks out on,
+    # and how far it reaches beyond the body's reference distance (``protrusion_reference_m``).
+    band_above_lowest_m: tuple[float, float] | None = None
+    side: str | None = None
+    beyond_body_m: float | None = None
+
+
+@dataclass(frozen=True)
+class ObjectFacts:
+    """The measurements of a zoned object (``ZoneDecomposition.facts``)."""
+
+    n_points: int
+    height_m: torch.Tensor  # 0-d float32: its extent along the vertical principal axis
+    length_m: float | None  # its extent along ``length_axis_world`` where split along its length
+    split: str
+    protrusion_rule: str
+    degenerate: str | None
+    zones: tuple[ZoneFacts, ...]  # the zones holding points, in ``zone_names`` order
 
 
 @dataclass
@@ -102,9 +136,40 @@ class ZoneDecomposition:
         counts = self.memberships.sum(dim=0).tolist()
         return {name: int(count) for name, count in zip(self.zone_names, counts)}
 
-    def describe(self) -> dict[str, str]:
-        """``describe_zones(self)``: the zone descriptions the rating prompt carries."""
-        return describe_zones(self)
+    def facts(self) -> "ObjectFacts":
+        """The measurements of the object and of every zone that holds points, which the rating prompt
+        states (``rating.prompt.describe_zones``)."""
+        if self.n_points == 0:
+            return ObjectFacts(0, torch.zeros(()), None, self.split, self.protrusion_rule, self.degenerate, ())
+        relative = self.points_world - self.centroid_world
+        offsets = relative @ self.axes_world  # (N, 3) vertical, lateral, depth
+        extents = offsets.amax(dim=0) - offsets.amin(dim=0)
+        along = relative @ self.length_axis_world if self.split == "length" else None
+        counts = self.zone_point_counts()
+        zones = tuple(self._zone_facts(index, name, counts[name], relative, offsets, along)
+                      for index, name in enumerate(self.zone_names) if counts[name])
+        length_m = float(along.amax() - along.amin()) if along is not None else None
+        return ObjectFacts(self.n_points, extents[0], length_m, self.split, self.protrusion_rule, self.degenerate, zones)
+
+    def _zone_facts(self, index: int, name: str, count: int, relative: torch.Tensor, offsets: torch.Tensor,
+                    along: torch.Tensor | None) -> "ZoneFacts":
+        if name in SIDE_ZONES:
+            return ZoneFacts(name, "side", count)
+        member = self.memberships[:, index]
+        zone_heights = offsets[member, 0]
+        if along is not None and name in LENGTH_ZONES:
+            across = relative @ torch.linalg.cross(self.axes_world[:, 0], self.length_axis_world)
+            return ZoneFacts(name, "length", count, width_m=float(across[member].amax() - across[member].amin()))
+        if name in VERTICAL_ZONES:
+            return ZoneFacts(name, "vertical", count, height_m=zone_heights.amax() - zone_heights.amin())
+        lowest = float(offsets[:, 0].amin())
+        mean_offset = offsets[member].mean(dim=0)
+        axis = 1 + int(mean_offset[1:].abs().argmax())
+        side = (("left", "right"), ("front", "back"))[axis - 1][0 if mean_offset[axis] >= 0 else 1]
+        return ZoneFacts(
+            name, "protrusion", count, band_above_lowest_m=(float(zone_heights.amin()) - lowest, float(zone_heights.amax()) - lowest),
+            side=side, beyond_body_m=float(self.protrusion_distance_m[member].max()) - self.protrusion_reference_m,
+        )
 
     def nearest_points(self, positions_world: torch.Tensor) -> torch.Tensor:
         """(C,) index of the cloud point nearest each of ``positions_world`` (C, 3); needs a non-empty cloud."""
@@ -274,68 +339,3 @@ def assign_zones(
     """Zones of ``cloud``, and ``candidates`` carrying theirs (``ZoneDecomposition.zone_candidates``)."""
     decomposition = decompose(cloud.points_world, config)
     return decomposition, decomposition.zone_candidates(candidates)
-
-
-_SIDE_WORDS = {1: ("left side", "right side"), 2: ("front side", "back side")}
-
-
-def describe_zones(decomposition: ZoneDecomposition) -> dict[str, str]:
-    """A short geometric description of every zone that holds points, for the rating prompt.
-
-    A protrusion is described by where it is and how it sticks out: its share of the points, its
-    height band on the object, the side it sticks out on and how far beyond the body.
-    """
-    n = decomposition.n_points
-    if n == 0:
-        return {}
-    points = decomposition.points_world
-    offsets = (points - decomposition.centroid_world) @ decomposition.axes_world  # (N, 3) vertical, lateral, depth
-    lowest = offsets[:, 0].amin()
-    extents_cm = 100.0 * (offsets.amax(dim=0) - offsets.amin(dim=0))
-    descriptions: dict[str, str] = {}
-    counts = decomposition.zone_point_counts()
-    side_words = {"left": "robot's left", "right": "robot's right", "front": "side facing the robot", "back": "side away from the robot"}
-    for index, name in enumerate(decomposition.zone_names):
-        count = counts[name]
-        if count == 0:
-            continue
-        share = f"{name}: {100.0 * count / n:.0f}% of points"
-        if name in side_words:
-            descriptions[name] = f"{share}, the half on the {side_words[name]}"
-            continue
-        member = decomposition.memberships[:, index]
-        zone_heights = offsets[member, 0]
-        if decomposition.split == "length" and name in LENGTH_ZONES:
-            descriptions[name] = f"{share}, {_length_zone_words(decomposition, member, name)}"
-            continue
-        if name in VERTICAL_ZONES:
-            height_cm = 100.0 * (zone_heights.amax() - zone_heights.amin())
-            descriptions[name] = f"{share}, {name} {height_cm:.1f} cm of the object's {extents_cm[0]:.1f} cm height"
-            continue
-        band = (100.0 * (float(zone_heights.amin()) - float(lowest)), 100.0 * (float(zone_heights.amax()) - float(lowest)))
-        mean_offset = offsets[member].mean(dim=0)
-        axis = 1 + int(mean_offset[1:].abs().argmax())
-        side = _SIDE_WORDS[axis][0 if mean_offset[axis] >= 0 else 1]
-        beyond_cm = 100.0 * (float(decomposition.protrusion_distance_m[member].max()) - decomposition.protrusion_reference_m)
-        reference = "the body's side" if decomposition.protrusion_rule == "body" else "the body's typical extent"
-        descriptions[name] = (
-            f"{share}, a part that sticks out on the {side}, {band[0]:.1f} to {band[1]:.1f} cm above the object's "
-            f"lowest point ({extents_cm[0]:.1f} cm tall), reaching {beyond_cm:.1f} cm beyond {reference}"
-        )
-    if decomposition.degenerate is not None:
-        descriptions = {k: f"{v} (degenerate cloud: {decomposition.degenerate})" for k, v in descriptions.items()}
-    return descriptions
-
-
-def _length_zone_words(decomposition: ZoneDecomposition, member: torch.Tensor, name: str) -> str:
-    """Where a third along a lying object's length is, and how wide it is across."""
-    along_axis = decomposition.length_axis_world
-    across_axis = torch.linalg.cross(decomposition.axes_world[:, 0], along_axis)
-    relative = decomposition.points_world - decomposition.centroid_world
-    along, across = relative @ along_axis, relative @ across_axis
-    length_cm = 100.0 * float(along.amax() - along.amin())
-    width_cm = 100.0 * float(across[member].amax() - across[member].amin())
-    if name == "middle":
-        return f"the middle third of the object's {length_cm:.1f} cm length (it lies on the table), {width_cm:.1f} cm across"
-    wider = "wider" if name == "wide_end" else "narrower"
-    return f"the {wider} end, one third of the object's {length_cm:.1f} cm length (it lies on the table), {width_cm:.1f} cm across"

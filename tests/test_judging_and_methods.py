@@ -35,13 +35,14 @@ def test_an_unknown_task_is_named():
         judge_task("t9", True, True, 0.0, 0.0, PUBLISHED)
 
 
-def test_every_method_name_has_one_registered_ranking_only_vlm_direct_asks_a_model_itself_and_only_sagp_ranks_by_the_rating():
+def test_every_method_name_has_one_registered_ranking_only_vlm_direct_asks_a_model_itself_only_sagp_ranks_by_the_rating_and_only_go_is_timed_without_it():
     from sagp_batched.methods import REGISTRY, get_method
     from sagp_batched.types import METHODS
 
     assert tuple(REGISTRY) == METHODS
     assert [name for name, method in REGISTRY.items() if method.needs_model] == ["vd"]
     assert [name for name, method in REGISTRY.items() if method.uses_rating] == ["sagp"]
+    assert [name for name, method in REGISTRY.items() if not method.plan_time_counts_rating] == ["go"]
     with pytest.raises(ValueError, match="unknown method 'xx'"):
         get_method("xx")
 

@@ -23,6 +23,7 @@ from sagp_batched.rating import (
     VLMRequestError,
     get_rater,
 )
+from sagp_batched.rating.prompt import describe_zones
 from sagp_batched.rating.vlm import ModelAnswer
 from sagp_batched.types import TASKS
 
@@ -418,7 +419,7 @@ def test_a_fully_cached_rerun_never_loads_the_model(tmp_path):
 
 
 def test_the_oracle_rates_the_mug_handle_zone_good_and_is_labelled_an_upper_bound():
-    from sagp_batched.config import ConfigError, RatingConfig
+    from sagp_batched.config import RatingConfig
     from sagp_batched.functional_regions import load_regions
     from sagp_batched.rating import get_rater
     from sagp_batched.report import rater_note
@@ -472,7 +473,7 @@ def test_the_endpoint_is_shown_the_marked_crop_and_told_to_use_the_marks(endpoin
     endpoint.script = [("answer", json.dumps(GOOD_ANSWER)), ("answer", json.dumps(GOOD_ANSWER))]
     marked = openai_rater(endpoint, tmp_path)
     assert marked.prompt_version == f"{PROMPT_VERSION}-marks"
-    rating = marked.rate("025_mug", "mug", "t2", rating_image(cloud, zones, RatingConfig()), zones.describe())
+    rating = marked.rate("025_mug", "mug", "t2", rating_image(cloud, zones, RatingConfig()), describe_zones(zones))
     assert rating.provenance.outcome == "ok" and rating.provenance.prompt_version == f"{PROMPT_VERSION}-marks"
     sent, prompt = sent_image_and_prompt(endpoint.requests[0])
     assert np.array_equal(sent, draw_zone_marks(cloud, zones, RatingConfig()).image)
@@ -481,7 +482,7 @@ def test_the_endpoint_is_shown_the_marked_crop_and_told_to_use_the_marks(endpoin
 
     plain = openai_rater(endpoint, tmp_path, zone_marks=False)
     assert plain.prompt_version == PROMPT_VERSION
-    plain.rate("025_mug", "mug", "t2", rating_image(cloud, zones, RatingConfig(zone_marks=False)), zones.describe())
+    plain.rate("025_mug", "mug", "t2", rating_image(cloud, zones, RatingConfig(zone_marks=False)), describe_zones(zones))
     sent, prompt = sent_image_and_prompt(endpoint.requests[1])
     assert np.array_equal(sent, cloud.crop_rgb) and "coloured dots" not in prompt
 
@@ -495,7 +496,7 @@ def test_the_local_vlm_rates_a_marked_crop_end_to_end(tiny_qwen2_vl, tmp_path):
     assert config.zone_marks, "marks are on by default"
     image = rating_image(cloud, zones, config)
     assert image.shape[0] >= config.vd_image_min_side_px
-    rating = get_rater(config).rate("025_mug", "mug", "t2", image, zones.describe())
+    rating = get_rater(config).rate("025_mug", "mug", "t2", image, describe_zones(zones))
     assert rating.provenance.backend == "transformers" and rating.provenance.prompt_version == f"{PROMPT_VERSION}-marks"
     assert rating.raw_text and rating.provenance.latency_s > 0.0
 
@@ -506,10 +507,10 @@ def test_the_image_a_rating_was_given_is_saved_beside_its_cache_entry(tmp_path):
     cloud, zones = marked_scene()
     shown = draw_zone_marks(cloud, zones, RatingConfig()).image
     rater = CachedRater(PriorRater(), tmp_path)
-    rater.rate("025_mug", "mug", "t2", shown, zones.describe())
+    rater.rate("025_mug", "mug", "t2", shown, describe_zones(zones))
     entry = rater._path("025_mug", "t2")
     assert entry.is_file() and entry.with_suffix(".png").is_file()
     assert np.array_equal(np.asarray(Image.open(entry.with_suffix(".png"))), shown)
-    rater.rate("999_teapot", "teapot", "t1", shown, zones.describe())  # neutral: neither stored nor pictured
+    rater.rate("999_teapot", "teapot", "t1", shown, describe_zones(zones))  # neutral: neither stored nor pictured
     assert not rater._path("999_teapot", "t1").with_suffix(".png").exists()
     assert sorted(p.suffix for p in tmp_path.iterdir()) == [".json", ".png"], "no temporary file is left behind"

@@ -10,13 +10,13 @@ from scipy.spatial.transform import Rotation
 
 from runners.zones import plot_zones
 from sagp_batched.config import ZonesConfig
+from sagp_batched.rating.prompt import describe_zones
 from sagp_batched.zones import (
     UNZONED,
     ZONE_INDEX,
     GEOMETRIC_ZONES,
     ZoneInputError,
     decompose,
-    describe_zones,
 )
 from sagp_batched_kernels import zones as zone_kernels
 

@@ -66,3 +66,47 @@ def test_lying_scissors_and_clamp_are_split_along_their_length_with_the_handles_
         # Loops and handle bars are the wide end, blades and jaws the narrow end, in every pose.
         assert handles[names == "wide_end"].mean() >= 0.9 and (names[handles] == "wide_end").mean() >= 0.6
         assert working_end[names == "narrow_end"].mean() >= 0.9 and not (names[working_end] == "wide_end").any()
+
+
+# The descriptions the rating prompt carried when the zone facts moved out of the prompt text: a prompt
+# that changes by one byte asks the model something else and misses every cached rating.
+PUBLISHED_DESCRIPTIONS = {
+    "019_pitcher_base": {
+        "top": "top: 51% of points, top 8.0 cm of the object's 23.9 cm height",
+        "middle": "middle: 29% of points, middle 8.0 cm of the object's 23.9 cm height",
+        "bottom": "bottom: 21% of points, bottom 8.0 cm of the object's 23.9 cm height",
+        "left": "left: 49% of points, the half on the robot's left",
+        "right": "right: 51% of points, the half on the robot's right",
+        "front": "front: 52% of points, the half on the side facing the robot",
+        "back": "back: 48% of points, the half on the side away from the robot",
+        "protrusion_1": "protrusion_1: 8% of points, a part that sticks out on the left side, 9.3 to 22.5 cm above the "
+                        "object's lowest point (23.9 cm tall), reaching 4.2 cm beyond the body's side",
+        "protrusion_2": "protrusion_2: 1% of points, a part that sticks out on the right side, 20.2 to 21.8 cm above the "
+                        "object's lowest point (23.9 cm tall), reaching 2.8 cm beyond the body's side",
+    },
+    "037_scissors": {
+        "middle": "middle: 25% of points, the middle third of the object's 20.2 cm length (it lies on the table), 5.1 cm across",
+        "wide_end": "wide_end: 63% of points, the wider end, one third of the object's 20.2 cm length (it lies on the table), "
+                    "8.7 cm across",
+        "narrow_end": "narrow_end: 12% of points, the narrower end, one third of the object's 20.2 cm length (it lies on the "
+                      "table), 1.5 cm across",
+        "left": "left: 53% of points, the half on the robot's left",
+        "right": "right: 47% of points, the half on the robot's right",
+        "front": "front: 38% of points, the half on the side facing the robot",
+        "back": "back: 62% of points, the half on the side away from the robot",
+    },
+}
+
+
+@pytest.mark.parametrize("object_id", sorted(PUBLISHED_DESCRIPTIONS))
+def test_the_prompt_describes_the_embedded_pitcher_and_scissors_zones_word_for_word_as_published(object_id):
+    from sagp_batched.objects import embedded_ycb_dir
+    from sagp_batched.rating.prompt import describe_zones
+
+    config = load_config("paper")
+    with Scene(config) as scene:
+        scene.reset(load_object_set(embedded_ycb_dir()).get(object_id), trial=POSES[0])
+        cloud = capture(scene, config)
+    described = describe_zones(decompose(cloud.points_world, config.zones))
+    # In order too: the prompt lists them as they come.
+    assert list(described.items()) == list(PUBLISHED_DESCRIPTIONS[object_id].items())
