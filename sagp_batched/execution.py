@@ -34,9 +34,8 @@ from scipy.spatial.transform import Rotation
 from .config import Config, ExecutionConfig, ShakeConfig
 from .ik import panda_ik
 from .motion import grasp_waypoint_index, motion_waypoints
-from .perception import make_camera, render
 from .robot import PANDA
-from .scene import Scene
+from .scene import Scene, make_camera
 from .types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
 
 # Joint-limit slack for accepting an IK solution: PyBullet clamps to the limits within float noise.
@@ -468,7 +467,7 @@ class _AttemptOutcome:
 
     def record_frame(self, moment: str) -> None:
         if self.camera is not None:
-            self.frames[moment] = render(self.scene, self.camera)[0]
+            self.frames[moment] = self.scene.render(self.camera)[0]
             self.details["frames"] = self.frames
 
     def finish(self, success: bool, reason: str | None, phase: str | None) -> GraspAttempt:
