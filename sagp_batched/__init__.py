@@ -9,6 +9,7 @@ The public API: build a scene, perceive, plan, zone, rate, score, execute::
     grasps = plan(capture(scene, config), config, seed=0).candidates   # GraspCandidates, ranked by S_geom
     attempt = execute_grasp(scene, config, grasps[0])      # grasps[0] is the best Grasp
 """
+from .attempt import AttemptDiagnostics
 from .config import GEOMETRY_ONLY_WEIGHTS, Config, ConfigError, ScoreWeights, load_config
 from .execution import execute_grasp, execute_ranked
 from .objects import ObjectSet, ObjectSpec, load_object_set
@@ -24,8 +25,8 @@ from .zones import ZoneDecomposition, assign_zones
 __version__ = "0.1.0"
 
 __all__ = [
-    "GEOMETRY_ONLY_WEIGHTS", "CameraData", "Config", "ConfigError", "Grasp", "GraspAttempt", "GraspCandidates", "ObjectSet",
-    "ObjectSpec", "PerceivedCloud", "PerceptionFailure", "PlanResult", "Scene", "ScoreWeights", "ZoneDecomposition", "ZoneRating",
+    "GEOMETRY_ONLY_WEIGHTS", "AttemptDiagnostics", "CameraData", "Config", "ConfigError", "Grasp", "GraspAttempt", "GraspCandidates",
+    "ObjectSet", "ObjectSpec", "PerceivedCloud", "PerceptionFailure", "PlanResult", "Scene", "ScoreWeights", "ZoneDecomposition", "ZoneRating",
     "assign_zones", "capture", "execute_grasp", "execute_ranked", "get_rater", "load_config", "load_object_set",
     "plan", "plan_batch", "run_study", "score_candidates",
 ]

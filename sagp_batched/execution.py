@@ -34,9 +34,9 @@ from scipy.spatial.transform import Rotation
 from .config import Config, ExecutionConfig, ShakeConfig
 from .ik import panda_ik
 from .motion import grasp_waypoint_index, motion_waypoints
-from .perception import make_camera, render
+from .attempt import AttemptDiagnostics, PlannerPrediction
 from .robot import RobotDescription
-from .scene import Scene
+from .scene import Scene, make_camera
 from .seeds import ik_restart_seed
 from .types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
 
@@ -319,12 +319,12 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     The gripper opens fully whatever ``grasp.width_m`` (published sequence). ``grasp.joint_path``,
     the planner's joints at every waypoint of ``motion.motion_waypoints``, is executed as given
     once PyBullet's kinematics confirms it reaches the waypoints. Without it, or when it does not,
-    the motion is solved with PyBullet IK seeded by ``grasp.ik_solution`` (``details["ik_source"]``
-    says which was executed, ``details["ik_fallback"]`` why the plan was not). ``record_frames``
-    puts RGB images at contact and after the lift (or when the attempt failed) in
-    ``details["frames"]``. A grasp built by hand comes from ``Grasp.from_pose``.
+    the motion is solved with PyBullet IK seeded by ``grasp.ik_solution`` (``diagnostics.ik_source``
+    says which was executed, ``diagnostics.ik_fallback`` why the plan was not). ``record_frames``
+    puts RGB images at contact and after the lift (or when the attempt failed) in the attempt's
+    ``frames``. A grasp built by hand comes from ``Grasp.from_pose``.
 
-    With ``shake`` (labelling), ``details`` also hold ``object_motion_during_closing_linear`` (m)
+    With ``shake`` (labelling), the diagnostics also hold ``object_motion_during_closing_linear`` (m)
     and ``_angular`` (rad), the object's world motion from just before the close to its end (the
     arm holds still); a grasp held after the hold is shaken by the arm (``_shake_arm``), and
     ``object_motion_during_shaking_linear``/``_angular`` give the object's motion in the hand's
@@ -332,7 +332,7 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     succeeds if it is still held after the shake, else fails as "slipped" at "shake".
 
     Returns a ``GraspAttempt`` whose ``failure_reason`` is None, "unreachable", "collision",
-    "slipped" or "not_lifted", and whose ``details["failed_at"]`` says in which phase ("plan",
+    "slipped" or "not_lifted", and whose ``diagnostics.failed_at`` says in which phase ("plan",
     "pregrasp", "descent", "close", "lift", "shake").
     """
     execution = config.execution
@@ -341,12 +341,12 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     grasp_index = grasp_waypoint_index(execution)
     client, target = scene.client, scene.target_id
     outcome = _AttemptOutcome(scene, config, record_frames)
-    details, finish, rest_com = outcome.details, outcome.finish, outcome.rest_com
+    diagnostics, finish, rest_com = outcome.diagnostics, outcome.finish, outcome.rest_com
     set_finger_friction(client, scene.robot_id, scene.robot_indices.finger_joints, execution)
 
     # Every joint is known before stepping: IK and checks teleport the arm, harmless while time stands still.
     start_joints = scene.arm_joints()
-    joint_path = _path_to_execute(scene, config, waypoints, quat, joint_path, grasp.ik_solution, details)
+    joint_path = _path_to_execute(scene, config, waypoints, quat, joint_path, grasp.ik_solution, diagnostics)
     if joint_path is None:
         scene.set_arm_joints(start_joints)
         return finish(False, "unreachable", "plan")
@@ -362,15 +362,15 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
         knocked = np.linalg.norm(scene.centre_of_mass(target)[0] - rest_com) > execution.knock_tolerance_m
         return knocked or push_n(_robot_contacts(scene, scene.table_id)) > execution.table_contact_max_force_n
 
-    details["descent_tracking_error_rad"] = _track(scene, config, joint_path[1 : grasp_index + 1], descent_blocked)
+    diagnostics.descent_tracking_error_rad = _track(scene, config, joint_path[1 : grasp_index + 1], descent_blocked)
     if descent_blocked():
         return finish(False, "collision", "descent")
 
     before_close = scene.centre_of_mass(target)
-    _close_fingers(scene, execution, width_m, details)
+    _close_fingers(scene, execution, width_m, diagnostics)
     if shake is not None:
         closing = pose_change(before_close, scene.centre_of_mass(target))
-        details["object_motion_during_closing_linear"], details["object_motion_during_closing_angular"] = closing
+        diagnostics.object_motion_during_closing_linear, diagnostics.object_motion_during_closing_angular = closing
     outcome.record_frame("contact")
 
     highest_rise = [0.0]
@@ -379,23 +379,23 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
         highest_rise[0] = max(highest_rise[0], float(scene.centre_of_mass(target)[0][2] - rest_com[2]))
         return False
 
-    details["lift_tracking_error_rad"] = _track(scene, config, joint_path[grasp_index + 1 :], note_rise)
+    diagnostics.lift_tracking_error_rad = _track(scene, config, joint_path[grasp_index + 1 :], note_rise)
     _step(scene, execution.hold_steps)
 
     fingers = scene.robot_indices.finger_joints
     if not object_held(client, scene.robot_id, fingers, target, config):
-        return finish(False, *lift_failure(highest_rise[0], details["fingers_touching_after_close"], execution))
+        return finish(False, *lift_failure(highest_rise[0], diagnostics.fingers_touching_after_close, execution))
     if shake is None:
         return finish(True, None, None)
-    _shake_arm(scene, config, shake, joint_path[-1], details)
+    _shake_arm(scene, config, shake, joint_path[-1], diagnostics)
     if object_held(client, scene.robot_id, fingers, target, config):
         return finish(True, None, None)
     return finish(False, "slipped", "shake")
 
 
-def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: np.ndarray, details: dict[str, Any]) -> None:
+def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: np.ndarray, diagnostics: AttemptDiagnostics) -> None:
     """Shake the grasp target around its lifted pose with the arm and record the object's motion
-    relative to the hand over the shake (``details``).
+    relative to the hand over the shake (``diagnostics``).
 
     The Cartesian offsets of ``shake_profile`` are small (centimetres, degrees), so one Jacobian of
     ``panda_grasptarget`` at the lifted joints maps them to joint offsets (damped least squares):
@@ -428,8 +428,8 @@ def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: 
         hand_poses.append(scene.grasptarget_pose())
     end = scene.grasptarget_pose()
     shaking = pose_change(object_start, relative_pose(end, scene.centre_of_mass(scene.target_id)))
-    details["object_motion_during_shaking_linear"], details["object_motion_during_shaking_angular"] = shaking
-    details["shake_achieved_peak_accelerations"] = achieved_shake_peaks(profile, frame_offsets(start, hand_poses))
+    diagnostics.object_motion_during_shaking_linear, diagnostics.object_motion_during_shaking_angular = shaking
+    diagnostics.shake_achieved_peak_accelerations = achieved_shake_peaks(profile, frame_offsets(start, hand_poses))
 
 
 def checked_grasp(grasp: Grasp, execution: ExecutionConfig, robot: RobotDescription) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -454,14 +454,14 @@ def checked_grasp(grasp: Grasp, execution: ExecutionConfig, robot: RobotDescript
 
 
 class _AttemptOutcome:
-    """Judges an attempt when it ends and keeps its details: where the object and the distractors
+    """Judges an attempt when it ends and keeps its diagnostics: where the object and the distractors
     ended, which links touched what in a collision, and frames when asked for."""
 
     def __init__(self, scene: Scene, config: Config, record_frames: bool):
         self.scene, self.table_top = scene, config.scene.table_top_z_m
         self.rest_com, self.rest_quat = scene.centre_of_mass(scene.target_id)
         self.distractor_start = [scene.centre_of_mass(body)[0] for body in scene.distractor_ids]
-        self.details: dict[str, Any] = {}
+        self.diagnostics = AttemptDiagnostics()
         self.frames: dict[str, np.ndarray] = {}
         self.camera = None
         if record_frames:
@@ -470,36 +470,35 @@ class _AttemptOutcome:
 
     def record_frame(self, moment: str) -> None:
         if self.camera is not None:
-            self.frames[moment] = render(self.scene, self.camera)[0]
-            self.details["frames"] = self.frames
+            self.frames[moment] = self.scene.render(self.camera)[0]
 
     def finish(self, success: bool, reason: str | None, phase: str | None) -> GraspAttempt:
-        scene, details = self.scene, self.details
+        scene, diagnostics = self.scene, self.diagnostics
         com, com_quat = scene.centre_of_mass(scene.target_id)
         moved = [float(np.linalg.norm(scene.centre_of_mass(body)[0] - start)) for body, start in zip(scene.distractor_ids, self.distractor_start)]
-        details["failed_at"] = phase
-        details["distractors_max_displacement_m"] = max(moved, default=0.0)
-        details["object_height_above_table_m"] = float(com[2] - self.table_top)
+        diagnostics.failed_at = phase
+        diagnostics.distractors_max_displacement_m = max(moved, default=0.0)
+        diagnostics.object_height_above_table_m = float(com[2] - self.table_top)
         if reason == "collision":
-            details["collision_links"] = _touching_links(scene, [scene.table_id, scene.target_id, *scene.distractor_ids])
+            diagnostics.collision_links = _touching_links(scene, [scene.table_id, scene.target_id, *scene.distractor_ids])
         self.record_frame("lifted" if success else f"failed_{phase}")
         return GraspAttempt(
             success=success,
             failure_reason=reason,
-            object_height_above_table_m=float(com[2] - self.table_top),
             orientation_change_deg=_quat_angle_deg(com_quat, self.rest_quat),
-            details=details,
+            diagnostics=diagnostics,
+            frames=self.frames,
         )
 
 
-def _close_fingers(scene: Scene, execution: ExecutionConfig, planned_width_m: float, details: dict[str, Any]) -> None:
+def _close_fingers(scene: Scene, execution: ExecutionConfig, planned_width_m: float, diagnostics: AttemptDiagnostics) -> None:
     scene.command_fingers(0.0)
     _step(scene, execution.close_steps)
-    details["fingers_touching_after_close"] = fingers_touching(scene.client, scene.robot_id, scene.robot_indices.finger_joints, scene.target_id)
+    diagnostics.fingers_touching_after_close = fingers_touching(scene.client, scene.robot_id, scene.robot_indices.finger_joints, scene.target_id)
     # Against the planned contact width this tells a squeeze from fingers stopped by a wider
     # collision shape than the cloud showed.
-    details["finger_width_after_close_m"] = scene.finger_width()
-    details["planned_width_m"] = float(planned_width_m)
+    diagnostics.finger_width_after_close_m = scene.finger_width()
+    diagnostics.planned_width_m = float(planned_width_m)
 
 
 def set_finger_friction(client: int, gripper_id: int, finger_links: Sequence[int], execution: ExecutionConfig) -> None:
@@ -515,18 +514,18 @@ def set_finger_friction(client: int, gripper_id: int, finger_links: Sequence[int
 
 
 def _path_to_execute(
-    scene: Scene, config: Config, waypoints: np.ndarray, quat: np.ndarray, joint_path: np.ndarray | None, ik_seed: Any, details: dict[str, Any]
+    scene: Scene, config: Config, waypoints: np.ndarray, quat: np.ndarray, joint_path: np.ndarray | None, ik_seed: Any, diagnostics: AttemptDiagnostics
 ) -> np.ndarray | None:
     """The planner's joint path if PyBullet's kinematics confirms it reaches the waypoints, else
-    PyBullet IK's (None if it finds none); ``details`` records which and why."""
+    PyBullet IK's (None if it finds none); ``diagnostics`` records which and why."""
     ik = _ArmIK(scene, config)
     if joint_path is not None and ik.reproduces(joint_path, waypoints, quat):
-        details["ik_source"] = "planner"
+        diagnostics.ik_source = "planner"
         return joint_path
-    details["ik_fallback"] = "no planned path" if joint_path is None else "planned joints miss a waypoint in PyBullet"
+    diagnostics.ik_fallback = "no planned path" if joint_path is None else "planned joints miss a waypoint in PyBullet"
     seeds = [as_finite_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
     path = ik.plan(waypoints, quat, seeds, grasp_waypoint_index(config.execution))
-    details["ik_source"] = ik.source
+    diagnostics.ik_source = ik.source
     return path
 
 
@@ -537,7 +536,7 @@ def execute_ranked(
     """Execute the first ``max_attempts`` grasps of a ranked batch, best first, each from the
     restored settled scene; stops at the first success.
 
-    Each attempt's ``details`` name its place in the batch (``candidate_index``) and what the
+    Each attempt's ``diagnostics`` name its place in the batch (``candidate_index``) and what the
     planner predicted for it (``predicted``: reachable, collision_free, clearance_m).
     ``executed`` maps candidate ids to attempts already made from this settled scene (another
     method's ranking of the same candidates): such a grasp is not simulated again, since from the
@@ -548,19 +547,15 @@ def execute_ranked(
         grasp = ranked[index]
         known = executed.get(grasp.candidate_id) if executed is not None else None
         if known is not None:
-            attempt = dataclasses.replace(known, details=dict(known.details))
+            attempt = dataclasses.replace(known, diagnostics=dataclasses.replace(known.diagnostics))
         else:
             scene.restore_state()
             attempt = execute_grasp(scene, config, grasp, record_frames=record_frames)
             if executed is not None:
                 executed[grasp.candidate_id] = attempt
-        attempt.details["candidate_index"] = index
+        attempt.diagnostics.candidate_index = index
         # Planned candidates passed the motion and swept-hand checks; others only the grasp-pose IK.
-        attempt.details["predicted"] = {
-            "reachable": True,
-            "collision_free": grasp.joint_path is not None,
-            "clearance_m": grasp.hand_clearance_m,
-        }
+        attempt.diagnostics.predicted = PlannerPrediction(reachable=True, collision_free=grasp.joint_path is not None, clearance_m=grasp.hand_clearance_m)
         attempts.append(attempt)
         if attempt.success:
             break

@@ -122,7 +122,7 @@ class TrialRunner:
         # the driver for nothing (a record never writes them).
         for record in result.records:
             for attempt in record.executed.attempts if record.executed is not None else ():
-                attempt.details.pop("frames", None)
+                attempt.frames = {}
         return result
 
     def _distractors_for(self, unit: TrialUnit) -> list[ObjectSpec]:
@@ -216,7 +216,7 @@ class TrialRunner:
         placement = place_grasp(unit.object_id, final_grasp, ranked[final_index:final_index + 1].transform(cloud.object_from_world)[0], rating)
         outcome = judge_task(
             unit.task, final.success, placement.in_preferred_zone, final.orientation_change_deg,
-            final.details.get("distractors_max_displacement_m", 0.0), config.tasks,
+            final.diagnostics.distractors_max_displacement_m, config.tasks,
         )
         frames = _encode_frames(attempts, unit, method, files) if config.run.save_frames else None
         return ExecutedGrasps([ranked[i] for i in range(len(attempts))], attempts, placement, outcome, frames)
@@ -238,7 +238,7 @@ def _encode_frames(attempts: list[GraspAttempt], unit: TrialUnit, method: str, f
     saved = {}
     for number, attempt in enumerate(attempts, start=1):
         prefix = "" if number == len(attempts) else f"attempt{number}_"
-        for moment, image in attempt.details.get("frames", {}).items():
+        for moment, image in attempt.frames.items():
             path = f"{FRAMES_DIR}/{unit.object_id}_{unit.task}_{method}_{unit.trial:04d}_{prefix}{moment}.png"
             encoded = io.BytesIO()
             Image.fromarray(np.asarray(image, dtype=np.uint8)).save(encoded, format="PNG")

@@ -88,18 +88,17 @@ def _arm_label(attempt: GraspAttempt) -> GraspLabel | None:
     """The label of an attempt ``execute_grasp`` ran with a shake; None for an unreachable grasp (untested)."""
     if attempt.failure_reason == "unreachable":
         return None
-    details = attempt.details
-    peaks = details.get("shake_achieved_peak_accelerations")
+    diagnostics = attempt.diagnostics
     return GraspLabel(
         mode="arm",
         held=attempt.success,
         failure_reason=attempt.failure_reason,
-        failed_at=details["failed_at"],
-        object_motion_during_closing_linear=details.get("object_motion_during_closing_linear"),
-        object_motion_during_closing_angular=details.get("object_motion_during_closing_angular"),
-        object_motion_during_shaking_linear=details.get("object_motion_during_shaking_linear"),
-        object_motion_during_shaking_angular=details.get("object_motion_during_shaking_angular"),
-        shake_achieved_peak_accelerations=None if peaks is None else tuple(peaks),
+        failed_at=diagnostics.failed_at,
+        object_motion_during_closing_linear=diagnostics.object_motion_during_closing_linear,
+        object_motion_during_closing_angular=diagnostics.object_motion_during_closing_angular,
+        object_motion_during_shaking_linear=diagnostics.object_motion_during_shaking_linear,
+        object_motion_during_shaking_angular=diagnostics.object_motion_during_shaking_angular,
+        shake_achieved_peak_accelerations=diagnostics.shake_achieved_peak_accelerations,
     )
 
 

@@ -1,7 +1,6 @@
 """Three-camera perception of the target: RGB-D + segmentation to a merged, normal-carrying point cloud."""
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import numpy as np
@@ -12,42 +11,8 @@ from sagp_batched_kernels.camera import backproject_to_world, linearize_depth
 
 from ._open3d import o3d
 from .config import Config
-from .scene import Scene
+from .scene import BACKGROUND, Scene, make_camera
 from .types import CameraData, PerceivedCloud, PerceptionFailure
-
-# PyBullet's segmentation value is body_id + ((link_index + 1) << 24) with the flag below.
-BODY_ID_BITS = (1 << 24) - 1
-# Segmentation value PyBullet writes where no body is hit.
-BACKGROUND = -1
-
-
-def make_camera(name: str, config: Config, eye_world: Sequence[float], target_world: Sequence[float], up_world: Sequence[float]) -> CameraData:
-    """A pinhole camera at ``eye_world`` looking at ``target_world``; intrinsics follow PyBullet's projection."""
-    camera = config.camera
-    view = pybullet.computeViewMatrix(list(eye_world), list(target_world), list(up_world))
-    aspect = camera.width_px / camera.height_px
-    projection = pybullet.computeProjectionMatrixFOV(camera.fov_deg, aspect, camera.near_m, camera.far_m)
-    focal_px = camera.height_px / (2.0 * math.tan(math.radians(camera.fov_deg) / 2.0))
-    # Pixel (u, v) covers [u, u + 1] in OpenGL's raster, so its centre sits half a pixel in.
-    intrinsics = np.array(
-        [[focal_px, 0.0, camera.width_px / 2.0 - 0.5], [0.0, focal_px, camera.height_px / 2.0 - 0.5], [0.0, 0.0, 1.0]]
-    )
-    world_to_opengl = np.array(view).reshape(4, 4).T
-    # OpenGL's camera looks down -z with y up; the pinhole frame looks down +z with y down.
-    opengl_to_pinhole = np.diag([1.0, -1.0, -1.0, 1.0])
-    camera_to_world = np.linalg.inv(world_to_opengl) @ opengl_to_pinhole
-    return CameraData(
-        name=name,
-        width_px=camera.width_px,
-        height_px=camera.height_px,
-        intrinsics=intrinsics,
-        camera_to_world=camera_to_world,
-        view_matrix=np.array(view),
-        projection_matrix=np.array(projection),
-        near_m=camera.near_m,
-        far_m=camera.far_m,
-    )
-
 
 def camera_rig(config: Config, look_at_world: Sequence[float]) -> list[CameraData]:
     """One overhead and two side cameras, placed by ``config.camera`` offsets around ``look_at_world``."""
@@ -56,25 +21,6 @@ def camera_rig(config: Config, look_at_world: Sequence[float]) -> list[CameraDat
     for index, offset in enumerate(config.camera.side_offsets_m):
         cameras.append(make_camera(f"side_{index}", config, look_at + np.asarray(offset), look_at, (0.0, 0.0, 1.0)))
     return cameras
-
-
-def render(scene: Scene, camera: CameraData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """RGB (H, W, 3) uint8, depth buffer (H, W) float in [0, 1], body-id image (H, W) int (-1 = none)."""
-    _, _, rgba, depth, segmentation = pybullet.getCameraImage(
-        camera.width_px,
-        camera.height_px,
-        viewMatrix=camera.view_matrix.tolist(),
-        projectionMatrix=camera.projection_matrix.tolist(),
-        renderer=pybullet.ER_TINY_RENDERER,
-        flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
-        physicsClientId=scene.client,
-    )
-    shape = (camera.height_px, camera.width_px)
-    rgb = np.asarray(rgba, dtype=np.uint8).reshape(*shape, 4)[..., :3].copy()
-    depth_buffer = np.asarray(depth, dtype=np.float64).reshape(shape)
-    segmentation = np.asarray(segmentation, dtype=np.int64).reshape(shape)
-    body_ids = np.where(segmentation >= 0, segmentation & BODY_ID_BITS, BACKGROUND)
-    return rgb, depth_buffer, body_ids
 
 
 def backproject_views(cameras: list[CameraData], depth_buffers: np.ndarray) -> torch.Tensor:
@@ -152,7 +98,7 @@ def capture(scene: Scene, config: Config) -> PerceivedCloud:
     object_position, object_quat = scene.object_link_pose(scene.target_id)
     lower, upper = pybullet.getAABB(scene.target_id, physicsClientId=scene.client)
     cameras = camera_rig(config, (np.asarray(lower) + np.asarray(upper)) / 2.0)
-    renders = [render(scene, camera) for camera in cameras]
+    renders = [scene.render(camera) for camera in cameras]
     body_ids = np.stack([r[2] for r in renders])
     target_masks = body_ids == scene.target_id
     pixels_per_view = target_masks.reshape(len(cameras), -1).sum(axis=1)

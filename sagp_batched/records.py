@@ -11,8 +11,6 @@ from typing import Any
 
 import math
 
-import numpy as np
-
 from .config import Config
 from .judging import GraspPlacement, TaskOutcome
 from .objects import ObjectSpec
@@ -132,11 +130,7 @@ def _executed_fields(executed: ExecutedGrasps) -> dict[str, Any]:
     placement, outcome = executed.placement, executed.outcome
     fields = {
         "attempts": len(executed.attempts),
-        "attempt_log": [
-            {"candidate": grasp.candidate_id, "success": attempt.success, "failure_reason": attempt.failure_reason,
-             **_jsonable(attempt.details)}
-            for grasp, attempt in zip(executed.grasps, executed.attempts)
-        ],
+        "attempt_log": [attempt.record(grasp.candidate_id) for grasp, attempt in zip(executed.grasps, executed.attempts)],
         "grasp": {**executed.grasps[len(executed.attempts) - 1].record(), "midpoint_object": placement.midpoint_object},
         "success": bool(final.success),
         "in_preferred_zone": placement.in_preferred_zone,
@@ -151,20 +145,6 @@ def _executed_fields(executed: ExecutedGrasps) -> dict[str, Any]:
     if executed.frames is not None:
         fields["frames"] = executed.frames
     return fields
-
-
-def _jsonable(details: dict[str, Any]) -> dict[str, Any]:
-    """Attempt details without images (frames are written as files, not into JSON)."""
-    out = {}
-    for key, value in details.items():
-        if key == "frames":
-            continue
-        if isinstance(value, (np.floating, np.integer)):
-            value = value.item()
-        if isinstance(value, np.ndarray):
-            value = value.tolist()
-        out[key] = value
-    return out
 
 
 # --- the record's schema: what ``TrialRecord.to_json`` writes, checked on every line read back -----

@@ -18,6 +18,12 @@ from .config import Config, SceneConfig
 from .objects import ObjectLoadError, ObjectSpec
 from .robot import body_indices, robot_of
 from .seeds import scene_seed
+from .types import CameraData
+
+# PyBullet's segmentation value is body_id + ((link_index + 1) << 24) with the flag below.
+BODY_ID_BITS = (1 << 24) - 1
+# Segmentation value PyBullet writes where no body is hit.
+BACKGROUND = -1
 
 
 class ScenePlacementError(RuntimeError):
@@ -73,6 +79,34 @@ def _resting_rotation(spec: ObjectSpec, index: int) -> np.ndarray | None:
     if not 0 <= index < len(spec.resting_poses):
         raise ValueError(f"object '{spec.id}' has {max(1, len(spec.resting_poses))} resting pose(s), not a pose {index}")
     return np.asarray(spec.resting_poses[index].link_to_rest, dtype=float)[:3, :3]
+
+
+def make_camera(name: str, config: Config, eye_world: Sequence[float], target_world: Sequence[float], up_world: Sequence[float]) -> CameraData:
+    """A pinhole camera at ``eye_world`` looking at ``target_world``; intrinsics follow PyBullet's projection."""
+    camera = config.camera
+    view = pybullet.computeViewMatrix(list(eye_world), list(target_world), list(up_world))
+    aspect = camera.width_px / camera.height_px
+    projection = pybullet.computeProjectionMatrixFOV(camera.fov_deg, aspect, camera.near_m, camera.far_m)
+    focal_px = camera.height_px / (2.0 * math.tan(math.radians(camera.fov_deg) / 2.0))
+    # Pixel (u, v) covers [u, u + 1] in OpenGL's raster, so its centre sits half a pixel in.
+    intrinsics = np.array(
+        [[focal_px, 0.0, camera.width_px / 2.0 - 0.5], [0.0, focal_px, camera.height_px / 2.0 - 0.5], [0.0, 0.0, 1.0]]
+    )
+    world_to_opengl = np.array(view).reshape(4, 4).T
+    # OpenGL's camera looks down -z with y up; the pinhole frame looks down +z with y down.
+    opengl_to_pinhole = np.diag([1.0, -1.0, -1.0, 1.0])
+    camera_to_world = np.linalg.inv(world_to_opengl) @ opengl_to_pinhole
+    return CameraData(
+        name=name,
+        width_px=camera.width_px,
+        height_px=camera.height_px,
+        intrinsics=intrinsics,
+        camera_to_world=camera_to_world,
+        view_matrix=np.array(view),
+        projection_matrix=np.array(projection),
+        near_m=camera.near_m,
+        far_m=camera.far_m,
+    )
 
 
 class Scene:
@@ -206,6 +240,24 @@ class Scene:
             self.robot_id, self.robot_indices.grasp_target_link, computeForwardKinematics=True, physicsClientId=self.client
         )
         return np.array(state[4]), np.array(state[5])
+
+    def render(self, camera: CameraData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """RGB (H, W, 3) uint8, depth buffer (H, W) float in [0, 1], body-id image (H, W) int (-1 = none)."""
+        _, _, rgba, depth, segmentation = pybullet.getCameraImage(
+            camera.width_px,
+            camera.height_px,
+            viewMatrix=camera.view_matrix.tolist(),
+            projectionMatrix=camera.projection_matrix.tolist(),
+            renderer=pybullet.ER_TINY_RENDERER,
+            flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+            physicsClientId=self.client,
+        )
+        shape = (camera.height_px, camera.width_px)
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(*shape, 4)[..., :3].copy()
+        depth_buffer = np.asarray(depth, dtype=np.float64).reshape(shape)
+        segmentation = np.asarray(segmentation, dtype=np.int64).reshape(shape)
+        body_ids = np.where(segmentation >= 0, segmentation & BODY_ID_BITS, BACKGROUND)
+        return rgb, depth_buffer, body_ids
 
     # -- objects ---------------------------------------------------------------------------------
     def object_link_pose(self, body_id: int) -> tuple[np.ndarray, np.ndarray]:

@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from .attempt import AttemptDiagnostics
+
 
 # The coarse-zone vocabulary. A standing object is split into vertical thirds (top, middle,
 # bottom); an elongated object lying on the table into thirds along its length (wide_end, middle,
@@ -331,6 +333,12 @@ class GraspAttempt:
 
     success: bool
     failure_reason: str | None  # None on success; "unreachable" | "collision" | "slipped" | "not_lifted"
-    object_height_above_table_m: float
-    orientation_change_deg: float
-    details: dict[str, Any] = field(default_factory=dict)
+    orientation_change_deg: float  # the object's rotation from its resting orientation when the attempt ended
+    diagnostics: AttemptDiagnostics = field(default_factory=AttemptDiagnostics)
+    # RGB (H, W, 3) uint8 images by moment ("contact", "lifted", "failed_<phase>"), only when asked for;
+    # images are saved as files, never written into a record.
+    frames: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def record(self, candidate_id: int) -> dict[str, Any]:
+        """This attempt's entry in a ``trials.jsonl`` attempt log (``attempt.ATTEMPT_RECORD_FIELDS``)."""
+        return {"candidate": candidate_id, "success": self.success, "failure_reason": self.failure_reason, **self.diagnostics.record()}

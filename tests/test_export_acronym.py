@@ -101,7 +101,7 @@ def test_exported_grasps_hold_both_contacts_between_the_fingers_of_acronyms_fran
     ranked = candidates.ranked_by(candidates.score)
     path = tmp_path / "box_t1_0000.h5"
     write_acronym(path, spec, cloud, candidates, {"go": ranked},
-                  {"go": [GraspAttempt(False, "slipped", 0.0, 0.0), GraspAttempt(True, None, 0.1, 2.0)]})
+                  {"go": [GraspAttempt(False, "slipped", 0.0), GraspAttempt(True, None, 2.0)]})
 
     # Every candidate's pose is under candidates/; the simulated ones are read as acronym's load_grasps and load_mesh do.
     with h5py.File(path, "r") as f:

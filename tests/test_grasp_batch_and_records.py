@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import json
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from sagp_batched.attempt import ATTEMPT_RECORD_FIELDS, AttemptDiagnostics, PlannerPrediction
 from sagp_batched.config import Config
 from sagp_batched.judging import GraspPlacement, TaskOutcome
 from sagp_batched.methods import RankingInputs, get_method
@@ -123,8 +126,8 @@ def test_a_record_is_built_once_from_typed_results_and_serialises_every_field():
     config = Config()
     batch = _batch(4)
     grasps = [batch[1], batch[3]]
-    attempts = [GraspAttempt(False, "slipped", 0.01, 3.0, {"failed_at": "lift", "frames": {"x": np.zeros(2)}}),
-                GraspAttempt(True, None, 0.25, 4.0, {"failed_at": None, "ratio": np.float32(0.5)})]
+    attempts = [GraspAttempt(False, "slipped", 3.0, AttemptDiagnostics(failed_at="lift"), frames={"contact": np.zeros((2, 2, 3), np.uint8)}),
+                GraspAttempt(True, None, 4.0, AttemptDiagnostics(planned_width_m=0.05))]
     placement = GraspPlacement([0.0, 0.01, 0.05], True, False, True, False)
     executed = ExecutedGrasps(grasps, attempts, placement, TaskOutcome(4.0, True, 0.0, True))
     plan = PlanSummary({"sampled": 5000, "antipodal": 40, "collision_free": 9, "ik_feasible": 9},
@@ -135,11 +138,48 @@ def test_a_record_is_built_once_from_typed_results_and_serialises_every_field():
     assert record["seed"] == config.scene.seed_base + 3 and record["candidate_seed"] == config.planner.seed + config.scene.seed_base + 3
     assert record["success"] and record["task_success"] and record["failure_reason"] is None and record["attempts"] == 2
     assert [entry["candidate"] for entry in record["attempt_log"]] == [1, 3] and "frames" not in record["attempt_log"][0]
-    assert record["attempt_log"][1]["ratio"] == 0.5
+    assert record["attempt_log"][1]["planned_width_m"] == 0.05
     assert record["grasp"]["midpoint_object"] == [0.0, 0.01, 0.05] and record["grasp"]["width"] == pytest.approx(float(batch.width_m[3]))
     assert record["in_preferred_zone"] and record["in_functional_region"] and not record["in_avoid_region"]
     assert record["n_candidates"]["antipodal"] == 40 and record["rating"] == {"backend": "prior"}
     assert "traceback" not in record and "frames" not in record
+
+
+def _measured_everything() -> AttemptDiagnostics:
+    """Diagnostics with every field measured (as a labelled collision never is, but the schema allows)."""
+    return AttemptDiagnostics(
+        ik_fallback="no planned path", ik_source="pybullet", descent_tracking_error_rad=1e-4, fingers_touching_after_close=True,
+        finger_width_after_close_m=0.05, planned_width_m=0.052, object_motion_during_closing_linear=0.001,
+        object_motion_during_closing_angular=0.01, lift_tracking_error_rad=2e-4, object_motion_during_shaking_linear=0.002,
+        object_motion_during_shaking_angular=0.02, shake_achieved_peak_accelerations=(9.0, 0.0, 0.0, 0.0, 0.0, 30.0),
+        failed_at="shake", distractors_max_displacement_m=0.0, object_height_above_table_m=0.2, collision_links=["panda_hand->table"],
+        candidate_index=0, predicted=PlannerPrediction(reachable=True, collision_free=False, clearance_m=None),
+    )
+
+
+def test_an_attempt_entry_holds_exactly_the_schema_s_fields_in_order_and_never_its_images():
+    batch = _batch(2)
+    attempt = GraspAttempt(False, "slipped", 3.0, _measured_everything(), frames={"failed_shake": np.zeros((4, 4, 3), np.uint8)})
+    executed = ExecutedGrasps([batch[1]], [attempt], GraspPlacement([0.0, 0.0, 0.05], False, False, None, None), TaskOutcome(3.0, True, 0.0, False))
+    line = json.dumps(TrialRecord.build(SPEC, UNIT, "sagp", Config(), executed=executed).to_json())
+    entry = json.loads(line)["attempt_log"][0]
+    assert tuple(entry) == ATTEMPT_RECORD_FIELDS
+    assert entry["predicted"] == {"reachable": True, "collision_free": False, "clearance_m": None}
+    assert entry["shake_achieved_peak_accelerations"] == [9.0, 0.0, 0.0, 0.0, 0.0, 30.0]
+    assert '"frames"' not in line and "failed_shake" not in line
+
+
+def test_an_unmeasured_diagnostic_is_left_out_but_a_success_s_failed_at_is_written():
+    entry = GraspAttempt(True, None, 1.0, AttemptDiagnostics(ik_source="planner", object_height_above_table_m=0.21)).record(7)
+    assert entry == {"candidate": 7, "success": True, "failure_reason": None, "ik_source": "planner", "failed_at": None,
+                     "object_height_above_table_m": 0.21}
+
+
+def test_the_readme_attempt_table_lists_exactly_the_schema_s_fields():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    table = readme.split("| attempt field | unit | meaning |", 1)[1].split("\n\n", 1)[0]
+    listed = tuple(re.findall(r"^\| `(\w+)` \|", table, flags=re.MULTILINE))
+    assert listed == ATTEMPT_RECORD_FIELDS
 
 
 def test_a_failed_trial_records_why_with_every_field_present():

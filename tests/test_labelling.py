@@ -169,9 +169,9 @@ def _on_can(scene: Scene, offset_xy: tuple[float, float]) -> Grasp:
 
 
 def _summary(attempt) -> tuple:
-    details = attempt.details
-    return (attempt.success, attempt.failure_reason, attempt.object_height_above_table_m, attempt.orientation_change_deg,
-            details["descent_tracking_error_rad"], details["finger_width_after_close_m"], details["lift_tracking_error_rad"])
+    diagnostics = attempt.diagnostics
+    return (attempt.success, attempt.failure_reason, diagnostics.object_height_above_table_m, attempt.orientation_change_deg,
+            diagnostics.descent_tracking_error_rad, diagnostics.finger_width_after_close_m, diagnostics.lift_tracking_error_rad)
 
 
 LABELLING_KEYS = {
@@ -186,7 +186,7 @@ def test_without_a_shake_execute_grasp_gives_the_study_s_attempts_exactly():
             scene.restore_state()
             attempt = execute_grasp(scene, Config(), _on_can(scene, offset))
             assert _summary(attempt) == study
-            assert not LABELLING_KEYS & set(attempt.details)
+            assert not LABELLING_KEYS & set(attempt.diagnostics.record())
 
 
 def test_the_shake_only_adds_to_the_attempt_what_happens_after_the_hold():
@@ -200,8 +200,8 @@ def test_the_shake_only_adds_to_the_attempt_what_happens_after_the_hold():
         shaken = execute_grasp(scene, config, _on_can(scene, (0.0, 0.0)), shake=config.labelling.shake)
     before_the_shake = ("descent_tracking_error_rad", "lift_tracking_error_rad", "finger_width_after_close_m",
                         "fingers_touching_after_close", "ik_source", "planned_width_m")
-    assert {key: shaken.details[key] for key in before_the_shake} == {key: study.details[key] for key in before_the_shake}
-    assert LABELLING_KEYS <= set(shaken.details) and shaken.success
+    assert {key: getattr(shaken.diagnostics, key) for key in before_the_shake} == {key: getattr(study.diagnostics, key) for key in before_the_shake}
+    assert LABELLING_KEYS <= set(shaken.diagnostics.record()) and shaken.success
 
 
 def test_the_shake_profile_peaks_at_the_set_accelerations_and_ends_at_rest():

@@ -45,11 +45,10 @@ def test_top_down_grasp_lifts_the_soup_can(can_scene):
     attempt = execute_grasp(can_scene, config, Grasp.from_pose(position, quat, 0.068, DOWN), record_frames=True)
     assert attempt.success, attempt.failure_reason
     assert attempt.failure_reason is None
-    assert attempt.object_height_above_table_m >= config.execution.success_height_above_table_m
+    assert attempt.diagnostics.object_height_above_table_m >= config.execution.success_height_above_table_m
     assert attempt.orientation_change_deg < 15.0
-    assert attempt.details["distractors_max_displacement_m"] == 0.0
-    frames = attempt.details["frames"]
-    assert frames["contact"].dtype == np.uint8 and frames["lifted"].shape == (480, 640, 3)
+    assert attempt.diagnostics.distractors_max_displacement_m == 0.0
+    assert attempt.frames["contact"].dtype == np.uint8 and attempt.frames["lifted"].shape == (480, 640, 3)
 
 
 def test_the_same_grasp_5cm_beside_the_can_is_not_lifted(can_scene):
@@ -58,10 +57,10 @@ def test_the_same_grasp_5cm_beside_the_can_is_not_lifted(can_scene):
     attempt = execute_grasp(can_scene, Config(), Grasp.from_pose(position, quat, 0.068, DOWN), record_frames=True)
     assert not attempt.success
     assert attempt.failure_reason == "not_lifted"
-    assert attempt.object_height_above_table_m < 0.1
+    assert attempt.diagnostics.object_height_above_table_m < 0.1
     # A failed attempt keeps a frame of the moment it failed, named by its phase.
-    failed_at = attempt.details["failed_at"]
-    assert failed_at in ("close", "lift") and attempt.details["frames"][f"failed_{failed_at}"].shape == (480, 640, 3)
+    failed_at = attempt.diagnostics.failed_at
+    assert failed_at in ("close", "lift") and attempt.frames[f"failed_{failed_at}"].shape == (480, 640, 3)
 
 
 def test_out_of_reach_grasp_is_unreachable(can_scene):
@@ -95,7 +94,7 @@ def test_ranked_execution_stops_at_the_first_success(can_scene):
     )
     attempts = execute_ranked(can_scene, config, candidates)
     assert [a.success for a in attempts] == [False, True]
-    assert [a.details["candidate_index"] for a in attempts] == [0, 1]
+    assert [a.diagnostics.candidate_index for a in attempts] == [0, 1]
 
 
 def test_a_grasp_two_rankings_share_is_simulated_once_and_each_keeps_its_place(can_scene, monkeypatch):
@@ -122,8 +121,8 @@ def test_a_grasp_two_rankings_share_is_simulated_once_and_each_keeps_its_place(c
     second = execute_ranked(can_scene, config, candidates.select(torch.tensor([1, 0])), executed=executed)  # on it first
     assert [a.success for a in first] == [False, True] and len(simulated) == 2
     assert len(second) == 1 and second[0].success and len(simulated) == 2, "the grasp on the can is not simulated again"
-    assert second[0].details["candidate_index"] == 0 and first[1].details["candidate_index"] == 1
-    assert second[0].object_height_above_table_m == first[1].object_height_above_table_m
+    assert second[0].diagnostics.candidate_index == 0 and first[1].diagnostics.candidate_index == 1
+    assert second[0].diagnostics.object_height_above_table_m == first[1].diagnostics.object_height_above_table_m
 
 
 def test_malformed_grasps_are_rejected_with_a_clear_error(can_scene):
@@ -144,8 +143,8 @@ def test_the_executed_joint_path_is_the_planned_one(can_scene):
     candidates = plan(capture(can_scene, config), config, seed=0).candidates
     assert len(candidates) > 0 and candidates.joint_path.shape[1:] == (19, 7)
     attempts = execute_ranked(can_scene, config, candidates[:1])
-    details = attempts[0].details
-    assert details["ik_source"] == "planner" and "ik_fallback" not in details
-    assert details["descent_tracking_error_rad"] < 1e-3
-    assert details["predicted"]["collision_free"] and details["predicted"]["clearance_m"] >= config.planner.hand_clearance_margin_m
+    diagnostics = attempts[0].diagnostics
+    assert diagnostics.ik_source == "planner" and diagnostics.ik_fallback is None
+    assert diagnostics.descent_tracking_error_rad < 1e-3
+    assert diagnostics.predicted.collision_free and diagnostics.predicted.clearance_m >= config.planner.hand_clearance_margin_m
     assert attempts[0].success, attempts[0].failure_reason

@@ -45,7 +45,7 @@ def test_grazing_the_table_while_grasping_a_marker_is_not_a_collision(marker_sce
     # Grasp point 7 mm up: the finger hulls (7.3 mm past it) end level with the table top and touch it.
     position, quat = _across_marker(marker_scene, 0.007)
     attempt = execute_grasp(marker_scene, config, Grasp.from_pose(position, quat, 0.019, DOWN))
-    assert attempt.success, (attempt.failure_reason, attempt.details)
+    assert attempt.success, (attempt.failure_reason, attempt.diagnostics)
 
 
 def test_driving_the_fingers_into_the_table_is_a_collision(marker_scene):
@@ -54,5 +54,5 @@ def test_driving_the_fingers_into_the_table_is_a_collision(marker_scene):
     position, quat = _across_marker(marker_scene, -0.001)
     attempt = execute_grasp(marker_scene, Config(), Grasp.from_pose(position, quat, 0.019, DOWN))
     assert attempt.failure_reason == "collision"
-    assert attempt.details["failed_at"] == "descent"
-    assert any(link.endswith("->table") for link in attempt.details["collision_links"])
+    assert attempt.diagnostics.failed_at == "descent"
+    assert any(link.endswith("->table") for link in attempt.diagnostics.collision_links)

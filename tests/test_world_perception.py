@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config, PerceptionFailure
 from sagp_batched.objects import PYBULLET_DATA_SET, load_object_set
-from sagp_batched.perception import backproject_views, camera_rig, capture, render
+from sagp_batched.perception import backproject_views, camera_rig, capture
 from sagp_batched.scene import Scene
 from sagp_batched_kernels.camera import backproject_to_world, linearize_depth
 
@@ -33,7 +33,7 @@ def _raw_target_points(scene: Scene, config: Config) -> list[np.ndarray]:
     """Per view, the back-projected (un-downsampled) world points of the target's pixels."""
     lower, upper = pybullet.getAABB(scene.target_id, physicsClientId=scene.client)
     cameras = camera_rig(config, (np.array(lower) + np.array(upper)) / 2.0)
-    renders = [render(scene, camera) for camera in cameras]
+    renders = [scene.render(camera) for camera in cameras]
     points = backproject_views(cameras, np.stack([r[1] for r in renders])).numpy()
     return [points[i][renders[i][2] == scene.target_id] for i in range(len(cameras))]
 
