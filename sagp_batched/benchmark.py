@@ -23,7 +23,8 @@ import torch
 
 from ._open3d import o3d
 from .config import Config
-from .ik import PandaIK, link_moved_by
+from .ik import PandaIK
+from .kinematics import link_moved_by
 from .objects import ObjectSpec
 from .planning import PlanStageTimes, plan, plan_batch, sample_inputs
 from .reference import plan_reference

@@ -7,22 +7,20 @@ answer is then judged by the forward kinematics of pytorch-kinematics' chain (co
 ``sagp_batched_kernels.serial_kinematics``, which matches pk's own to float32 rounding at a
 seventh of its cost), and the rare one that misses the tolerance (float32 rounding next to a
 singularity) is polished by damped-least-squares steps on the chain's geometric Jacobian. The
-arm's link offsets are read from the same chain.
+arm's link offsets are read from the same chain (``kinematics``).
 """
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import astuple, dataclass
 
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched_kernels.panda_ik import N_JOINTS, PandaArmGeometry, panda_ik_closed_form, wrist_in_reach
-from sagp_batched_kernels.serial_kinematics import SerialChain, geometric_jacobian, serial_chain, serial_chain_frames
+from sagp_batched_kernels.panda_ik import panda_ik_closed_form, wrist_in_reach
 
 from .config import Config, IKConfig
-from .hand import quiet_urdf
+from .kinematics import ChainFrames, arm_chain, link_moved_by, panda_arm_geometry
 from .robot import RobotDescription, robot_of
 
 
@@ -47,84 +45,6 @@ class PathResult:
     rotation_error_rad: torch.Tensor  # (N, W) angle between the reached and requested orientation
     # (N, W) world height (m) of the lowest hull vertex of the links ``follow`` was given, if any
     lowest_link_z_m: torch.Tensor | None = None
-
-
-def arm_chain(robot: RobotDescription) -> pk.SerialChain:
-    """The robot's arm chain up to its grasp target."""
-    return quiet_urdf(lambda text: pk.build_serial_chain_from_urdf(text, robot.grasp_target_link), robot.urdf_path)
-
-
-def link_moved_by(chain: pk.SerialChain, joint_name: str) -> str:
-    """Name of the link that joint ``joint_name`` of ``chain`` moves (the link of its frame)."""
-    return next(name for name in chain.get_frame_names() if chain.find_frame(name).joint.name == joint_name)
-
-
-@dataclass(frozen=True)
-class ChainFrames:
-    """A serial chain's frames as ``serial_chain_frames`` takes them, read from a pytorch-kinematics chain."""
-
-    names: tuple[str, ...]  # every frame, base first, fixed ones included
-    chain: SerialChain
-    joint_frames: torch.Tensor  # (J,) int64: the frame each joint turns
-    axes: torch.Tensor  # (J, 3) joint axes in their frames
-
-    @classmethod
-    def of(cls, chain: pk.SerialChain) -> "ChainFrames":
-        names = tuple(chain.get_frame_names(exclude_fixed=False))
-        joint_names = chain.get_joint_parameter_names()
-        frames = [chain.find_frame(name) for name in names]
-        if any(frame.joint.joint_type not in ("fixed", "revolute") for frame in frames):
-            raise ValueError("serial_chain_frames models fixed and revolute joints only")
-        offsets = []
-        for frame in frames:
-            offset = torch.eye(4, dtype=chain.dtype)
-            for origin in (frame.link.offset, frame.joint.offset):
-                if origin is not None:
-                    offset = offset @ origin.get_matrix()[0]
-            offsets.append(offset)
-        moving = [frame.joint.name if frame.joint.joint_type == "revolute" else None for frame in frames]
-        joint_frames = tuple(moving.index(name) for name in joint_names)
-        axes = torch.stack([frames[index].joint.axis for index in joint_frames])
-        joint_of_frame = tuple(-1 if name is None else joint_names.index(name) for name in moving)
-        return cls(
-            names=names, chain=serial_chain(torch.stack(offsets), joint_of_frame, axes), joint_frames=torch.tensor(joint_frames), axes=axes
-        )
-
-    def poses(self, joints: torch.Tensor) -> torch.Tensor:
-        """(F, 3, 4, M) every frame's pose in the chain's base frame at (M, J) ``joints``, as rows
-        of M values (``serial_chain_frames``)."""
-        return serial_chain_frames(joints, self.chain)
-
-    def jacobian(self, poses: torch.Tensor) -> torch.Tensor:
-        """(M, 6, J) geometric Jacobian of the last frame from ``poses`` (``self.poses``)."""
-        return geometric_jacobian(poses, self.joint_frames, self.axes, len(self.names) - 1)
-
-
-def panda_arm_geometry(chain: pk.SerialChain, robot: RobotDescription) -> PandaArmGeometry:
-    """The link offsets of ``chain``'s arm joints, checked against the frame layout the closed form assumes.
-
-    Each joint frame's offset from its parent must be Rx(alpha) Tx(a) Tz(d) with the robot's twist
-    angles alpha, and a and d zero wherever the robot description says they are.
-    """
-    joint_names = chain.get_joint_parameter_names()
-    if tuple(joint_names) != robot.arm_joints or len(joint_names) != N_JOINTS:
-        raise ValueError(f"{robot.name}: the closed-form IK solves {N_JOINTS} arm joints; the chain has {joint_names}, "
-                         f"the robot names {list(robot.arm_joints)}")
-    offsets = [chain.find_frame(name).joint.offset.get_matrix()[0].double() for name in chain.get_frame_names()]
-    a, d = [], []
-    for offset, twist in zip(offsets, robot.joint_twist_rad):
-        cos, sin = math.cos(twist), math.sin(twist)
-        twist_rotation = torch.tensor([[1.0, 0.0, 0.0], [0.0, cos, -sin], [0.0, sin, cos]], dtype=torch.float64)
-        a_0_d = twist_rotation.T @ offset[:3, 3]
-        if not torch.allclose(offset[:3, :3], twist_rotation, atol=1e-6) or abs(float(a_0_d[1])) > 1e-6:
-            raise ValueError("the chain's joint frames do not match the Panda layout the closed-form IK assumes")
-        a.append(float(a_0_d[0]))
-        d.append(float(a_0_d[2]))
-    if any(abs(value) > 1e-6 for value, modelled in zip(a + d, robot.joint_has_a + robot.joint_has_d) if not modelled):
-        raise ValueError("the chain's joint frames carry offsets the closed-form IK does not model")
-    return PandaArmGeometry(
-        shoulder_height_m=d[0], upper_arm_m=d[2], elbow_offset_m=a[3], elbow_return_m=a[4], forearm_m=d[4], wrist_offset_m=a[6]
-    )
 
 
 class PandaIK:
@@ -266,6 +186,26 @@ class PandaIK:
         rotations = rotations_world.to(torch.float32)
         preferred = self.preferred_joints(positions_base, seed_joints)
 
+        joints, found = self._nearest_on_grids(positions_base, rotations, preferred)
+        joints = torch.where(found[:, None], joints.to(torch.float32), preferred)
+        joints = torch.minimum(torch.maximum(joints, self.lower), self.upper)  # float32 rounding at a limit
+        joints, position_error, rotation_error = self._judged_and_polished(joints, found, positions_base, rotations)
+        inside_limits = ((joints >= self.lower) & (joints <= self.upper)).all(dim=1)
+        success = self._within_tolerance(position_error, rotation_error) & inside_limits
+        return IKResult(
+            joints=joints,
+            success=success,
+            position_error_m=position_error,
+            rotation_error_rad=rotation_error,
+            s_reach=(1.0 + torch.cos(rotation_error)) / 2.0,
+        )
+
+    def _nearest_on_grids(
+        self, positions_base: torch.Tensor, rotations: torch.Tensor, preferred: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(N, 7) float64 closed-form solution nearest to (N, 7) ``preferred`` per target, over the
+        coarse joint-7 grid and, for targets with none there, the fine one; and (N,) bool: one exists."""
+        n_targets = positions_base.shape[0]
         rotation_link7, position_link7 = self._link7_targets(positions_base, rotations)
         joints = torch.zeros(n_targets, self.n_joints, dtype=torch.float64)
         found = torch.zeros(n_targets, dtype=torch.bool)
@@ -281,9 +221,13 @@ class PandaIK:
             joints[missing], found[missing] = self._closed_form_nearest(
                 rotation_link7[missing], position_link7[missing], self._q7_fine_grid, preferred[missing]
             )
-        joints = torch.where(found[:, None], joints.to(torch.float32), preferred)
-        joints = torch.minimum(torch.maximum(joints, self.lower), self.upper)  # float32 rounding at a limit
+        return joints, found
 
+    def _judged_and_polished(
+        self, joints: torch.Tensor, found: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(N, 7) joints and their (N,) position and rotation errors, after ``polish_iterations``
+        damped-least-squares steps for each ``found`` target whose closed-form answer misses the tolerance."""
         position_error, rotation_error = self._pose_errors(joints, positions_base, rotations)
         missed = found & ~self._within_tolerance(position_error, rotation_error)
         polish = missed.nonzero().squeeze(1)
@@ -292,15 +236,7 @@ class PandaIK:
                 joints[polish], positions_base[polish], rotations[polish], self.config.polish_iterations
             )
             position_error[polish], rotation_error[polish] = self._pose_errors(joints[polish], positions_base[polish], rotations[polish])
-        inside_limits = ((joints >= self.lower) & (joints <= self.upper)).all(dim=1)
-        success = self._within_tolerance(position_error, rotation_error) & inside_limits
-        return IKResult(
-            joints=joints,
-            success=success,
-            position_error_m=position_error,
-            rotation_error_rad=rotation_error,
-            s_reach=(1.0 + torch.cos(rotation_error)) / 2.0,
-        )
+        return joints, position_error, rotation_error
 
     def _within_tolerance(self, position_error: torch.Tensor, rotation_error: torch.Tensor) -> torch.Tensor:
         return (position_error < self.robot.ik_position_tolerance_m) & (rotation_error < self.robot.ik_rotation_tolerance_rad)
@@ -365,15 +301,7 @@ class PandaIK:
         target_rotation = rotations_world.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
         joints, found = start.clone(), torch.zeros(len(start), dtype=torch.bool)
         if hold_joint7:
-            rotation_link7, position_link7 = self._link7_targets(target_position, target_rotation)
-            solutions = panda_ik_closed_form(
-                rotation_link7, position_link7, start[:, 6:].double(), self.arm_geometry, self.lower, self.upper
-            )
-            branches, valid = solutions.joints[:, 0], solutions.valid[:, 0]  # (M, 8, 7), (M, 8)
-            distance = _squared_distances(branches, start.double()).masked_fill(~valid, float("inf"))
-            nearest = branches[torch.arange(len(branches)), distance.argmin(dim=1)].to(torch.float32)
-            found = valid.any(dim=1)
-            joints = torch.where(found[:, None], torch.minimum(torch.maximum(nearest, self.lower), self.upper), start)
+            joints, found = self._same_branch(start, target_position, target_rotation)
         missing = (~found).nonzero().squeeze(1)
         if missing.numel():
             joints[missing] = self._damped_least_squares(
@@ -390,6 +318,21 @@ class PandaIK:
             lowest_link_z_m=lowest,
         )
 
+
+    def _same_branch(
+        self, start: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, 7) closed-form joints with joint 7 held at (M, 7) ``start``'s, the solution nearest to
+        ``start``, clamped to the limits (``start`` itself where there is none); and (M,) bool: one exists."""
+        rotation_link7, position_link7 = self._link7_targets(positions_base, rotations)
+        solutions = panda_ik_closed_form(
+            rotation_link7, position_link7, start[:, 6:].double(), self.arm_geometry, self.lower, self.upper
+        )
+        branches, valid = solutions.joints[:, 0], solutions.valid[:, 0]  # (M, 8, 7), (M, 8)
+        distance = _squared_distances(branches, start.double()).masked_fill(~valid, float("inf"))
+        nearest = branches[torch.arange(len(branches)), distance.argmin(dim=1)].to(torch.float32)
+        found = valid.any(dim=1)
+        return torch.where(found[:, None], torch.minimum(torch.maximum(nearest, self.lower), self.upper), start), found
 
 @functools.lru_cache(maxsize=4)
 def _cached_ik(ik_values: tuple, robot: RobotDescription) -> PandaIK:

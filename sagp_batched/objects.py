@@ -26,7 +26,7 @@ import pybullet
 import pybullet_data
 
 if TYPE_CHECKING:
-    from .mesh_import import MeshImportSettings
+    from .mesh_settings import MeshImportSettings
 
 YCB_DIR_ENV = "SAGP_YCB_DIR"
 # The cache that generated objects live in (imported meshes, object sets shipped to workers).
@@ -293,6 +293,7 @@ def load_object_set(objects_dir: str | Path | None = None, import_settings: Mesh
     if index is not None and _lists_urdfs(index):
         return _load_ycb_dir(directory)
     # Imported lazily: trimesh and the decomposers are needed only by folders of meshes.
-    from .mesh_import import MeshImportSettings, import_object_folder
+    from .mesh_import import import_object_folder
+    from .mesh_settings import MeshImportSettings
 
     return import_object_folder(directory, index or {}, import_settings or MeshImportSettings())

@@ -5,7 +5,7 @@ import time
 import pytest
 import torch
 
-from sagp_batched.ik import ChainFrames, arm_chain
+from sagp_batched.kinematics import ChainFrames, arm_chain
 from sagp_batched.robot import load_robot
 
 ROBOT = load_robot()

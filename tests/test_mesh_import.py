@@ -12,8 +12,9 @@ import pytest
 import trimesh
 
 from sagp_batched import Config
-from sagp_batched import mesh_import
-from sagp_batched.mesh_import import CACHE_DIR_ENV, MeshImportSettings
+from sagp_batched import mesh_decompose, mesh_import
+from sagp_batched.mesh_import import CACHE_DIR_ENV
+from sagp_batched.mesh_settings import MeshImportSettings
 from sagp_batched.objects import ObjectSetError, embedded_ycb_dir, load_object_set
 from sagp_batched.scene import Scene
 
@@ -343,7 +344,7 @@ def _l_block(root: Path) -> Path:
 
 
 def test_without_coacd_the_automatic_decomposer_is_vhacd(tmp_path, monkeypatch):
-    monkeypatch.setattr(mesh_import, "_coacd_importable", lambda: False)
+    monkeypatch.setattr(mesh_decompose, "_coacd_importable", lambda: False)
     settings = MeshImportSettings(cache_dir=tmp_path / "cache", vhacd_resolution=20_000)
     spec = load_object_set(_l_block(tmp_path / "l"), import_settings=settings).get("l_block")
     assert _metadata(spec)["decomposer"] == "vhacd" and _metadata(spec)["collision_hulls"] >= 2

@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from sagp_batched.export import object_mesh_reference
-from sagp_batched.mesh_import import MeshImportSettings
+from sagp_batched.mesh_settings import MeshImportSettings
 from sagp_batched.object_transfer import (
     ObjectTransferError, materialise, materialised_dir, pack_objects, referenced_files, transfer_dir,
 )

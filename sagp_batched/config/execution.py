@@ -1,0 +1,126 @@
+"""The sections of what happens in simulation after planning: the arm's execution, the labelling shake and
+floating hand, and the task thresholds a trial is judged by."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .settings import _Section, setting
+
+@dataclass
+class ExecutionConfig(_Section):
+    SECTION = "execution"
+
+    pregrasp_offset_m: float = setting(0.10, above=0)
+    lift_height_m: float = setting(0.20, above=0)
+    hold_steps: int = setting(80, at_least=0)
+    settle_steps: int = setting(60, at_least=0)
+    ik_iterations: int = setting(500, at_least=1)
+    max_attempts: int = setting(3, at_least=1)
+    success_height_above_table_m: float = setting(0.15, above=0)
+    # Straight-line descent from the pre-grasp: IK waypoints, each tracked for steps_per_waypoint steps.
+    descent_waypoints: int = setting(8, at_least=1)
+    lift_waypoints: int = setting(10, at_least=1)
+    steps_per_waypoint: int = setting(20, at_least=1)
+    close_steps: int = setting(120, at_least=1)
+    # Panda hand: 70 N continuous grip force per the datasheet; enough for the 1.13 kg bleach bottle.
+    gripper_force_n: float = setting(70.0, above=0)
+    # Rubber-like finger pads; PyBullet multiplies this with the object's friction (YCB URDFs: 0.9).
+    finger_lateral_friction: float = setting(1.5, at_least=0)
+    # Torsional friction of the pads resists tall objects swinging about the closing axis during the lift.
+    finger_spinning_friction: float = setting(0.05, at_least=0)
+    arm_position_gain: float = setting(0.3, above=0, at_most=1)
+    # PyBullet IK restarts from seeded random joints inside the limits when the given seeds fail.
+    ik_random_restarts: int = setting(8, at_least=0)
+    # Neighbouring waypoints are ~1-2 cm apart; a larger joint jump means IK switched branch mid-path.
+    max_waypoint_joint_step_rad: float = setting(0.3, above=0)
+    # A fingertip grazing the table on the way down (grasps on flat objects end millimetres above
+    # it) is harmless; pressing on it harder than this during the descent counts as a collision.
+    # libfranka's default contact reflex stops the real arm at 20 N; half that stays conservative.
+    table_contact_max_force_n: float = setting(10.0, at_least=0)
+    # The object moving more than this before the fingers close means the gripper knocked it.
+    knock_tolerance_m: float = setting(0.01, at_least=0)
+    # A failed attempt whose object rose at least this much during the lift "slipped" rather than "not_lifted".
+    lifted_detect_height_m: float = setting(0.05, at_least=0)
+    # Camera for record_frames: eye offset from the object's resting position.
+    frame_camera_offset_m: tuple[float, float, float] = setting((0.55, 0.35, 0.35), shape=(3,))
+
+
+@dataclass
+class ShakeConfig(_Section):
+    """The shake after the lift: the hand oscillates along, then about, each axis of the grasp frame
+    (x = closing x approach, y = closing axis, z = approach) in turn, rotations about the grasp
+    target. Each axis moves ``A (1 - cos 2 pi f t)`` for ``cycles`` cycles, ``A = peak / (2 pi f)^2``:
+    it starts and ends at rest on the lifted pose and its acceleration peaks at the given value."""
+
+    SECTION = "labelling.shake"
+
+    #: Franka's Cartesian acceleration limit (13 m/s^2, 1.3 g): a shake a real Panda can do, a
+    #: little harder than GraspDataGen's 1 g tugs.
+    linear_peak_acceleration_m_s2: tuple[float, float, float] = setting((13.0, 13.0, 13.0), at_least=0, shape=(3,))
+    #: Franka's rotational acceleration limit (25 rad/s^2): 1.3-2.5 m/s^2 more at a centre of mass
+    #: 5-10 cm from the fingers, on top of the torque gravity puts on the grip.
+    angular_peak_acceleration_rad_s2: tuple[float, float, float] = setting((25.0, 25.0, 25.0), at_least=0, shape=(3,))
+    #: 5 Hz: the peaks above move the hand 2.6 cm and 2.9 deg, a cycle is 48 steps at 240 Hz. A
+    #: higher frequency is cheaper but gentler, its smaller strokes let marginal pinches hold (a
+    #: bleach bottle pinched by its cap that 5 Hz drops keeps its hold at 8 and 10 Hz).
+    frequency_hz: float = setting(5.0, above=0, at_most=120)
+    #: One cycle reverses each axis' acceleration twice, enough for a marginal grip to let go.
+    cycles: int = setting(1, at_least=1, at_most=100)
+    #: Along and about one axis in the same window: half the steps, but a weaker test (it dropped
+    #: 4 of the 7 cap pinches the six windows drop).
+    linear_with_angular: bool = False
+
+    @property
+    def duration_s(self) -> float:
+        """Simulated time of the whole shake: ``cycles`` cycles for each axis with a non-zero peak."""
+        linear, angular = self.linear_peak_acceleration_m_s2, self.angular_peak_acceleration_rad_s2
+        if self.linear_with_angular:
+            windows = sum(1 for axis in range(3) if linear[axis] > 0.0 or angular[axis] > 0.0)
+        else:
+            windows = sum(1 for peak in (*linear, *angular) if peak > 0.0)
+        return windows * self.cycles / self.frequency_hz
+
+
+@dataclass
+class LabellingConfig(_Section):
+    """Grasp labels from simulation: the shake both modes end with, and the floating hand's motion.
+
+    Hand mode (``sagp_batched.labelling``) uses the study's pre-grasp offset, lift height, grip
+    force, finger friction, collision thresholds and success test from ``[execution]``; how long
+    the floating hand takes for each phase is set here."""
+
+    SECTION = "labelling"
+
+    shake: ShakeConfig = field(default_factory=ShakeConfig)
+    #: The object is put down at its settled pose in a fresh world: a few steps let its contacts
+    #: with the table form before the hand moves.
+    hand_settle_steps: int = setting(12, at_least=0, at_most=10_000)
+    #: Pre-grasp to grasp (10 cm) on a half-cosine in 0.2 s: peak speed 0.8 m/s, at rest at the grasp.
+    hand_approach_steps: int = setting(48, at_least=1, at_most=10_000)
+    #: The study's fingers close 10 % of their remaining travel a step, onto a 5 mm object in 26
+    #: steps; 48 (0.2 s) leave the grip time to settle, and agree with the arm as often as the
+    #: study's 120 close steps do.
+    hand_close_steps: int = setting(48, at_least=1, at_most=10_000)
+    #: The 20 cm lift on a half-cosine in 0.3 s: peak acceleration 11 m/s^2, below the shake's.
+    hand_lift_steps: int = setting(72, at_least=1, at_most=10_000)
+    #: Held still for 0.1 s after the lift, then judged before the shake starts.
+    hand_hold_steps: int = setting(24, at_least=0, at_most=10_000)
+    #: Error reduction of the fixed constraint that carries the hand (PyBullet's ``erp``, set in the
+    #: hand's world): PyBullet's 0.2 lets the hand trail its target by ~4 steps, short of the
+    #: shake's peaks by a tenth; 0.8 follows within a step.
+    hand_constraint_erp: float = setting(0.8, above=0, at_most=1)
+    #: Force the fixed constraint that carries the hand may apply: many times what moving hand
+    #: (1 kg) and object (up to 1.1 kg) at the shake's accelerations takes.
+    hand_constraint_max_force_n: float = setting(1000.0, above=0)
+    #: Where the floating hand's URDF and the objects' collision-only URDFs (absolute mesh paths) are written.
+    hand_urdf_cache_dir: str = setting("~/.cache/sagp_batched/hand", non_empty=True)
+
+
+@dataclass
+class TaskConfig(_Section):
+    SECTION = "tasks"
+
+    # Published task definitions: t2 keeps the object within 15 deg of its resting orientation
+    # (also the OP metric's threshold), t3 moves no distractor more than 5 cm.
+    orientation_tolerance_deg: float = setting(15.0, at_least=0, at_most=180)
+    distractor_tolerance_m: float = setting(0.05, at_least=0)

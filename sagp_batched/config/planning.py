@@ -1,0 +1,116 @@
+"""The planner's sections: the contact-pair search and its screens, the batched IK, and the score weights."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .settings import _Section, setting
+
+# Ten times the largest pair count benchmarked (500,000): a larger one is a typo, and two billion
+# pairs exhaust memory in every trial.
+MAX_PAIRS = 5_000_000
+# How planner.pair_sampling draws the method's contact pairs: uniformly, or antipodally guided.
+PAIR_SAMPLING_MODES = ("uniform", "guided")
+
+
+@dataclass
+class PlannerConfig(_Section):
+    SECTION = "planner"
+
+    n_pairs: int = setting(5000, at_least=1, at_most=MAX_PAIRS)
+    # The published method fixes how many pairs, not how they are drawn. "guided" (Dex-Net/GPD antipodal sampling)
+    # gives ~7x more antipodal pairs (~25x more on a mug handle) and, with the gripper volume screened
+    # lazily, keeps plans under 0.25 s on captured clouds; it lifted GO t1 GSR from 87.5 to 90.7 %
+    # (the 10 cm coffee can only has usable chord pairs when sampling seeks them). "uniform" is the
+    # literal reading, kept for comparison.
+    pair_sampling: str = setting("guided", choices=PAIR_SAMPLING_MODES)
+    # Second-point proposals per guided pair: 64 doubles the handle pairs of 32 for ~20 ms per 5,000 pairs.
+    pair_proposals: int = setting(64, at_least=1)
+    # (pair, proposal) combinations the guided sampler holds at once (~80 bytes each, ~80 MB).
+    pair_proposal_chunk_elements: int = setting(1_048_576, at_least=1)
+    min_width_m: float = setting(0.005, at_least=0)
+    max_width_m: float = setting(0.08, above=0)
+    max_contact_angle_deg: float = setting(45.0, at_least=0, at_most=90)
+    n_approaches: int = setting(8, at_least=1)
+    occupancy_max_fraction: float = setting(0.12, at_least=0, at_most=1)
+    max_candidates: int = setting(200, at_least=1)
+    min_reach: float = setting(0.5, at_least=0, at_most=1)
+    seed: int = setting(0, at_least=0)
+    # Each open finger must clear its contact by this much to descend without brushing the object:
+    # a 7.9 cm pair under an 8 cm jaw passes the published width filter but hits the fingers in practice.
+    jaw_clearance_m: float = setting(0.005, at_least=0)
+    # Cloud points within this of a contact plane belong to the grasped surface (3 mm voxels + normal noise).
+    contact_clearance_m: float = setting(0.004, at_least=0)
+    # The occupancy fraction is estimated on a seeded subset of at most this many object points
+    # (obstacle points thinned at the same rate): standard error ~1 % at the 12 % limit, 2-5x faster.
+    occupancy_max_points: int = setting(1024, at_least=1)
+    # (candidate, approach, point) triples the occupancy check holds at once: chunks of ~3 MB of
+    # float32 coordinates stay in cache and measured 2x faster than 4M-element chunks.
+    occupancy_chunk_elements: int = setting(262_144, at_least=1)
+    # The hand's collision hulls (derived from the robot URDF) swept along the descent must keep
+    # this far from every object and obstacle point: the cloud's 3 mm voxels put the true surface
+    # up to ~2 mm from its points.
+    hand_clearance_margin_m: float = setting(0.003, at_least=0)
+    # The swept-hand check tests one cloud point per cell of this size (object and obstacles):
+    # every surface patch keeps points no farther apart than the 2 cm finger is wide, thin rims
+    # included, at a third of the cost of the full 3 mm cloud.
+    hand_check_voxel_m: float = setting(0.006, above=0)
+    # Height the fingers' hulls must keep above the table at the grasp and pre-grasp: soft finger
+    # contacts pressing 0.3 mm into the table already push with the 10 N execution calls a
+    # collision, and the position-controlled descent overshoots by about a millimetre.
+    finger_table_clearance_m: float = setting(0.002, at_least=0)
+    # Height every other link (hand, wrist, forearm, elbow) must keep above the table at every
+    # waypoint of the motion: PyBullet reports contacts within its 4 mm collision margin.
+    arm_table_clearance_m: float = setting(0.005, at_least=0)
+    # Cell of the coarse subset of those points probed first (those nearest each swept hand): a
+    # 2 cm cell still leaves points on every part the hand could strike, and most blocked grasps
+    # hit one of them.
+    hand_screen_voxel_m: float = setting(0.02, above=0)
+    # (candidate, hull, direction, point) elements the swept-hand check holds at once.
+    hand_check_chunk_elements: int = setting(4_194_304, at_least=1)
+
+
+@dataclass
+class IKConfig(_Section):
+    """The batched IK's settings: they, with the robot, make one ``PandaIK`` (built once and shared)."""
+
+    SECTION = "ik"
+
+    # Grasp IK solves the Panda's closed form at this many joint-7 values evenly spread over its
+    # range (plus the reference posture's), and at the finer count for targets that none of them
+    # reaches (a narrow joint-7 window). On FK of 2,000 random in-limit configurations (1 thread)
+    # 8 to 24 samples all solve 99.95 %; 16 run ~28,000 targets/s and 12 ~35,000/s, but with 12 the
+    # motion check rejects 308 grasps instead of 273 (the sum under limit_margin_rad). A 256
+    # fine grid found the one target 128 misses (a 0.012 rad window between two joint limits).
+    q7_samples: int = setting(16, at_least=1)
+    q7_fine_samples: int = setting(128, at_least=1)
+    # Damped-least-squares steps for closed-form answers that float32 forward kinematics puts
+    # outside the tolerance: none at 5 mm, ~1 % at a 1 um tolerance, which 3 steps bring inside.
+    polish_iterations: int = setting(3, at_least=0)
+    # Grasp solutions at least this far from every joint limit (or as far as the preferred posture
+    # is) are chosen before nearer ones: the motion check's path IK clamps at the limits. Summed
+    # over 3 seeds of the cracker box, soup can and mug at 5,000 pairs, motion-check rejections
+    # were 460 without a margin and 273 at 0.4 rad (0.2: 358, 0.3: 323, 0.6: 392, measured before
+    # the 0.01 rad rounding allowance); the iterative solver this replaced had 234 motion and
+    # 1,182 grasp-IK rejections, against 473 grasp-IK rejections now.
+    limit_margin_rad: float = setting(0.4, at_least=0)
+    # The whole executed motion (pre-grasp, descent, lift) is solved from the grasp solution by
+    # damped least squares: waypoints lie at most 20 cm from the grasp; on captured YCB grasps 4
+    # steps bring every waypoint within 0.01 mm (3 steps: 0.5 mm, 2 steps miss 15 %).
+    path_iterations: int = setting(5, at_least=0)
+    # Damping of the damped-least-squares steps of path IK and grasp polish (rad-scale): keeps
+    # steps bounded near singular wrist poses.
+    damping: float = setting(0.01, above=0)
+
+
+@dataclass
+class ScoreWeights(_Section):
+    SECTION = "weights"
+
+    geom: float = setting(0.3, at_least=0)
+    reach: float = setting(0.1, at_least=0)
+    afford: float = setting(0.3, at_least=0)
+    avoid: float = setting(0.2, at_least=0)
+    task: float = setting(0.1, at_least=0)
+
+
+GEOMETRY_ONLY_WEIGHTS = ScoreWeights(geom=1.0, reach=0.0, afford=0.0, avoid=0.0, task=0.0)

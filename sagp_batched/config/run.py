@@ -1,0 +1,63 @@
+"""The run's sections: which units a study runs and where (``[run]``), and how a grasp dataset picks its grasps."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .settings import _Section, setting
+
+# Trials per (object, task), 5,000 times the published 20: a study plans all its units up front,
+# and a billion of them exhaust memory before the first trial.
+MAX_TRIALS = 100_000
+# More trial processes than any one host or Ray cluster this study runs on has CPUs.
+MAX_WORKERS = 1024
+RUN_BACKENDS = ("local", "ray")
+
+
+@dataclass
+class RunConfig(_Section):
+    SECTION = "run"
+
+    objects: tuple[str, ...] = setting(("all",), non_empty=True, unique=True)
+    tasks: tuple[str, ...] = setting(("t1", "t2", "t3"), non_empty=True, unique=True)
+    methods: tuple[str, ...] = setting(("go", "sagp", "vd"), non_empty=True, unique=True)
+    n_trials: int = setting(20, at_least=1, at_most=MAX_TRIALS)
+    objects_dir: str | None = None
+    out: str = setting("runs/latest", non_empty=True)
+    workers: int = setting(1, at_least=1, at_most=MAX_WORKERS)
+    backend: str = setting("local", choices=RUN_BACKENDS)
+    ray_address: str | None = None
+    trial_timeout_s: float = setting(300.0, above=0)
+    export_grasps: bool = False
+    save_frames: bool = False
+    gui: bool = False
+    # On resume, trials whose record is an error run again unless this keeps them.
+    keep_errors: bool = False
+
+
+@dataclass
+class DatasetConfig(_Section):
+    """How a labelled grasp dataset picks its grasps (``verdicts.classify_grasps``)."""
+
+    SECTION = "dataset"
+
+    # Grasps closer than this and turned less than nms_rotation_deg count as one: the dataset's
+    # grasps are chosen to differ by at least that much (graspnetAPI's pose-space suppression).
+    nms_translation_m: float = setting(0.01, at_least=0)
+    nms_rotation_deg: float = setting(20.0, at_least=0, at_most=180)
+    # Share of each object's labelled grasps the planner calls feasible; the rest are drawn evenly
+    # from its rejection verdicts (table, volume, swept hand, grasp IK, motion): the negatives and
+    # the planner's calibration.
+    feasible_fraction: float = setting(0.5, at_least=0, at_most=1)
+    grasps_per_object: int = setting(500, at_least=1, at_most=100_000)
+    # "hand": the Panda hand alone moved along the approach (cheap, the arm's reach aside);
+    # "arm": the Panda executes the planned joint path, as the study does.
+    mode: str = setting("hand", choices=("hand", "arm"))
+    # Each capture places the object at a fresh seeded position and yaw on the table (and, for an
+    # object with several stable resting poses, in the next of them); its grasps share one plan.
+    captures_per_object: int = setting(2, at_least=1, at_most=100)
+    # Grasps a worker simulates as one piece of work: one object's grasps spread over every worker
+    # in pieces this size (labels do not depend on it).
+    grasps_per_chunk: int = setting(50, at_least=1, at_most=100_000)
+    seed: int = setting(1000, at_least=0)
+    # Share of objects GraspGen's valid.txt lists, chosen by a hash of the object id.
+    valid_fraction: float = setting(0.2, at_least=0, at_most=1)
