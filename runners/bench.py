@@ -28,7 +28,8 @@ from pathlib import Path
 
 import torch
 
-from sagp_batched.benchmark import BenchmarkSettings, benchmark_ik, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud
+from sagp_batched.benchmark import BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud
+from sagp_batched.ik_benchmark import benchmark_ik
 from sagp_batched.config import load_config
 from sagp_batched.objects import embedded_ycb_dir, load_object_set
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions

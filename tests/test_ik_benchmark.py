@@ -4,8 +4,8 @@ import pytorch_kinematics as pk
 import torch
 
 from sagp_batched.robot import load_robot
-from sagp_batched.benchmark import (
-    BenchmarkSettings,
+from sagp_batched.benchmark import BenchmarkSettings
+from sagp_batched.ik_benchmark import (
     benchmark_ik,
     benchmark_ik_solvers,
     reach_bound_from_shoulder_m,

@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from sagp_batched.benchmark import reachable_ik_targets, shoulder_world
+from sagp_batched.ik_benchmark import reachable_ik_targets, shoulder_world
 from sagp_batched.config import Config
 from sagp_batched.ik import PandaIK
 from sagp_batched.robot import load_robot
