@@ -95,7 +95,8 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
     """Milliseconds per PyBullet step, in total and per pair, for worlds of 1..N floating hands each
     closed on its own copy of the object (resting on its own table), the pairs ``spacing_m`` apart."""
     from .hand import hand_to_grasp_target_m
-    from .labelling import ObjectPlacement, floating_hand_urdf
+    from .collision_urdf import floating_hand_urdf
+    from .labelling import ObjectPlacement
     from .robot import robot_of
     from .scene import Scene, command_fingers, configure_physics, create_table
 
