@@ -18,7 +18,7 @@ import torch
 from PIL import Image, ImageDraw, ImageFont
 
 from .config import Config, RatingConfig
-from .rating.parse import MAX_NUMBER_CHARS, excerpt, extract_json_object, extract_json_value
+from .rating.json_answer import MAX_NUMBER_CHARS, excerpt, extract_json_object, extract_json_value
 from .rating.prompt import checked_image, task_description
 from .rating.types import RatingError, VLMRequestError
 from .rating.vlm import VLMClient, get_vlm_client

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from sagp_batched.rating import ZoneRating, parse_zone_rating
-from sagp_batched.rating import parse as parse_module
-from sagp_batched.rating.parse import MAX_ANSWER_CHARS, MAX_DEPTH
+from sagp_batched.rating import json_answer
+from sagp_batched.rating.json_answer import MAX_ANSWER_CHARS, MAX_DEPTH
 from sagp_batched.rating.prompt import answer_zone_names
 from sagp_batched.rating.raters import PriorRater, VLMRater
 from sagp_batched.rating.types import MAX_ISSUE_CHARS, MAX_REASON_CHARS, VLMRequestError
@@ -162,7 +162,7 @@ def parse(answer: object) -> ZoneRating:
 def work(monkeypatch):
     """Characters handed to the one pass over the JSON (``_shape``) and to ``json`` (``_Decoder.decode``)."""
     counted = {"scanned": 0, "scans": 0, "decoded": 0, "decodes": 0}
-    shape, decode = parse_module._shape, parse_module._Decoder.decode
+    shape, decode = json_answer._shape, json_answer._Decoder.decode
 
     def counting_shape(text):
         counted["scanned"] += len(text)
@@ -174,8 +174,8 @@ def work(monkeypatch):
         counted["decodes"] += 1
         return decode(self, text)
 
-    monkeypatch.setattr(parse_module, "_shape", counting_shape)
-    monkeypatch.setattr(parse_module._Decoder, "decode", counting_decode)
+    monkeypatch.setattr(json_answer, "_shape", counting_shape)
+    monkeypatch.setattr(json_answer._Decoder, "decode", counting_decode)
     return counted
 
 
@@ -225,7 +225,7 @@ def test_repairing_a_cut_off_answer_is_one_pass_whatever_its_depth_and_commas(wo
     # Depth times commas made a scan that copies its bracket stack at every comma quadratic.
     body = '{"a": ' + "[" * (MAX_DEPTH - 1) + "1, " * 5000
     assert len(body) < MAX_ANSWER_CHARS
-    extracted, issues = parse_module.extract_json_object(body)
+    extracted, issues = json_answer.extract_json_object(body)
     assert extracted is not None and any("truncated" in issue for issue in issues)
     assert work["scans"] == 1 and work["scanned"] == len(body)
     assert work["decodes"] <= 2 and work["decoded"] <= 2 * (len(body) + MAX_DEPTH)

@@ -1,5 +1,6 @@
 """Zone-rating backends: a local VLM, an OpenAI-compatible endpoint, and an offline prior."""
-from .parse import extract_json_object, parse_zone_rating
+from .json_answer import extract_json_object
+from .parse import parse_zone_rating
 from .prompt import PROMPT_VERSION, build_zone_prompt
 from .raters import CachedRater, PriorRater, Rater, VLMRater, get_rater
 from .types import (
