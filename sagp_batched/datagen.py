@@ -92,8 +92,6 @@ def _hull_volume(part: "trimesh.Trimesh") -> float:
     sheet in a scanned mesh) has none, and qhull refuses to build its hull."""
     from scipy.spatial import QhullError
 
-    if len(part.vertices) < 4:
-        return 0.0
     try:
         return float(part.convex_hull.volume)
     except QhullError:

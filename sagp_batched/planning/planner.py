@@ -164,7 +164,7 @@ def _plan_counts(screened: ScreenedCandidates, search: CandidateSearch, n_pairs:
     def per_object(mask: torch.Tensor) -> list[int]:
         return torch.bincount(candidate_object[mask], minlength=n_objects).tolist()
 
-    antipodal = per_object(torch.ones_like(search.screened))
+    antipodal = torch.bincount(candidate_object, minlength=n_objects).tolist()
     collision_free = per_object(search.screened & search.usable.any(dim=1))
     feasible = per_object(search.status == CandidateStatus.FEASIBLE)
     hand, grasp_ik, motion = torch.zeros(n_objects, search.rejected.shape[1], dtype=torch.int64).index_add_(

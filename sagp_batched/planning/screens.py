@@ -86,12 +86,12 @@ class ScreenedCandidates:
 
     @property
     def approach(self) -> torch.Tensor:
-        """(A, K, 3) every candidate's approaches (framing all of them; for references and tests)."""
+        """(A, K, 3) every candidate's approaches (framing all of them; for tests)."""
         return self.frames(torch.arange(self.n_candidates))[0]
 
     @property
     def rotation_world(self) -> torch.Tensor:
-        """(A, K, 3, 3) every candidate's grasp frames (framing all of them; for references and tests)."""
+        """(A, K, 3, 3) every candidate's grasp frames (framing all of them; for tests)."""
         return self.frames(torch.arange(self.n_candidates))[1]
 
     def clear_of_table(self, rows: torch.Tensor, rotation: torch.Tensor | None = None) -> torch.Tensor:
@@ -138,7 +138,7 @@ class ScreenedCandidates:
     @property
     def usable(self) -> torch.Tensor:
         """(A, K) bool: the published screen (table, 12 % volume) on every candidate, eagerly (for
-        references and benchmarks); the candidate search adds the swept hand and the motion."""
+        tests); the candidate search adds the swept hand and the motion."""
         return self.table_and_volume_ok(torch.arange(self.n_candidates))
 
 
