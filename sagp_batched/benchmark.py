@@ -103,7 +103,7 @@ def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkS
         if n_pairs <= settings.reference_max_pairs:
             start = time.perf_counter()
             # Drawn inside the timing, as the batched plan draws its own.
-            plan_reference(cloud, pair_config, sample_inputs(cloud, robot_of(pair_config), pair_config.planner, 0))
+            plan_reference(cloud, pair_config, sample_inputs(cloud, robot_of(pair_config), pair_config.planner, pair_config.memory, 0))
             reference_s = time.perf_counter() - start
         rows.append(
             {

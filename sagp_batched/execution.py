@@ -31,7 +31,7 @@ import pybullet
 import torch
 from scipy.spatial.transform import Rotation
 
-from .config import Config, ExecutionConfig, ShakeConfig
+from .config import Config, ExecutionConfig, MotionConfig, ShakeConfig
 from .ik import panda_ik
 from .motion import grasp_waypoint_index, motion_waypoints
 from .attempt import AttemptDiagnostics, PlannerPrediction
@@ -145,7 +145,7 @@ class _ArmIK:
         solutions = [start_joints]
         for position in positions:
             arm_joints = self._pybullet(position, quat, solutions[-1])
-            if arm_joints is None or np.abs(arm_joints - solutions[-1]).max() > self.config.execution.max_waypoint_joint_step_rad:
+            if arm_joints is None or np.abs(arm_joints - solutions[-1]).max() > self.config.motion.max_waypoint_joint_step_rad:
                 return None
             solutions.append(arm_joints)
         return solutions[1:]
@@ -336,9 +336,9 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     "pregrasp", "descent", "close", "lift", "shake").
     """
     execution = config.execution
-    quat, waypoints, joint_path = checked_grasp(grasp, execution, scene.robot)
+    quat, waypoints, joint_path = checked_grasp(grasp, config.motion, scene.robot)
     width_m = grasp.width_m
-    grasp_index = grasp_waypoint_index(execution)
+    grasp_index = grasp_waypoint_index(config.motion)
     client, target = scene.client, scene.target_id
     outcome = _AttemptOutcome(scene, config, record_frames)
     diagnostics, finish, rest_com = outcome.diagnostics, outcome.finish, outcome.rest_com
@@ -432,7 +432,7 @@ def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: 
     diagnostics.shake_achieved_peak_accelerations = achieved_shake_peaks(profile, frame_offsets(start, hand_poses))
 
 
-def checked_grasp(grasp: Grasp, execution: ExecutionConfig, robot: RobotDescription) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def checked_grasp(grasp: Grasp, motion: MotionConfig, robot: RobotDescription) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(unit quaternion, (W, 3) motion waypoints, (W, 7) planned joints or None) of a grasp, or
     ``InvalidGraspError`` naming what is malformed."""
     position = as_finite_vector(grasp.position_world, 3, "position_world")
@@ -444,7 +444,7 @@ def checked_grasp(grasp: Grasp, execution: ExecutionConfig, robot: RobotDescript
         raise InvalidGraspError(f"width_m {grasp.width_m} is outside the gripper's 0..{robot.open_width_m} m")
     quat = quat / np.linalg.norm(quat)
     approach = approach / np.linalg.norm(approach)
-    waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), execution)[0].double().numpy()
+    waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), motion)[0].double().numpy()
     joint_path = grasp.joint_path
     if joint_path is not None:
         joint_path = joint_path.detach().cpu().double().numpy()
@@ -524,7 +524,7 @@ def _path_to_execute(
         return joint_path
     diagnostics.ik_fallback = "no planned path" if joint_path is None else "planned joints miss a waypoint in PyBullet"
     seeds = [as_finite_vector(ik_seed, 7, "ik_seed")] if ik_seed is not None else []
-    path = ik.plan(waypoints, quat, seeds, grasp_waypoint_index(config.execution))
+    path = ik.plan(waypoints, quat, seeds, grasp_waypoint_index(config.motion))
     diagnostics.ik_source = ik.source
     return path
 

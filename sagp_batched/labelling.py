@@ -235,7 +235,7 @@ class _HandWorld:
         self._step(labelling.hand_settle_steps)
 
         # Checked as the study checks its descent: after each of its waypoints.
-        checks = self._checkpoints(labelling.hand_approach_steps, execution.descent_waypoints)
+        checks = self._checkpoints(labelling.hand_approach_steps, self.config.motion.descent_waypoints)
         for step in range(1, labelling.hand_approach_steps + 1):
             self._move(pregrasp + (grasp - pregrasp) * _half_cosine(step / labelling.hand_approach_steps))
             self._step(1)
@@ -251,8 +251,8 @@ class _HandWorld:
         motion["object_motion_during_closing_linear"], motion["object_motion_during_closing_angular"] = closing
         touching_after_close = fingers_touching(self.client, self.hand, self.finger_joints, self.target)
 
-        checks = self._checkpoints(labelling.hand_lift_steps, execution.lift_waypoints)
-        up = np.array([0.0, 0.0, execution.lift_height_m])
+        checks = self._checkpoints(labelling.hand_lift_steps, self.config.motion.lift_waypoints)
+        up = np.array([0.0, 0.0, self.config.motion.lift_height_m])
         highest_rise = 0.0
         for step in range(1, labelling.hand_lift_steps + 1):
             self._move(grasp + up * _half_cosine(step / labelling.hand_lift_steps))
@@ -327,10 +327,10 @@ def _as_placements(placements: ObjectPlacement | Scene | Sequence[ObjectPlacemen
 
 def _hand_targets(grasps: Sequence[Grasp], config: Config) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """(pre-grasp, grasp, quaternion) of each grasp: the first and the grasp waypoint of the study's motion."""
-    index = grasp_waypoint_index(config.execution)
+    index = grasp_waypoint_index(config.motion)
     targets = []
     for grasp in grasps:
-        quat, waypoints, _ = checked_grasp(grasp, config.execution, robot_of(config))
+        quat, waypoints, _ = checked_grasp(grasp, config.motion, robot_of(config))
         targets.append((waypoints[0], waypoints[index], quat))
     return targets
 

@@ -9,26 +9,26 @@ from __future__ import annotations
 
 import torch
 
-from .config import ExecutionConfig
+from .config import MotionConfig
 
 
-def grasp_waypoint_index(execution: ExecutionConfig) -> int:
+def grasp_waypoint_index(motion: MotionConfig) -> int:
     """Position of the grasp pose in ``motion_waypoints``: after the pre-grasp and descent waypoints."""
-    return execution.descent_waypoints
+    return motion.descent_waypoints
 
 
-def waypoint_count(execution: ExecutionConfig) -> int:
+def waypoint_count(motion: MotionConfig) -> int:
     """W, the waypoints of ``motion_waypoints``: the pre-grasp and descent, the grasp, the lift."""
-    return execution.descent_waypoints + 1 + execution.lift_waypoints
+    return motion.descent_waypoints + 1 + motion.lift_waypoints
 
 
-def motion_waypoints(position_world: torch.Tensor, approach_world: torch.Tensor, execution: ExecutionConfig) -> torch.Tensor:
+def motion_waypoints(position_world: torch.Tensor, approach_world: torch.Tensor, motion: MotionConfig) -> torch.Tensor:
     """Waypoints of the whole motion for N grasps.
 
     Args:
         position_world: (N, 3) grasp positions (where ``panda_grasptarget`` closes), world, metres.
         approach_world: (N, 3) unit directions the gripper moves in toward the object.
-        execution: pre-grasp offset, lift height and waypoint counts.
+        motion: pre-grasp offset, lift height and waypoint counts.
 
     Returns:
         (N, W, 3) positions, W = descent_waypoints + 1 + lift_waypoints: the pre-grasp first, the
@@ -36,9 +36,9 @@ def motion_waypoints(position_world: torch.Tensor, approach_world: torch.Tensor,
         ``grasp_waypoint_index``, then the lift waypoints evenly spaced up to ``lift_height_m``.
     """
     position = position_world.to(torch.float32)
-    pregrasp = position - approach_world.to(torch.float32) * execution.pregrasp_offset_m
-    descent_fractions = torch.linspace(0.0, 1.0, execution.descent_waypoints + 1)  # ends at the grasp
+    pregrasp = position - approach_world.to(torch.float32) * motion.pregrasp_offset_m
+    descent_fractions = torch.linspace(0.0, 1.0, motion.descent_waypoints + 1)  # ends at the grasp
     descent = pregrasp[:, None, :] + (position - pregrasp)[:, None, :] * descent_fractions[None, :, None]
-    lift_heights = torch.linspace(0.0, execution.lift_height_m, execution.lift_waypoints + 1)[1:]
+    lift_heights = torch.linspace(0.0, motion.lift_height_m, motion.lift_waypoints + 1)[1:]
     lift = position[:, None, :] + lift_heights[None, :, None] * torch.tensor([0.0, 0.0, 1.0])
     return torch.cat((descent, lift), dim=1)

@@ -199,7 +199,7 @@ def _screen(survivors: list, points: np.ndarray, draws: Draws, config: Config) -
             through_table = False
             for hull_points, clearance in table_levels:
                 lowest = float((centre[2] + hull_points @ rotation[2]).min())
-                lowest_pregrasp = lowest - config.execution.pregrasp_offset_m * approach[2]
+                lowest_pregrasp = lowest - config.motion.pregrasp_offset_m * approach[2]
                 through_table |= min(lowest, lowest_pregrasp) < config.scene.table_top_z_m + clearance
             occupied = _occupied(occupancy_points, centre, rotation, width, robot, planner)
             usable.append(not through_table and occupied <= planner.occupancy_max_fraction * draws.occupancy_total

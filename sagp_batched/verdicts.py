@@ -138,7 +138,7 @@ def classify_grasps(
         swept = screened.hand_clearance(rows[undecided], slots[undecided])
         clearance[undecided] = swept.clearance_m
         verdict[undecided[swept.blocked]] = VERDICTS.index("hand_sweep")
-    joint_path = torch.zeros(n, waypoint_count(config.execution), screened.robot.n_arm_joints)
+    joint_path = torch.zeros(n, waypoint_count(config.motion), screened.robot.n_arm_joints)
     s_reach = torch.zeros(n)
     undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
     if undecided.numel():
@@ -165,7 +165,7 @@ def classify_grasps(
         approach=approach[picked],
         rotation_world=rotation[picked],
         s_reach=s_reach[picked],
-        ik_solution=joint_path[picked, grasp_waypoint_index(config.execution)],
+        ik_solution=joint_path[picked, grasp_waypoint_index(config.motion)],
         joint_path=joint_path[picked],
         hand_clearance_m=clearance[picked],
         zone=torch.full((picked.numel(),), -1, dtype=torch.int64),

@@ -69,5 +69,5 @@ def test_a_table_check_of_no_poses_returns_no_verdicts():
 
     config = load_config("dataset")
     points = hand_geometry(load_robot()).vertices()
-    through = table_penetration(torch.zeros(0, 3), torch.zeros(0, 4, 3, 3), points, config.execution.pregrasp_offset_m, 0.6)
+    through = table_penetration(torch.zeros(0, 3), torch.zeros(0, 4, 3, 3), points, config.motion.pregrasp_offset_m, 0.6)
     assert through.shape == (0, 4)

@@ -72,7 +72,7 @@ def test_blocks_mixing_scenes_give_what_one_scene_blocks_and_every_point_give():
     verdicts and unblocked clearances (a blocked row's only has to be some blocking point's)."""
     points, object_index, centre, rotation = _two_scenes(torch.Generator().manual_seed(7))
     probes = points[:, ::10]
-    low, high = hand_geometry(ROBOT).swept((0.0, 0.0, -CONFIG.execution.pregrasp_offset_m))
+    low, high = hand_geometry(ROBOT).swept((0.0, 0.0, -CONFIG.motion.pregrasp_offset_m))
     directions = DOP_DIRECTIONS
     arguments = (directions, low, high, 0.003, 20 * low.numel() * 300)
     mixed = hand_clearance(points, probes, object_index, centre, rotation, *arguments)
@@ -89,7 +89,7 @@ def test_any_probe_subset_gives_the_exact_verdicts_and_unblocked_clearances(prob
     """The probes only find blocking points early: every point's, a coarse subset's or a single
     point's probes all leave ``blocked`` and the unblocked clearances exact."""
     points, object_index, centre, rotation = _two_scenes(torch.Generator().manual_seed(11))
-    low, high = hand_geometry(ROBOT).swept((0.0, 0.0, -CONFIG.execution.pregrasp_offset_m))
+    low, high = hand_geometry(ROBOT).swept((0.0, 0.0, -CONFIG.motion.pregrasp_offset_m))
     swept = hand_clearance(points, points[:, ::probe_stride], object_index, centre, rotation, DOP_DIRECTIONS, low, high, 0.003,
                            20 * low.numel() * 300)
     _assert_meets_the_contract(swept, _dense_separation(points, object_index, centre, rotation, DOP_DIRECTIONS, low, high), 0.003)

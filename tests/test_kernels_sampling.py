@@ -9,7 +9,7 @@ from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.sampling import sample_guided_pair_indices, sample_pair_indices
 
 PLANNER = Config().planner
-CHUNK = PLANNER.pair_proposal_chunk_elements
+CHUNK = Config().memory.pair_proposal_chunk_elements
 
 
 def _tensors(points, normals):

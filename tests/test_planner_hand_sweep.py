@@ -19,7 +19,7 @@ ROBOT = load_robot()
 
 CONFIG = Config()
 PLANNER = CONFIG.planner
-DESCENT_M = CONFIG.execution.pregrasp_offset_m
+DESCENT_M = CONFIG.motion.pregrasp_offset_m
 DOWN = torch.tensor([0.0, 0.0, -1.0])
 PYBULLET_AABB_MARGIN_M = 0.004
 
@@ -163,5 +163,5 @@ def test_a_grasp_whose_pregrasp_is_out_of_reach_is_rejected_though_the_grasp_pos
     from sagp_batched.motion import motion_waypoints
 
     reached = ik.forward(motion_down.joint_path[0])[:, :3, 3]
-    waypoints = motion_waypoints(centre, DOWN.view(1, 3), CONFIG.execution)[0]
+    waypoints = motion_waypoints(centre, DOWN.view(1, 3), CONFIG.motion)[0]
     assert (reached - waypoints).norm(dim=1).max() < ROBOT.ik_position_tolerance_m

@@ -117,8 +117,8 @@ def _descent_and_lift(ik, grasp_joints):
     from sagp_batched.motion import grasp_waypoint_index, motion_waypoints
 
     pose = ik.forward(grasp_joints)
-    waypoints = motion_waypoints(pose[:, :3, 3], pose[:, :3, 2], Config().execution)
-    others = torch.arange(waypoints.shape[1]) != grasp_waypoint_index(Config().execution)
+    waypoints = motion_waypoints(pose[:, :3, 3], pose[:, :3, 2], Config().motion)
+    others = torch.arange(waypoints.shape[1]) != grasp_waypoint_index(Config().motion)
     return waypoints[:, others], pose[:, :3, :3]
 
 
@@ -126,7 +126,7 @@ def _largest_step(grasp_joints, path_joints):
     """Largest joint change between neighbouring waypoints, the grasp's joints among them."""
     from sagp_batched.motion import grasp_waypoint_index
 
-    index = grasp_waypoint_index(Config().execution)
+    index = grasp_waypoint_index(Config().motion)
     joints = torch.cat((path_joints[:, :index], grasp_joints[:, None], path_joints[:, index:]), dim=1)
     return (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
 

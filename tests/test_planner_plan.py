@@ -92,7 +92,7 @@ def test_loop_reference_gives_the_same_candidates_and_mostly_agrees_on_ik(box_cl
     from sagp_batched.reference import plan_reference
 
     for cloud in (box_cloud, can_cloud):
-        reference = plan_reference(cloud, CONFIG, sample_inputs(cloud, ROBOT, CONFIG.planner, 0))
+        reference = plan_reference(cloud, CONFIG, sample_inputs(cloud, ROBOT, CONFIG.planner, CONFIG.memory, 0))
         screened = screen_candidates([cloud], CONFIG, [0])
         # Same candidate set (pairs may repeat: sampling is with replacement) and the same S_geom
         # ranking; pairs whose S_geom ties to float32 precision (opposite box faces all give 1.0)

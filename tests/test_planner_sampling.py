@@ -10,6 +10,7 @@ from sagp_batched_kernels.sampling import sample_pair_indices
 from sagp_batched.robot import load_robot
 
 ROBOT = load_robot()
+MEMORY = Config().memory
 
 
 def test_unknown_pair_sampling_mode_is_a_config_error_naming_the_known_modes():
@@ -24,11 +25,11 @@ def test_sample_inputs_follows_the_configured_mode():
     cloud = make_cloud(points, normals)
     uniform_config = Config().override("planner", pair_sampling="uniform").planner
     guided_config = Config().override("planner", pair_sampling="guided").planner
-    uniform = sample_inputs(cloud, ROBOT, uniform_config, seed=3)
-    guided = sample_inputs(cloud, ROBOT, guided_config, seed=3)
+    uniform = sample_inputs(cloud, ROBOT, uniform_config, MEMORY, seed=3)
+    guided = sample_inputs(cloud, ROBOT, guided_config, MEMORY, seed=3)
     assert torch.equal(uniform.pair_indices, sample_pair_indices(cloud.n_points, uniform_config.n_pairs, torch.Generator().manual_seed(3)))
     assert guided.pair_indices.shape == uniform.pair_indices.shape
-    assert torch.equal(guided.pair_indices, sample_inputs(cloud, ROBOT, guided_config, seed=3).pair_indices)
+    assert torch.equal(guided.pair_indices, sample_inputs(cloud, ROBOT, guided_config, MEMORY, seed=3).pair_indices)
 
     def n_antipodal(pairs):
         planner = guided_config

@@ -10,16 +10,12 @@ from .settings import _Section, setting
 class ExecutionConfig(_Section):
     SECTION = "execution"
 
-    pregrasp_offset_m: float = setting(0.10, above=0)
-    lift_height_m: float = setting(0.20, above=0)
     hold_steps: int = setting(80, at_least=0)
     settle_steps: int = setting(60, at_least=0)
     ik_iterations: int = setting(500, at_least=1)
     max_attempts: int = setting(3, at_least=1)
     success_height_above_table_m: float = setting(0.15, above=0)
-    # Straight-line descent from the pre-grasp: IK waypoints, each tracked for steps_per_waypoint steps.
-    descent_waypoints: int = setting(8, at_least=1)
-    lift_waypoints: int = setting(10, at_least=1)
+    # Each waypoint of the motion is tracked for this many steps under position control.
     steps_per_waypoint: int = setting(20, at_least=1)
     close_steps: int = setting(120, at_least=1)
     # Panda hand: 70 N continuous grip force per the datasheet; enough for the 1.13 kg bleach bottle.
@@ -31,8 +27,6 @@ class ExecutionConfig(_Section):
     arm_position_gain: float = setting(0.3, above=0, at_most=1)
     # PyBullet IK restarts from seeded random joints inside the limits when the given seeds fail.
     ik_random_restarts: int = setting(8, at_least=0)
-    # Neighbouring waypoints are ~1-2 cm apart; a larger joint jump means IK switched branch mid-path.
-    max_waypoint_joint_step_rad: float = setting(0.3, above=0)
     # A fingertip grazing the table on the way down (grasps on flat objects end millimetres above
     # it) is harmless; pressing on it harder than this during the descent counts as a collision.
     # libfranka's default contact reflex stops the real arm at 20 N; half that stays conservative.
@@ -85,9 +79,9 @@ class ShakeConfig(_Section):
 class LabellingConfig(_Section):
     """Grasp labels from simulation: the shake both modes end with, and the floating hand's motion.
 
-    Hand mode (``sagp_batched.labelling``) uses the study's pre-grasp offset, lift height, grip
-    force, finger friction, collision thresholds and success test from ``[execution]``; how long
-    the floating hand takes for each phase is set here."""
+    Hand mode (``sagp_batched.labelling``) follows the study's motion (``[motion]``: pre-grasp
+    offset, lift height) and uses its grip force, finger friction, collision thresholds and success
+    test from ``[execution]``; how long the floating hand takes for each phase is set here."""
 
     SECTION = "labelling"
 

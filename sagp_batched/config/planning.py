@@ -25,8 +25,6 @@ class PlannerConfig(_Section):
     pair_sampling: str = setting("guided", choices=PAIR_SAMPLING_MODES)
     # Second-point proposals per guided pair: 64 doubles the handle pairs of 32 for ~20 ms per 5,000 pairs.
     pair_proposals: int = setting(64, at_least=1)
-    # (pair, proposal) combinations the guided sampler holds at once (~80 bytes each, ~80 MB).
-    pair_proposal_chunk_elements: int = setting(1_048_576, at_least=1)
     min_width_m: float = setting(0.005, at_least=0)
     max_width_m: float = setting(0.08, above=0)
     max_contact_angle_deg: float = setting(45.0, at_least=0, at_most=90)
@@ -43,9 +41,6 @@ class PlannerConfig(_Section):
     # The occupancy fraction is estimated on a seeded subset of at most this many object points
     # (obstacle points thinned at the same rate): standard error ~1 % at the 12 % limit, 2-5x faster.
     occupancy_max_points: int = setting(1024, at_least=1)
-    # (candidate, approach, point) triples the occupancy check holds at once: chunks of ~3 MB of
-    # float32 coordinates stay in cache and measured 2x faster than 4M-element chunks.
-    occupancy_chunk_elements: int = setting(262_144, at_least=1)
     # The hand's collision hulls (derived from the robot URDF) swept along the descent must keep
     # this far from every object and obstacle point: the cloud's 3 mm voxels put the true surface
     # up to ~2 mm from its points.
@@ -65,6 +60,20 @@ class PlannerConfig(_Section):
     # 2 cm cell still leaves points on every part the hand could strike, and most blocked grasps
     # hit one of them.
     hand_screen_voxel_m: float = setting(0.02, above=0)
+
+
+@dataclass
+class MemoryConfig(_Section):
+    """How many elements the planner's batched kernels hold at once. These bound memory and set
+    speed only: every plan is the same at any value."""
+
+    SECTION = "memory"
+
+    # (pair, proposal) combinations the guided sampler holds at once (~80 bytes each, ~80 MB).
+    pair_proposal_chunk_elements: int = setting(1_048_576, at_least=1)
+    # (candidate, approach, point) triples the occupancy check holds at once: chunks of ~3 MB of
+    # float32 coordinates stay in the cache.
+    occupancy_chunk_elements: int = setting(262_144, at_least=1)
     # (candidate, hull, direction, point) elements the swept-hand check holds at once.
     hand_check_chunk_elements: int = setting(4_194_304, at_least=1)
 

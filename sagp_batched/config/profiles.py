@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from .execution import ExecutionConfig, LabellingConfig, TaskConfig
-from .planning import IKConfig, PlannerConfig, ScoreWeights
+from .motion import MotionConfig
+from .planning import IKConfig, MemoryConfig, PlannerConfig, ScoreWeights
 from .run import DatasetConfig, RunConfig
 from .semantics import RatingConfig, ZonesConfig
 from .settings import ConfigError, _merge
@@ -27,8 +28,10 @@ class Config:
     camera: CameraConfig = field(default_factory=CameraConfig)
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
+    memory: MemoryConfig = field(default_factory=MemoryConfig)
     ik: IKConfig = field(default_factory=IKConfig)
     weights: ScoreWeights = field(default_factory=ScoreWeights)
+    motion: MotionConfig = field(default_factory=MotionConfig)
     execution: ExecutionConfig = field(default_factory=ExecutionConfig)
     zones: ZonesConfig = field(default_factory=ZonesConfig)
     rating: RatingConfig = field(default_factory=RatingConfig)

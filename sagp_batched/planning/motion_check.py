@@ -43,10 +43,10 @@ def check_motions(centre: torch.Tensor, approach: torch.Tensor, rotation: torch.
        ``arm_table_clearance_m`` above the table.
     """
     clock = time.perf_counter()
-    planner, execution = config.planner, config.execution
+    planner, motion = config.planner, config.motion
     n_rows = centre.shape[0]
-    waypoints = motion_waypoints(centre, approach, execution)
-    grasp_index = grasp_waypoint_index(execution)
+    waypoints = motion_waypoints(centre, approach, motion)
+    grasp_index = grasp_waypoint_index(motion)
     joint_path = torch.zeros(n_rows, waypoints.shape[1], len(ik.robot.arm_joints))
     s_reach = torch.zeros(n_rows)
     rejected_by = torch.zeros(n_rows, len(MotionCheck.STAGES), dtype=torch.int64)
@@ -118,7 +118,7 @@ def _checked_motion(
     ).all(dim=1)
     ok = (
         reached_all
-        & (steps <= config.execution.max_waypoint_joint_step_rad)
+        & (steps <= config.motion.max_waypoint_joint_step_rad)
         & (arm_lowest_z >= config.scene.table_top_z_m + planner.arm_table_clearance_m)
     )
     return joints, reached_all, ok

@@ -84,7 +84,7 @@ def plan_batch(
     ik = panda_ik(config)
     search = CandidateSearch.start(screened.n_candidates, planner.n_approaches)
     verdicts = ScreenVerdicts(screened, tuning)
-    motions = MotionVerdicts(screened.n_candidates, planner.n_approaches, waypoint_count(config.execution), len(ik.robot.arm_joints),
+    motions = MotionVerdicts(screened.n_candidates, planner.n_approaches, waypoint_count(config.motion), len(ik.robot.arm_joints),
                              planner.max_candidates, tuning)
 
     def check(rows: torch.Tensor, slots: torch.Tensor) -> MotionCheck:
@@ -135,7 +135,7 @@ def _planned_candidates(screened: ScreenedCandidates, search: CandidateSearch, m
         "approach": approach,
         "rotation_world": rotation,
         "s_reach": s_reach,
-        "ik_solution": joint_path[:, grasp_waypoint_index(config.execution)],
+        "ik_solution": joint_path[:, grasp_waypoint_index(config.motion)],
         "joint_path": joint_path,
         "hand_clearance_m": search.clearance_m[kept, slot],
     }

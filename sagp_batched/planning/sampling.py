@@ -12,7 +12,7 @@ from sagp_batched_kernels.sampling import (
     voxel_representatives,
 )
 
-from ..config import PlannerConfig
+from ..config import MemoryConfig, PlannerConfig
 from ..robot import RobotDescription
 from ..types import PerceivedCloud
 from .gripper import jaw_width_limit
@@ -43,7 +43,7 @@ class SampledInputs:
     hand_screen_points: torch.Tensor  # (S, 3) a coarser subset of them, probed first
 
 
-def sample_inputs(cloud: PerceivedCloud, robot: RobotDescription, planner: PlannerConfig, seed: int) -> SampledInputs:
+def sample_inputs(cloud: PerceivedCloud, robot: RobotDescription, planner: PlannerConfig, memory: MemoryConfig, seed: int) -> SampledInputs:
     """Draw the contact pairs and the occupancy subset of ``cloud`` from one generator seeded by ``seed``."""
     generator = torch.Generator().manual_seed(int(seed))
     if planner.pair_sampling == "guided":
@@ -57,7 +57,7 @@ def sample_inputs(cloud: PerceivedCloud, robot: RobotDescription, planner: Plann
             planner.min_width_m,
             min(planner.max_width_m, jaw_width_limit(robot, planner)),
             generator,
-            planner.pair_proposal_chunk_elements,
+            memory.pair_proposal_chunk_elements,
         )
     else:
         pair_indices = sample_pair_indices(cloud.n_points, planner.n_pairs, generator)

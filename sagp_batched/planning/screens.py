@@ -14,7 +14,7 @@ from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotatio
 from sagp_batched_kernels.gripper_volume import gripper_occupancy_within, table_cover, table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
 
-from ..config import Config, PlannerConfig
+from ..config import Config, MemoryConfig, PlannerConfig
 from ..hand import DOP_DIRECTIONS
 from ..robot import RobotDescription, robot_of
 from ..types import PerceivedCloud
@@ -51,6 +51,7 @@ class ScreenedCandidates:
     hand_check_points: torch.Tensor  # (B, H, 3) per-cloud points for the swept-hand check, NaN-padded
     hand_screen_points: torch.Tensor  # (B, S, 3) their coarse subsets, NaN-padded
     planner: PlannerConfig
+    memory: MemoryConfig
     robot: RobotDescription
     pregrasp_offset_m: float
     table_top_z_m: float
@@ -121,7 +122,7 @@ class ScreenedCandidates:
         return gripper_occupancy_within(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], rotation,
             self.width_m[rows], gripper_geometry(self.robot, planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
-            planner.occupancy_chunk_elements, poses,
+            self.memory.occupancy_chunk_elements, poses,
         )
 
     def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
@@ -132,7 +133,7 @@ class ScreenedCandidates:
         low, high = hand_geometry(self.robot).swept((0.0, 0.0, -self.pregrasp_offset_m))
         return hand_clearance(
             self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.frames(rows, slots)[1],
-            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.planner.hand_check_chunk_elements,
+            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.memory.hand_check_chunk_elements,
         )
 
     @property
@@ -147,7 +148,7 @@ def screen_candidates(clouds: Sequence[PerceivedCloud], config: Config, seeds: S
     planner, robot = config.planner, robot_of(config)
     clock = time.perf_counter()
     n_objects = len(clouds)
-    sampled = [sample_inputs(cloud, robot, planner, seed) for cloud, seed in zip(clouds, seeds)]
+    sampled = [sample_inputs(cloud, robot, planner, config.memory, seed) for cloud, seed in zip(clouds, seeds)]
     point_offsets = torch.tensor([0] + [cloud.n_points for cloud in clouds]).cumsum(0)[:-1]
     pairs = torch.cat([s.pair_indices + offset for s, offset in zip(sampled, point_offsets)])
     pair_object = torch.arange(n_objects).repeat_interleave(planner.n_pairs)
@@ -180,8 +181,9 @@ def screen_candidates(clouds: Sequence[PerceivedCloud], config: Config, seeds: S
         hand_check_points=_padded([s.hand_check_points for s in sampled]),
         hand_screen_points=_padded([s.hand_screen_points for s in sampled]),
         planner=planner,
+        memory=config.memory,
         robot=robot,
-        pregrasp_offset_m=config.execution.pregrasp_offset_m,
+        pregrasp_offset_m=config.motion.pregrasp_offset_m,
         table_top_z_m=config.scene.table_top_z_m,
         sampling_s=sampled_at - clock,
         antipodal_s=time.perf_counter() - sampled_at,
