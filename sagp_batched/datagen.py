@@ -227,7 +227,7 @@ class ObjectLabeller:
         poses, skipped, neutral = [], [], {}
         for pose_index, share in enumerate(shares):
             # A later capture offers the same grasps again in the object's frame: only new ones are picked.
-            picked = np.concatenate([acronym_gripper_transforms_object(p.candidates.transform(p.object_from_world)) for p in poses]
+            picked = np.concatenate([acronym_gripper_transforms_object(p.candidates.transform(p.object_from_world, "object")) for p in poses]
                                     + [np.zeros((0, 4, 4))])
             taken = tuple(torch.as_tensor(a, dtype=torch.float64) for a in planner_frames_from_acronym(picked))
             pose = self._plan_pose(self.objects.get(object_id), pose_index, share, times, taken)
@@ -328,7 +328,7 @@ def _pose_labels(pose: PosePlan, outcomes: list) -> tuple[LabelledGrasps, Untest
     """The capture's simulated grasps as labels in the object frame, and the grasps whose simulation could not run."""
     zoned, classified = pose.candidates, pose.classified
     tested = [i for i, outcome in enumerate(outcomes) if not isinstance(outcome, str)]
-    object_frame = zoned.transform(pose.object_from_world)
+    object_frame = zoned.transform(pose.object_from_world, "object")
     transforms = acronym_gripper_transforms_object(object_frame)
     untested = [i for i, outcome in enumerate(outcomes) if isinstance(outcome, str)]
     kept = torch.as_tensor(tested, dtype=torch.int64)
@@ -339,7 +339,7 @@ def _pose_labels(pose: PosePlan, outcomes: list) -> tuple[LabelledGrasps, Untest
     labelled = LabelledGrasps(
         transforms=transforms[tested].reshape(-1, 4, 4),
         width_m=chosen.width_m.double().numpy(),
-        contacts=object_frame.contacts_world[kept].numpy().reshape(-1, 2, 3),
+        contacts=object_frame.contacts[kept].numpy().reshape(-1, 2, 3),
         resting_pose=np.full(len(tested), pose.pose_index, dtype=np.int64),
         verdict=[verdicts[i] for i in tested],
         verdict_reason=[classified.reasons[i] for i in tested],

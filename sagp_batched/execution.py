@@ -435,7 +435,9 @@ def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: 
 def checked_grasp(grasp: Grasp, motion: MotionConfig, robot: RobotDescription) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(unit quaternion, (W, 3) motion waypoints, (W, 7) planned joints or None) of a grasp, or
     ``InvalidGraspError`` naming what is malformed."""
-    position = as_finite_vector(grasp.position_world, 3, "position_world")
+    if grasp.frame != "world":
+        raise InvalidGraspError(f"the grasp is in the {grasp.frame} frame: execution runs world-frame grasps")
+    position = as_finite_vector(grasp.position, 3, "position")
     quat = as_finite_vector(grasp.quat_xyzw, 4, "quat_xyzw")
     approach = as_finite_vector(grasp.approach, 3, "approach")
     if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:

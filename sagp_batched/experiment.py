@@ -213,7 +213,7 @@ class TrialRunner:
         attempts = execute_ranked(self.scene, config, ranked, record_frames=config.run.save_frames, executed=executed)
         final_index = len(attempts) - 1
         final, final_grasp = attempts[-1], ranked[final_index]
-        placement = place_grasp(unit.object_id, final_grasp, ranked[final_index:final_index + 1].transform(cloud.object_from_world)[0], rating)
+        placement = place_grasp(unit.object_id, final_grasp, ranked[final_index:final_index + 1].transform(cloud.object_from_world, "object")[0], rating)
         outcome = judge_task(
             unit.task, final.success, placement.in_preferred_zone, final.orientation_change_deg,
             final.diagnostics.distractors_max_displacement_m, config.tasks,

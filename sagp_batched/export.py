@@ -67,21 +67,23 @@ def _acronym_hand_offset_m() -> float:
 
 def acronym_gripper_transforms_object(candidates_object: GraspCandidates) -> np.ndarray:
     """(C, 4, 4) grasp poses in ACRONYM's Franka gripper convention, from candidates expressed in the
-    object's link frame (``GraspCandidates.transform(cloud.object_from_world)``).
+    object's link frame (``GraspCandidates.transform(cloud.object_from_world, "object")``).
 
-    Grasp frame of the candidates: columns of ``rotation_world`` (C, 3, 3) are (closing x approach,
-    closing axis, approach); origin at the contact midpoint ``position_world`` (C, 3), metres.
+    Grasp frame of the candidates: columns of ``rotation`` (C, 3, 3) are (closing x approach,
+    closing axis, approach); origin at the contact midpoint ``position`` (C, 3), metres.
     Returned: rotation ``R_planner @ Rz(+90 deg)`` (x = closing axis from contact 0 to contact 1,
     z = approach) and origin ``midpoint - 0.105 m * approach`` (the gripper base, which is
     ``panda_hand``'s origin), so contact k lies at ``(-+width/2, 0, 0.105)`` in the gripper frame.
     """
-    rotation_planner = candidates_object.rotation_world.double().numpy()
+    if candidates_object.frame != "object":
+        raise ValueError(f"ACRONYM grasps are written in the object frame, got a batch in the {candidates_object.frame} frame")
+    rotation_planner = candidates_object.rotation.double().numpy()
     # The executed grasp closed its fingers at the grasp target, 0.105 m along panda_hand's z axis
     # in the robot's URDF, so the exported poses put the contacts there too.
     hand_offset = _acronym_hand_offset_m()
     transforms = np.tile(np.eye(4), (len(candidates_object), 1, 1))
     transforms[:, :3, :3] = rotation_planner @ ACRONYM_FROM_PLANNER_ROTATION
-    transforms[:, :3, 3] = candidates_object.position_world.double().numpy() - hand_offset * rotation_planner[:, :, 2]
+    transforms[:, :3, 3] = candidates_object.position.double().numpy() - hand_offset * rotation_planner[:, :, 2]
     return transforms
 
 
@@ -161,7 +163,7 @@ def acronym_bytes(
     import h5py
 
     n = len(candidates)
-    candidates_object = candidates.transform(cloud.object_from_world)
+    candidates_object = candidates.transform(cloud.object_from_world, "object")
     transforms = acronym_gripper_transforms_object(candidates_object)
     mesh_file, urdf_file, mesh_scale, mesh_to_link = object_mesh_reference(spec)
     outcome = np.full(n, UNTESTED, dtype=np.int8)  # over every method's attempts: held once is held
@@ -176,7 +178,7 @@ def acronym_bytes(
     zone_names = np.array(candidates.primary_zone_names(), dtype=object)
     rows = {
         "transforms": transforms, "panda_hand_transforms": panda_hand_transforms_object(transforms),
-        "width": candidates.width_m.numpy(), "contacts": candidates_object.contacts_world.numpy(),
+        "width": candidates.width_m.numpy(), "contacts": candidates_object.contacts.numpy(),
         "qualities/terms/geom": candidates.s_geom.numpy(), "qualities/terms/reach": candidates.s_reach.numpy(),
     }
     for method, ranked in ranked_by_method.items():

@@ -34,7 +34,9 @@ class GraspPlacement:
 def place_grasp(object_id: str, grasp: Grasp, grasp_object: Grasp, rating: ZoneRating) -> GraspPlacement:
     """Where ``grasp`` (world frame; ``grasp_object`` is the same grasp in the object frame) lies:
     in the rating's zones, and in the object's annotated regions."""
-    midpoint_object = grasp_object.position_world.tolist()
+    if grasp.frame != "world" or grasp_object.frame != "object":
+        raise ValueError(f"place_grasp takes a world-frame and an object-frame grasp, got {grasp.frame} and {grasp_object.frame}")
+    midpoint_object = grasp_object.position.tolist()
     regions = region_membership(object_id, np.asarray(midpoint_object))
     return GraspPlacement(
         midpoint_object=midpoint_object,

@@ -271,12 +271,12 @@ def _candidates(chosen: list[tuple], screened: _Screened, points: np.ndarray, ro
     geom = np.array([screened.s_geom[r] for r, *_ in chosen])
     as_tensor = lambda values, shape: torch.as_tensor(np.asarray(values, dtype=np.float32).reshape(shape))  # noqa: E731
     return GraspCandidates(
-        contacts_world=as_tensor(contacts, (count, 2, 3)),
+        contacts=as_tensor(contacts, (count, 2, 3)),
         closing_axis=as_tensor(closing / np.maximum(widths[:, None], 1e-12), (count, 3)),
         width_m=as_tensor(widths, (count,)),
         s_geom=as_tensor(geom, (count,)),
         approach=as_tensor([screened.approaches[r][s] for r, s, *_ in chosen], (count, 3)),
-        rotation_world=as_tensor([screened.rotations[r][s] for r, s, *_ in chosen], (count, 3, 3)),
+        rotation=as_tensor([screened.rotations[r][s] for r, s, *_ in chosen], (count, 3, 3)),
         s_reach=as_tensor([reach for *_, reach in chosen], (count,)),
         ik_solution=as_tensor([joints for _, _, joints, _ in chosen], (count, robot.n_arm_joints)),
         zone=torch.full((count,), -1, dtype=torch.int64),

@@ -81,7 +81,7 @@ def score_candidates(
         if centre_of_mass_world is None:
             raise ScoringInputError("an orientation constraint needs a centre of mass, but the cloud is empty")
         tilt = score_kernels.predicted_swing_tilt(
-            candidates.position_world, candidates.closing_axis, centre_of_mass_world, torch.tensor(config.zones.up_world),
+            candidates.position, candidates.closing_axis, centre_of_mass_world, torch.tensor(config.zones.up_world),
             config.rating.friction_hold_offset_m,
         )
         task_ok = task_ok & (tilt <= math.radians(zone_rating.max_tilt_deg))

@@ -1,8 +1,10 @@
 """Typed data that flows between the pipeline's stages.
 
 Frames are explicit in field names: ``*_world`` is the PyBullet world frame (z up, metres),
-``*_object`` the target object's URDF link frame. Quaternions are xyzw (PyBullet's order) unless a
-name says ``wxyz``.
+``*_object`` the target object's URDF link frame. Grasps are the exception, since one batch is
+moved between frames (``GraspCandidates.transform``): their fields carry no suffix and the batch
+says its frame in ``frame`` (one of ``GRASP_FRAMES``). Quaternions are xyzw (PyBullet's order)
+unless a name says ``wxyz``.
 """
 from __future__ import annotations
 
@@ -28,6 +30,9 @@ LENGTH_ZONES: tuple[str, ...] = ("wide_end", "middle", "narrow_end")
 # Halves of the object seen from the robot: each crosses every third.
 SIDE_ZONES: tuple[str, ...] = ("left", "right", "front", "back")
 ZONE_NAMES: tuple[str, ...] = ("top", "middle", "bottom", "wide_end", "narrow_end", *SIDE_ZONES, PROTRUSION)
+# The frames a grasp batch can be expressed in: the planner's and execution's world, and the
+# target object's link frame that datasets and the functional-region judgement use.
+GRASP_FRAMES: tuple[str, ...] = ("world", "object")
 _NUMBERED_PROTRUSION = re.compile(r"protrusion_[1-9][0-9]*")
 
 
@@ -142,14 +147,14 @@ def as_finite_vector(value: Any, length: int, name: str) -> np.ndarray:
 class Grasp:
     """One candidate of a batch (``GraspCandidates[i]``): what execution runs and a record describes.
 
-    Tensors are the batch's rows without the batch dimension; ``position_world`` is the contact
-    midpoint where ``panda_grasptarget`` goes, ``rotation_world``'s columns are (closing x approach,
-    closing axis, approach).
+    Tensors are the batch's rows without the batch dimension, in the batch's ``frame``;
+    ``position`` is the contact midpoint where ``panda_grasptarget`` goes, ``rotation``'s columns
+    are (closing x approach, closing axis, approach). Execution runs world-frame grasps only.
     """
 
     candidate_id: int
-    contacts_world: torch.Tensor  # (2, 3)
-    rotation_world: torch.Tensor  # (3, 3)
+    contacts: torch.Tensor  # (2, 3)
+    rotation: torch.Tensor  # (3, 3)
     approach: torch.Tensor  # (3,) unit, direction the gripper moves in toward the object
     width_m: float
     ik_solution: torch.Tensor | None = None  # (7,) arm joints reaching the grasp
@@ -159,6 +164,7 @@ class Grasp:
     zones: tuple[str, ...] = ()  # every zone it is rated by, primary first
     score: float = 0.0
     terms: dict[str, float] = field(default_factory=dict)
+    frame: str = "world"  # the frame of contacts, rotation and approach (``GRASP_FRAMES``)
 
     @classmethod
     def from_pose(cls, position_world: Any, quat_xyzw: Any, width_m: float, approach_world: Any, ik_solution: Any = None) -> "Grasp":
@@ -175,33 +181,33 @@ class Grasp:
         half_width = 0.5 * float(width_m) * rotation[:, 1]
         return cls(
             candidate_id=0,
-            contacts_world=torch.tensor(np.stack([position - half_width, position + half_width])),
-            rotation_world=torch.tensor(rotation),
+            contacts=torch.tensor(np.stack([position - half_width, position + half_width])),
+            rotation=torch.tensor(rotation),
             approach=torch.tensor(approach / np.linalg.norm(approach)),
             width_m=float(width_m),
             ik_solution=None if ik_solution is None else torch.tensor(as_finite_vector(ik_solution, 7, "ik_solution")),
         )
 
     @property
-    def position_world(self) -> torch.Tensor:
-        return self.contacts_world.mean(dim=0)
+    def position(self) -> torch.Tensor:
+        return self.contacts.mean(dim=0)
 
     @property
     def quat_xyzw(self) -> torch.Tensor:
         """(4,) orientation as an xyzw quaternion, in the batch's float precision."""
         from scipy.spatial.transform import Rotation
 
-        quat = Rotation.from_matrix(self.rotation_world.double().numpy()).as_quat()
-        return torch.as_tensor(quat, dtype=self.rotation_world.dtype)
+        quat = Rotation.from_matrix(self.rotation.double().numpy()).as_quat()
+        return torch.as_tensor(quat, dtype=self.rotation.dtype)
 
     def record(self) -> dict[str, Any]:
-        """The grasp as plain JSON-ready values (positions in metres, world frame)."""
+        """The grasp as plain JSON-ready values (metres, in its ``frame``, which names the contacts' key)."""
         return {
-            "position": self.position_world.tolist(),
+            "position": self.position.tolist(),
             "quat_xyzw": self.quat_xyzw.tolist(),
             "width": self.width_m,
             "approach": self.approach.tolist(),
-            "contacts_world": self.contacts_world.tolist(),
+            f"contacts_{self.frame}": self.contacts.tolist(),
             "zone": self.zone,
             "zones": list(self.zones),
             "score": self.score,
@@ -215,18 +221,20 @@ class GraspCandidates:
 
     Stages add fields or mask the batch; nothing becomes per-grasp Python objects until a grasp
     is executed or written (``batch[i]`` is a ``Grasp``; ``batch[a:b]`` or ``batch[mask]`` a
-    batch). Grasp frame: columns of ``rotation_world`` are (x = closing x approach, y = closing
-    axis, z = approach direction); ``position_world`` is the grasp centre (contact midpoint), which
-    is where the Panda's ``panda_grasptarget`` frame is sent. A ranked batch is best first:
+    batch). Positions and directions are in the batch's ``frame``: the world as planned,
+    the object's link frame after ``transform(object_from_world, "object")``. Grasp frame: columns
+    of ``rotation`` are (x = closing x approach, y = closing axis, z = approach direction);
+    ``position`` is the grasp centre (contact midpoint), which is where the Panda's
+    ``panda_grasptarget`` frame is sent. A ranked batch is best first:
     execution runs its first ``max_attempts``.
     """
 
-    contacts_world: torch.Tensor  # (C, 2, 3)
+    contacts: torch.Tensor  # (C, 2, 3)
     closing_axis: torch.Tensor  # (C, 3) unit, from contact 0 to contact 1
     width_m: torch.Tensor  # (C,)
     s_geom: torch.Tensor  # (C,)
-    approach: torch.Tensor  # (C, 3) unit, direction the gripper moves in to grasp (world)
-    rotation_world: torch.Tensor  # (C, 3, 3)
+    approach: torch.Tensor  # (C, 3) unit, direction the gripper moves in to grasp
+    rotation: torch.Tensor  # (C, 3, 3)
     s_reach: torch.Tensor  # (C,) in [0, 1]
     ik_solution: torch.Tensor  # (C, 7) Panda arm joints reaching the grasp pose
     zone: torch.Tensor  # (C,) int64 primary zone index into ``zone_names``, -1 before zoning
@@ -246,14 +254,17 @@ class GraspCandidates:
     # (C, Z) bool: the zones each candidate is rated by (its primary zone and its two side
     # zones), set once by zoning; scoring and records read them. None before zoning.
     rated_zones: torch.Tensor | None = None
+    frame: str = "world"  # the frame of contacts, closing_axis, approach and rotation (``GRASP_FRAMES``)
 
     def __post_init__(self) -> None:
+        if self.frame not in GRASP_FRAMES:
+            raise ValueError(f"frame must be one of {GRASP_FRAMES}, got {self.frame!r}")
         if self.candidate_id is None:
             self.candidate_id = torch.arange(self.width_m.shape[0])
 
     @property
-    def position_world(self) -> torch.Tensor:
-        return self.contacts_world.mean(dim=1)
+    def position(self) -> torch.Tensor:
+        return self.contacts.mean(dim=1)
 
     def __len__(self) -> int:
         return int(self.width_m.shape[0])
@@ -277,8 +288,8 @@ class GraspCandidates:
         others = tuple(name for index, (name, member) in enumerate(zip(self.zone_names, rated)) if member and index != zone)
         return Grasp(
             candidate_id=int(self.candidate_id[i]),
-            contacts_world=self.contacts_world[i],
-            rotation_world=self.rotation_world[i],
+            contacts=self.contacts[i],
+            rotation=self.rotation[i],
             approach=self.approach[i],
             width_m=float(self.width_m[i]),
             ik_solution=self.ik_solution[i],
@@ -287,6 +298,7 @@ class GraspCandidates:
             zone=primary,
             zones=((primary,) if primary is not None else ()) + others,
             score=float(self.score[i]),
+            frame=self.frame,
             terms={
                 "geom": float(self.s_geom[i]),
                 "reach": float(self.s_reach[i]),
@@ -311,19 +323,19 @@ class GraspCandidates:
         order = torch.sort(key, descending=True, stable=True).indices
         return self.select(order)
 
-    def transform(self, transform: torch.Tensor | np.ndarray) -> "GraspCandidates":
-        """The batch moved by a (4, 4) rigid transform, in float64: ``transform(object_from_world)``
-        expresses it in the object frame (fields keep their ``_world`` names, as graspnetAPI's
-        ``GraspGroup.transform`` keeps its)."""
+    def transform(self, transform: torch.Tensor | np.ndarray, frame: str) -> "GraspCandidates":
+        """The batch moved by a (4, 4) rigid transform into ``frame``, in float64:
+        ``transform(object_from_world, "object")`` expresses a world-frame batch in the object frame."""
         matrix = torch.tensor(np.asarray(transform), dtype=torch.float64)  # a copy: a read-only array (from Ray) stays untouched
         if matrix.shape != (4, 4) or not torch.allclose(matrix[:3, :3] @ matrix[:3, :3].T, torch.eye(3, dtype=torch.float64), atol=1e-6):
             raise ValueError(f"transform must be a (4, 4) rigid transform, got shape {tuple(matrix.shape)}")
         rotation, translation = matrix[:3, :3], matrix[:3, 3]
         return self.with_fields(
-            contacts_world=self.contacts_world.double() @ rotation.T + translation,
+            contacts=self.contacts.double() @ rotation.T + translation,
             closing_axis=self.closing_axis.double() @ rotation.T,
             approach=self.approach.double() @ rotation.T,
-            rotation_world=rotation @ self.rotation_world.double(),
+            rotation=rotation @ self.rotation.double(),
+            frame=frame,
         )
 
 

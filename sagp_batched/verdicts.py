@@ -158,12 +158,12 @@ def classify_grasps(
     jaw_limit_m = jaw_width_limit(screened.robot, planner)
     too_wide = screened.width_m[chosen_rows] > jaw_limit_m
     candidates = GraspCandidates(
-        contacts_world=screened.contacts_world[chosen_rows],
+        contacts=screened.contacts_world[chosen_rows],
         closing_axis=screened.closing_axis[chosen_rows],
         width_m=screened.width_m[chosen_rows],
         s_geom=screened.s_geom[chosen_rows],
         approach=approach[picked],
-        rotation_world=rotation[picked],
+        rotation=rotation[picked],
         s_reach=s_reach[picked],
         ik_solution=joint_path[picked, grasp_waypoint_index(config.motion)],
         joint_path=joint_path[picked],

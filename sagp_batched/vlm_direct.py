@@ -171,7 +171,7 @@ def vlm_direct_rank(
     geometric = list(range(min(config.rating.vd_num_candidates, len(candidates))))
     if not geometric:
         return VLMDirectResult([], 0, True, client.backend, client.model, 0.0, "", ["no candidates to rank"])
-    image = draw_candidate_markers(cloud.crop_rgb, project_to_crop(candidates.position_world[: len(geometric)], cloud), config.rating)
+    image = draw_candidate_markers(cloud.crop_rgb, project_to_crop(candidates.position[: len(geometric)], cloud), config.rating)
     start = time.perf_counter()
     try:
         text = client.generate(image, build_vd_prompt(object_name, task, len(geometric)))

@@ -197,7 +197,7 @@ class ZoneDecomposition:
     def zone_candidates(self, candidates: GraspCandidates) -> GraspCandidates:
         """``candidates`` carrying their zones (``zone``, ``rated_zones``, ``zone_names``), found once
         from each contact midpoint's nearest cloud point."""
-        zone, rated = self.candidate_zones(candidates.position_world)
+        zone, rated = self.candidate_zones(candidates.position)
         return dataclasses.replace(candidates, zone=zone, rated_zones=rated, zone_names=self.zone_names)
 
 

@@ -77,8 +77,8 @@ def _trial(rng, n):
     f32 = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
     zeros = torch.zeros(n)
     candidates = GraspCandidates(
-        contacts_world=f32(contacts_world), closing_axis=f32(closing), width_m=f32(width), s_geom=zeros + 0.5,
-        approach=f32(approach), rotation_world=f32(rotation_world), s_reach=zeros + 1.0, ik_solution=torch.zeros(n, 7),
+        contacts=f32(contacts_world), closing_axis=f32(closing), width_m=f32(width), s_geom=zeros + 0.5,
+        approach=f32(approach), rotation=f32(rotation_world), s_reach=zeros + 1.0, ik_solution=torch.zeros(n, 7),
         zone=torch.zeros(n, dtype=torch.int64), s_afford=zeros, s_avoid=zeros, s_task=zeros,
         score=torch.linspace(0.0, 1.0, n), zone_names=("body",),
     )
@@ -170,7 +170,10 @@ def test_exported_ycb_mug_names_its_textured_mesh_relative_to_the_objects_root(t
 def test_acronym_poses_map_back_to_the_planners_grasp_frames():
     from sagp_batched.export import acronym_gripper_transforms_object, planner_frames_from_acronym
 
-    candidates, _, _, _ = _trial(np.random.default_rng(2), 12)
-    centre, rotation = planner_frames_from_acronym(acronym_gripper_transforms_object(candidates))
-    assert np.allclose(centre, candidates.position_world.double().numpy(), atol=1e-6)
-    assert np.allclose(rotation, candidates.rotation_world.double().numpy(), atol=1e-6)
+    candidates, cloud, _, _ = _trial(np.random.default_rng(2), 12)
+    in_object = candidates.transform(cloud.object_from_world, "object")
+    centre, rotation = planner_frames_from_acronym(acronym_gripper_transforms_object(in_object))
+    assert np.allclose(centre, in_object.position.numpy(), atol=1e-6)
+    assert np.allclose(rotation, in_object.rotation.numpy(), atol=1e-6)
+    with pytest.raises(ValueError, match="object frame, got a batch in the world frame"):
+        acronym_gripper_transforms_object(candidates)

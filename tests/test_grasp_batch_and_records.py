@@ -30,9 +30,9 @@ def _batch(n: int, seed: int = 0) -> GraspCandidates:
     closing = rotations[:, :, 1]
     zeros = torch.zeros(n)
     return GraspCandidates(
-        contacts_world=torch.stack([centres - 0.5 * width[:, None] * closing, centres + 0.5 * width[:, None] * closing], dim=1),
+        contacts=torch.stack([centres - 0.5 * width[:, None] * closing, centres + 0.5 * width[:, None] * closing], dim=1),
         closing_axis=closing, width_m=width, s_geom=torch.tensor(rng.uniform(0, 1, n), dtype=torch.float32),
-        approach=rotations[:, :, 2], rotation_world=rotations, s_reach=torch.ones(n), ik_solution=torch.zeros(n, 7),
+        approach=rotations[:, :, 2], rotation=rotations, s_reach=torch.ones(n), ik_solution=torch.zeros(n, 7),
         zone=torch.full((n,), -1, dtype=torch.int64), s_afford=zeros, s_avoid=zeros, s_task=zeros, score=zeros,
         hand_clearance_m=torch.full((n,), 0.02), joint_path=torch.zeros(n, 19, 7),
     )
@@ -51,7 +51,7 @@ def test_indexing_gives_a_typed_grasp_and_slices_give_a_batch_that_keeps_candida
     ranked = batch.ranked_by(batch.s_geom)
     best = ranked[0]
     assert isinstance(best, Grasp) and best.candidate_id == int(torch.argmax(batch.s_geom))
-    assert torch.equal(best.position_world, batch.position_world[best.candidate_id])
+    assert torch.equal(best.position, batch.position[best.candidate_id])
     assert best.terms["geom"] == pytest.approx(float(batch.s_geom.max()))
     assert best.joint_path.shape == (19, 7) and best.hand_clearance_m == pytest.approx(0.02)
     leading = ranked[:2]
@@ -59,7 +59,7 @@ def test_indexing_gives_a_typed_grasp_and_slices_give_a_batch_that_keeps_candida
     with pytest.raises(IndexError):
         ranked[6]
     # The orientation round-trips through the quaternion execution commands.
-    assert np.allclose(Rotation.from_quat(best.quat_xyzw.numpy()).as_matrix(), best.rotation_world.numpy(), atol=1e-6)
+    assert np.allclose(Rotation.from_quat(best.quat_xyzw.numpy()).as_matrix(), best.rotation.numpy(), atol=1e-6)
 
 
 def test_a_grasp_carries_the_zones_zoning_found_primary_first():
@@ -69,7 +69,7 @@ def test_a_grasp_carries_the_zones_zoning_found_primary_first():
     zoned = zones.zone_candidates(_batch(5))
     for i in range(5):
         grasp = zoned[i]
-        primary, rated = zones.candidate_zones(zoned.position_world[i:i + 1])
+        primary, rated = zones.candidate_zones(zoned.position[i:i + 1])
         assert grasp.zone == zones.zone_names[int(primary[0])] == grasp.zones[0]
         assert set(grasp.zones) == {name for name, member in zip(zones.zone_names, rated[0].tolist()) if member}
         assert len(grasp.zones) == 3, "its third and its two sides"
@@ -78,23 +78,27 @@ def test_a_grasp_carries_the_zones_zoning_found_primary_first():
 def test_the_transform_to_the_object_frame_agrees_with_the_clouds_pose_and_keeps_the_grasp_rigid():
     batch = _batch(8)
     cloud = _cloud(torch.zeros(0, 3))
-    in_object = batch.transform(cloud.object_from_world)
-    expected = cloud.in_object_frame(batch.contacts_world.double().numpy().reshape(-1, 3)).reshape(8, 2, 3)
-    assert np.allclose(in_object.contacts_world.numpy(), expected, atol=1e-9)
+    in_object = batch.transform(cloud.object_from_world, "object")
+    assert batch.frame == "world" and in_object.frame == "object" and in_object[0].frame == "object"
+    assert "contacts_object" in in_object[0].record() and "contacts_world" in batch[0].record()
+    expected = cloud.in_object_frame(batch.contacts.double().numpy().reshape(-1, 3)).reshape(8, 2, 3)
+    assert np.allclose(in_object.contacts.numpy(), expected, atol=1e-9)
     # Moving to the object frame and back is the identity; rotations stay rotations.
-    back = in_object.transform(np.linalg.inv(cloud.object_from_world))
-    assert torch.allclose(back.rotation_world, batch.rotation_world.double(), atol=1e-6)
+    back = in_object.transform(np.linalg.inv(cloud.object_from_world), "world")
+    assert torch.allclose(back.rotation, batch.rotation.double(), atol=1e-6)
     assert torch.allclose(back.approach, batch.approach.double(), atol=1e-6)
-    assert torch.allclose(torch.linalg.det(in_object.rotation_world), torch.ones(8, dtype=torch.float64), atol=1e-6)
+    assert torch.allclose(torch.linalg.det(in_object.rotation), torch.ones(8, dtype=torch.float64), atol=1e-6)
     with pytest.raises(ValueError, match="rigid"):
-        batch.transform(np.diag([2.0, 1.0, 1.0, 1.0]))
+        batch.transform(np.diag([2.0, 1.0, 1.0, 1.0]), "object")
+    with pytest.raises(ValueError, match="frame must be one of"):
+        batch.transform(cloud.object_from_world, "camera")
 
 
 def test_a_grasp_given_as_a_pose_holds_its_contacts_across_its_width_and_names_bad_fields():
     quat = Rotation.from_euler("z", 30, degrees=True).as_quat()
     grasp = Grasp.from_pose([0.5, 0.0, 0.7], quat, 0.04, [0.0, 0.0, -2.0])
-    assert np.allclose(grasp.position_world.numpy(), [0.5, 0.0, 0.7])
-    assert float(torch.linalg.norm(grasp.contacts_world[1] - grasp.contacts_world[0])) == pytest.approx(0.04)
+    assert np.allclose(grasp.position.numpy(), [0.5, 0.0, 0.7])
+    assert float(torch.linalg.norm(grasp.contacts[1] - grasp.contacts[0])) == pytest.approx(0.04)
     assert np.allclose(grasp.approach.numpy(), [0.0, 0.0, -1.0])
     with pytest.raises(InvalidGraspError, match="quat_xyzw"):
         Grasp.from_pose([0.5, 0.0, 0.7], [0.0, 0.0, float("nan"), 1.0], 0.04, [0.0, 0.0, -1.0])

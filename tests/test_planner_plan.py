@@ -41,20 +41,20 @@ def test_plan_returns_feasible_candidates_ranked_by_geometry(box_cloud):
     assert torch.equal(candidates.score, candidates.s_geom)
     assert (candidates.zone == -1).all() and (candidates.s_reach >= CONFIG.planner.min_reach).all()
     # Closing axis is grasp y, approach grasp z, and the approach never comes up from under the table.
-    assert torch.allclose(candidates.rotation_world[:, :, 1], candidates.closing_axis)
-    assert torch.allclose(candidates.rotation_world[:, :, 2], candidates.approach)
+    assert torch.allclose(candidates.rotation[:, :, 1], candidates.closing_axis)
+    assert torch.allclose(candidates.rotation[:, :, 2], candidates.approach)
     assert (candidates.approach[:, 2] < 0.5).all()
     # The stored joints put the grasp target on the grasp centre.
     reached = panda_ik(CONFIG).forward(candidates.ik_solution)
-    assert (reached[:, :3, 3] - candidates.position_world).norm(dim=1).max() < ROBOT.ik_position_tolerance_m
+    assert (reached[:, :3, 3] - candidates.position).norm(dim=1).max() < ROBOT.ik_position_tolerance_m
 
 
 def test_plan_is_deterministic_for_a_seed(box_cloud):
     first, second = plan(box_cloud, CONFIG, seed=11).candidates, plan(box_cloud, CONFIG, seed=11).candidates
     other = plan(box_cloud, CONFIG, seed=12).candidates
-    assert torch.equal(first.contacts_world, second.contacts_world)
+    assert torch.equal(first.contacts, second.contacts)
     assert torch.equal(first.ik_solution, second.ik_solution)
-    assert not torch.equal(first.contacts_world, other.contacts_world)
+    assert not torch.equal(first.contacts, other.contacts)
 
 
 def test_plan_batch_matches_single_object_plans(box_cloud, can_cloud):
@@ -62,8 +62,8 @@ def test_plan_batch_matches_single_object_plans(box_cloud, can_cloud):
     for cloud, seed, result in ((box_cloud, 3, batched[0]), (can_cloud, 4, batched[1])):
         single = plan(cloud, CONFIG, seed=seed)
         assert result.counts == single.counts
-        assert torch.equal(result.candidates.contacts_world, single.candidates.contacts_world)
-        assert torch.allclose(result.candidates.rotation_world, single.candidates.rotation_world)
+        assert torch.equal(result.candidates.contacts, single.candidates.contacts)
+        assert torch.allclose(result.candidates.rotation, single.candidates.rotation)
     assert batched[0].times is batched[1].times  # the call's stage times, shared
 
 

@@ -47,9 +47,9 @@ def candidates(n: int) -> GraspCandidates:
     s_geom = torch.linspace(0.5, 0.99, n).flip(0)[torch.randperm(n, generator=torch.Generator().manual_seed(0))]
     zeros = torch.zeros(n)
     return GraspCandidates(
-        contacts_world=torch.stack([midpoints, midpoints], dim=1), closing_axis=torch.tensor([[0.0, 1.0, 0.0]]).repeat(n, 1),
+        contacts=torch.stack([midpoints, midpoints], dim=1), closing_axis=torch.tensor([[0.0, 1.0, 0.0]]).repeat(n, 1),
         width_m=zeros, s_geom=s_geom, approach=torch.tensor([[0.0, 0.0, -1.0]]).repeat(n, 1),
-        rotation_world=torch.eye(3).repeat(n, 1, 1), s_reach=zeros + 1, ik_solution=torch.zeros(n, 7),
+        rotation=torch.eye(3).repeat(n, 1, 1), s_reach=zeros + 1, ik_solution=torch.zeros(n, 7),
         zone=torch.full((n,), -1, dtype=torch.int64), s_afford=zeros, s_avoid=zeros, s_task=zeros, score=s_geom.clone(),
     )
 

@@ -37,9 +37,9 @@ def candidates(midpoints, approaches, closing_axes, s_geom, s_reach=None):
     n = midpoints.shape[0]
     zeros = torch.zeros(n)
     return GraspCandidates(
-        contacts_world=torch.stack([midpoints - 0.02 * closing, midpoints + 0.02 * closing], dim=1),
+        contacts=torch.stack([midpoints - 0.02 * closing, midpoints + 0.02 * closing], dim=1),
         closing_axis=closing, width_m=torch.full((n,), 0.04), s_geom=torch.tensor(s_geom, dtype=torch.float32),
-        approach=torch.tensor(approaches, dtype=torch.float32), rotation_world=torch.eye(3).repeat(n, 1, 1),
+        approach=torch.tensor(approaches, dtype=torch.float32), rotation=torch.eye(3).repeat(n, 1, 1),
         s_reach=torch.tensor(s_reach if s_reach is not None else [1.0] * n, dtype=torch.float32),
         ik_solution=torch.zeros(n, 7), zone=torch.full((n,), -1, dtype=torch.int64),
         s_afford=zeros, s_avoid=zeros, s_task=zeros, score=zeros,
@@ -127,7 +127,7 @@ def test_a_handle_point_in_the_top_third_is_rated_as_the_handle_not_as_the_rim()
     zones, config = mug_zones(), Config()
     upper_handle = [0.05 + 0.038 * math.cos(math.pi / 6), 0.0, 0.04 + 0.038 * math.sin(math.pi / 6)]  # outer surface
     batch = candidates([upper_handle, RIM], [SIDEWAYS, DOWN], [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], s_geom=[0.6, 0.9])
-    members = zones.memberships[zones.nearest_points(batch.position_world)][0]
+    members = zones.memberships[zones.nearest_points(batch.position)][0]
     assert members[zones.zone_names.index("protrusion_1")] and members[zones.zone_names.index("top")], "premise: handle point in the top third"
     handle_grasp = zones.zone_candidates(batch)[0]
     assert handle_grasp.zones[0] == "protrusion_1" and "top" not in handle_grasp.zones
@@ -212,7 +212,7 @@ def test_a_rating_that_calls_protrusion_2_dangerous_moves_grasps_off_it_while_pr
     config = Config()
     on_handle, on_spout = [0.1, 0.0, 0.08], [-0.08, 0.0, 0.145]
     batch = candidates([on_handle, on_spout], [SIDEWAYS, DOWN], [[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]], s_geom=[0.6, 0.9])
-    handle_zone, spout_zone = (zones.zone_names[int(i)] for i in zones.candidate_zones(batch.position_world)[0])
+    handle_zone, spout_zone = (zones.zone_names[int(i)] for i in zones.candidate_zones(batch.position)[0])
     assert (handle_zone, spout_zone) == ("protrusion_1", "protrusion_2")
     both_good = score_zoned(batch, rating(ratings={"protrusion": "good"}), config.weights, zones, config)
     assert torch.allclose(both_good.s_afford, torch.ones(2)) and both_good.candidate_id[0] == 1

@@ -140,7 +140,7 @@ def assert_same_plans(got: list, expected: list) -> None:
     """The same candidates, frames, joint paths, margins, clearances and counts, bit for bit."""
     for result, reference in zip(got, expected, strict=True):
         assert result.counts == reference.counts
-        for field in ("contacts_world", "s_geom", "approach", "rotation_world", "joint_path", "s_reach", "hand_clearance_m"):
+        for field in ("contacts", "s_geom", "approach", "rotation", "joint_path", "s_reach", "hand_clearance_m"):
             assert torch.equal(getattr(result.candidates, field), getattr(reference.candidates, field)), field
 
 

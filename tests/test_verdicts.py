@@ -34,7 +34,7 @@ def test_every_grasp_the_planner_returns_is_classified_feasible(can_cloud):
     assert len(planned) > 0 and classified.covering_size == classified.pool_size
     feasible = classified.candidates.select(classified.verdict == VERDICTS.index("feasible"))
     for i in range(len(planned)):
-        close = (feasible.position_world - planned.position_world[i]).norm(dim=1) < 1e-6
+        close = (feasible.position - planned.position[i]).norm(dim=1) < 1e-6
         aligned = (feasible.approach * planned.approach[i]).sum(dim=1) > 1 - 1e-6
         assert (close & aligned).any(), f"planned grasp {i} is not among the feasible ones"
 
@@ -46,7 +46,7 @@ def test_picked_grasps_are_distinct_span_the_verdicts_and_each_says_why(can_clou
     assert len(classified) == 60 and "feasible" in names and len(set(names)) >= 3
     assert all(reason.startswith(name) for reason, name in zip(classified.reasons, names))
     grasps = classified.candidates
-    same = same_grasp(grasps.position_world, grasps.rotation_world.double(), grasps.position_world, grasps.rotation_world.double(),
+    same = same_grasp(grasps.position, grasps.rotation.double(), grasps.position, grasps.rotation.double(),
                       config.dataset.nms_translation_m, math.radians(config.dataset.nms_rotation_deg))
     assert torch.equal(same, torch.eye(len(grasps), dtype=torch.bool)), "no two picked grasps are the same grasp"
     feasible = classified.verdict == 0

@@ -1,6 +1,7 @@
 """Grasp execution: a sound top-down grasp lifts the soup can; the same grasp beside it lifts nothing."""
 from __future__ import annotations
 
+import dataclasses
 
 import numpy as np
 import pybullet
@@ -78,12 +79,12 @@ def test_ranked_execution_stops_at_the_first_success(can_scene):
     half_width = torch.tensor([0.0, 0.034, 0.0])
     n = 3
     candidates = GraspCandidates(
-        contacts_world=torch.stack([centres - half_width, centres + half_width], dim=1),
+        contacts=torch.stack([centres - half_width, centres + half_width], dim=1),
         closing_axis=torch.tensor([[0.0, 1.0, 0.0]]).repeat(n, 1),
         width_m=torch.full((n,), 0.068),
         s_geom=torch.ones(n),
         approach=torch.tensor(DOWN, dtype=torch.float32).repeat(n, 1),
-        rotation_world=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(n, 1, 1),
+        rotation=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(n, 1, 1),
         s_reach=torch.ones(n),
         ik_solution=torch.tensor(ROBOT.ik_reference_joints, dtype=torch.float32).repeat(n, 1),
         zone=torch.full((n,), -1),
@@ -106,10 +107,10 @@ def test_a_grasp_two_rankings_share_is_simulated_once_and_each_keeps_its_place(c
     centres = torch.tensor(np.stack([beside, on_can]), dtype=torch.float32)
     half_width = torch.tensor([0.0, 0.034, 0.0])
     candidates = GraspCandidates(
-        contacts_world=torch.stack([centres - half_width, centres + half_width], dim=1),
+        contacts=torch.stack([centres - half_width, centres + half_width], dim=1),
         closing_axis=torch.tensor([[0.0, 1.0, 0.0]]).repeat(2, 1), width_m=torch.full((2,), 0.068), s_geom=torch.ones(2),
         approach=torch.tensor(DOWN, dtype=torch.float32).repeat(2, 1),
-        rotation_world=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(2, 1, 1),
+        rotation=torch.tensor(Rotation.from_quat(quat).as_matrix(), dtype=torch.float32).repeat(2, 1, 1),
         s_reach=torch.ones(2), ik_solution=torch.tensor(ROBOT.ik_reference_joints, dtype=torch.float32).repeat(2, 1),
         zone=torch.full((2,), -1), s_afford=torch.zeros(2), s_avoid=torch.zeros(2), s_task=torch.zeros(2), score=torch.ones(2),
     )
@@ -131,6 +132,8 @@ def test_malformed_grasps_are_rejected_with_a_clear_error(can_scene):
         execute_grasp(can_scene, Config(), Grasp.from_pose(position[:2], quat, 0.05, DOWN))
     with pytest.raises(InvalidGraspError, match="width_m"):
         execute_grasp(can_scene, Config(), Grasp.from_pose(position, quat, 0.2, DOWN))
+    with pytest.raises(InvalidGraspError, match="object frame"):
+        execute_grasp(can_scene, Config(), dataclasses.replace(Grasp.from_pose(position, quat, 0.05, DOWN), frame="object"))
 
 
 def test_the_executed_joint_path_is_the_planned_one(can_scene):

@@ -128,12 +128,12 @@ def _planned_candidates(screened: ScreenedCandidates, search: CandidateSearch, m
     joint_path, s_reach = motions.kept(kept, slot)
     per_object = torch.bincount(candidate_object[kept], minlength=n_objects).tolist()
     fields = {
-        "contacts_world": screened.contacts_world[kept],
+        "contacts": screened.contacts_world[kept],
         "closing_axis": screened.closing_axis[kept],
         "width_m": screened.width_m[kept],
         "s_geom": screened.s_geom[kept],
         "approach": approach,
-        "rotation_world": rotation,
+        "rotation": rotation,
         "s_reach": s_reach,
         "ik_solution": joint_path[:, grasp_waypoint_index(config.motion)],
         "joint_path": joint_path,
