@@ -209,16 +209,29 @@ def hand_clearance(
         raise ValueError(f"rotation must be (C, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
     if low.shape != high.shape or low.shape[1] != directions.shape[0] or directions.shape[0] < 3:
         raise ValueError(f"low and high must be (S, D) with D = {directions.shape[0]} >= 3, got {tuple(low.shape)} and {tuple(high.shape)}")
-    n_candidates = centre.shape[0]
     middle = ((low + high) / 2)[:, :, None, None]  # (S, D, 1, 1)
     half = ((high - low) / 2)[:, :, None, None]
     axes = directions @ rotation.transpose(-1, -2)  # (C, D, 3): u_d^T R^T
-    clearance = torch.full((n_candidates,), float("inf"))
+    clearance = _probe_clearance(probe_points, object_index, centre, axes, middle, half, chunk_elements)
+    slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
+    clearance = _lowered_by_points(points, object_index, centre, axes, middle, half, clearance, margin_m, slack_m, chunk_elements)
+    return HandClearance(clearance < margin_m, clearance)
+
+
+def _probe_clearance(
+    probe_points: torch.Tensor, object_index: torch.Tensor, centre: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor,
+    half: torch.Tensor, chunk_elements: int,
+) -> torch.Tensor:
+    """(C,) each candidate's least exact separation of its probes, the least by the lower bound in
+    each run of its block's (B, P, 3) ``probe_points``; inf where its scene has none. ``axes``:
+    (C, D, 3) the candidates' k-DOP directions in the world frame; ``middle`` and ``half``:
+    (S, D, 1, 1) slabs."""
+    clearance = torch.full((centre.shape[0],), float("inf"))
     probe_extent = scene_extents(probe_points)
     # Probe blocks are sized by the probes' own bound tensor, at their runs' padded width.
     n_runs = probe_extent.clamp_max(PROBE_RUNS)
     padded_extent = n_runs * torch.where(n_runs > 0, -(-probe_extent // n_runs.clamp_min(1)), 0)
-    probe_budget = min(chunk_elements, PROBE_BLOCK_ELEMENTS) // max(1, low.shape[0] * 3)
+    probe_budget = min(chunk_elements, PROBE_BLOCK_ELEMENTS) // max(1, middle.shape[0] * 3)
     for start, end, _ in row_blocks(object_index, padded_extent, probe_budget):
         block = slice(start, end)
         scene, block_axes = object_index[block], axes[block, :3]
@@ -235,12 +248,21 @@ def hand_clearance(
         picked = _least_per_run(_bound_from_world(block_probes, scene, block_axes, centre[block], middle, half), n_runs)
         probe = block_probes[scene[:, None], picked] - centre[block, None, :]  # (c, runs, 3)
         clearance[block] = _separation(probe, axes[block], middle, half).amin(dim=1)
-    slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
-    # The rest only where the probes left the gripper clear, in blocks of those candidates; there
-    # only points whose bound is under the probes' clearance can block it or lower that clearance.
+    return clearance
+
+
+def _lowered_by_points(
+    points: torch.Tensor, object_index: torch.Tensor, centre: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor,
+    half: torch.Tensor, clearance: torch.Tensor, margin_m: float, slack_m: float, chunk_elements: int,
+) -> torch.Tensor:
+    """(C,) ``clearance`` lowered, where it is at least ``margin_m``, to the least exact separation
+    of any of the scene's (B, N, 3) ``points``, evaluated only where the lower bound less
+    ``slack_m`` falls under it; in place. ``axes``, ``middle``, ``half``: as for ``_probe_clearance``."""
+    # Only where the probes left the gripper clear, in blocks of those candidates; there only
+    # points whose bound is under the probes' clearance can block it or lower that clearance.
     open_rows = (clearance >= margin_m).nonzero().squeeze(1)
     extent = scene_extents(points)
-    for start, end, width in row_blocks(object_index[open_rows], extent, chunk_elements // max(1, low.numel())):
+    for start, end, width in row_blocks(object_index[open_rows], extent, chunk_elements // max(1, middle.numel())):
         rows = open_rows[start:end]
         scene, row_axes = object_index[rows], axes[rows]
         block_points = points[:, :width]
@@ -249,4 +271,4 @@ def hand_clearance(
         if int(per_row.max()):
             found = _separation(_compacted(block_points, scene, centre[rows], candidates, per_row), row_axes, middle, half).amin(dim=1)
             clearance[rows] = torch.minimum(clearance[rows], found)
-    return HandClearance(clearance < margin_m, clearance)
+    return clearance

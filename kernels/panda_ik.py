@@ -117,23 +117,9 @@ def panda_ik_closed_form(
     n_targets, n_q7 = q7.shape
     lower, upper = lower.tolist(), upper.tolist()
     q7 = q7.to(rotation_link7.dtype)
-    cos7, sin7 = torch.cos(q7)[..., None], torch.sin(q7)[..., None]
-    x7, y7, z7 = (rotation_link7[:, None, :, axis] for axis in range(3))  # (N, 1, 3) each
-    x6 = cos7 * x7 - sin7 * y7  # (N, K, 3)
-    y6 = (-z7).expand_as(x6)
-    z6 = torch.linalg.cross(x6, y6)
-    shoulder = position_link7.new_tensor([0.0, 0.0, geometry.shoulder_height_m])
-    shoulder_to_wrist = position_link7[:, None, :] - geometry.wrist_offset_m * x6 - shoulder  # O6 - O2, (N, K, 3)
-
-    # Elbow: |O6 - O2|^2 = L + 2 (A cos q4 + B sin q4) with the constants below.
+    x6, y6, z6, shoulder_to_wrist = _wrist(rotation_link7, position_link7, q7, geometry)
+    q4, elbow_ok = _elbow(shoulder_to_wrist, geometry, lower[3], upper[3])
     a3, d3, a4, d5 = geometry.elbow_offset_m, geometry.upper_arm_m, geometry.elbow_return_m, geometry.forearm_m
-    length_sq = a3**2 + d3**2 + a4**2 + d5**2
-    coeff_cos, coeff_sin = a3 * a4 + d3 * d5, d3 * a4 - a3 * d5
-    amplitude, phase = math.hypot(coeff_cos, coeff_sin), math.atan2(coeff_sin, coeff_cos)
-    elbow_ratio = (shoulder_to_wrist.square().sum(dim=-1) - length_sq) / (2.0 * amplitude)  # (N, K)
-    elbow_spread = torch.acos(elbow_ratio.clamp(-1.0, 1.0))
-    q4, q4_inside = _into_limits(_wrap(phase + torch.stack((-elbow_spread, elbow_spread), dim=-1)), lower[3], upper[3])
-    elbow_ok = q4_inside & (elbow_ratio.abs() <= 1.0 + ROUNDING_SLACK)[..., None]  # (N, K, 2)
     cos4, sin4 = torch.cos(q4), torch.sin(q4)
     u_x = -a3 * cos4 - d3 * sin4 - a4  # O2 - O5 in frame 4, (N, K, 2)
     u_y = a3 * sin4 - d3 * cos4 - d5
@@ -157,16 +143,53 @@ def panda_ik_closed_form(
     )
     q7_inside = (q7 >= lower[6]) & (q7 <= upper[6])
     valid = q1_inside & q2_inside & q3_inside & arm_ok[..., None] & q7_inside[..., None, None, None]
+    joints = _joint_major(q1, q2, q3, q4, q5, q6, q7)
+    return PandaIKSolutions(
+        joints=joints.reshape(7, n_targets, n_q7, N_BRANCHES).permute(1, 2, 3, 0), valid=valid.reshape(n_targets, n_q7, N_BRANCHES)
+    )
 
+
+def _wrist(
+    rotation_link7: torch.Tensor, position_link7: torch.Tensor, q7: torch.Tensor, geometry: PandaArmGeometry
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Frame 6's axes x6, y6, z6 in the base frame and the wrist's offset from the shoulder O6 - O2,
+    (N, K, 3) each, for (N, 3, 3) / (N, 3) poses of frame 7 and (N, K) ``q7`` in their dtype."""
+    cos7, sin7 = torch.cos(q7)[..., None], torch.sin(q7)[..., None]
+    x7, y7, z7 = (rotation_link7[:, None, :, axis] for axis in range(3))  # (N, 1, 3) each
+    x6 = cos7 * x7 - sin7 * y7  # (N, K, 3)
+    y6 = (-z7).expand_as(x6)
+    z6 = torch.linalg.cross(x6, y6)
+    shoulder = position_link7.new_tensor([0.0, 0.0, geometry.shoulder_height_m])
+    shoulder_to_wrist = position_link7[:, None, :] - geometry.wrist_offset_m * x6 - shoulder  # O6 - O2, (N, K, 3)
+    return x6, y6, z6, shoulder_to_wrist
+
+
+def _elbow(shoulder_to_wrist: torch.Tensor, geometry: PandaArmGeometry, lower: float, upper: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """q4 (N, K, 2) of the two elbow branches that span the wrist's offset O6 - O2 (N, K, 3) from
+    the shoulder, inside joint 4's limits [``lower``, ``upper``] where it can be, and whether each
+    branch is a real solution inside them, (N, K, 2) bool."""
+    # |O6 - O2|^2 = L + 2 (A cos q4 + B sin q4) with the constants below.
+    a3, d3, a4, d5 = geometry.elbow_offset_m, geometry.upper_arm_m, geometry.elbow_return_m, geometry.forearm_m
+    length_sq = a3**2 + d3**2 + a4**2 + d5**2
+    coeff_cos, coeff_sin = a3 * a4 + d3 * d5, d3 * a4 - a3 * d5
+    amplitude, phase = math.hypot(coeff_cos, coeff_sin), math.atan2(coeff_sin, coeff_cos)
+    elbow_ratio = (shoulder_to_wrist.square().sum(dim=-1) - length_sq) / (2.0 * amplitude)  # (N, K)
+    elbow_spread = torch.acos(elbow_ratio.clamp(-1.0, 1.0))
+    q4, q4_inside = _into_limits(_wrap(phase + torch.stack((-elbow_spread, elbow_spread), dim=-1)), lower, upper)
+    return q4, q4_inside & (elbow_ratio.abs() <= 1.0 + ROUNDING_SLACK)[..., None]
+
+
+def _joint_major(
+    q1: torch.Tensor, q2: torch.Tensor, q3: torch.Tensor, q4: torch.Tensor, q5: torch.Tensor, q6: torch.Tensor, q7: torch.Tensor
+) -> torch.Tensor:
+    """(7, N, K, 2, 2, 2) every branch's joints, from (N, K, 2, 2, 2) ``q1`` to ``q3``, (N, K, 2)
+    ``q4``, (N, K, 2, 2) ``q5`` and ``q6`` and (N, K) ``q7``."""
     shape = q1.shape
     # Stacked joint-major: seven contiguous copies, where stacking along a last axis of 7
     # writes every value with a stride of 7 (several times slower).
-    joints = torch.stack(
+    return torch.stack(
         (q1, q2, q3, q4[..., None, None].expand(shape), q5[..., None].expand(shape), q6[..., None].expand(shape),
          q7[..., None, None, None].expand(shape)),
-    )
-    return PandaIKSolutions(
-        joints=joints.reshape(7, n_targets, n_q7, N_BRANCHES).permute(1, 2, 3, 0), valid=valid.reshape(n_targets, n_q7, N_BRANCHES)
     )
 
 

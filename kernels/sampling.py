@@ -90,6 +90,18 @@ def sample_guided_pair_indices(
     if n_points * (n_points - 1) < min(n_pairs * n_proposals, QUALITY_TABLE_MAX_ENTRIES + 1):
         table = _proposal_quality_table(points, normals, min_width_m, max_width_m)
         return torch.stack((first, _best_proposals_from_table(table, first, n_proposals, generator)), dim=1)
+    second = _best_proposals_by_scoring(points, normals, first, n_proposals, min_width_m, max_width_m, generator, chunk_elements)
+    return torch.stack((first, second), dim=1)
+
+
+def _best_proposals_by_scoring(
+    points: torch.Tensor, normals: torch.Tensor, first: torch.Tensor, n_proposals: int, min_width_m: float, max_width_m: float,
+    generator: torch.Generator, chunk_elements: int,
+) -> torch.Tensor:
+    """(P,) int64 second points of the pairs with anchors ``first`` (P,): ``n_proposals`` proposals
+    drawn per pair from ``generator``, the best of each by ``_proposal_quality`` on (N, 3)
+    ``points`` and ``normals``, the first among equals."""
+    n_pairs, n_points = first.shape[0], points.shape[0]
     second = torch.empty_like(first)
     chunk_pairs = max(1, chunk_elements // n_proposals)
     # Proposals are drawn a chunk at a time and scored a block at a time into work tensors made
@@ -108,7 +120,7 @@ def sample_guided_pair_indices(
             quality = _proposal_quality(points, normals, anchor, proposal, work, min_width_m, max_width_m)
             # argmax of an all -inf row is 0, the first proposal: the fallback needs no special case.
             second[start + block : start + block + anchor.shape[0]] = proposal.gather(1, quality.argmax(dim=1, keepdim=True)).squeeze(1)
-    return torch.stack((first, second), dim=1)
+    return second
 
 
 def _best_proposals_from_table(table: torch.Tensor, first: torch.Tensor, n_proposals: int, generator: torch.Generator) -> torch.Tensor:

@@ -65,7 +65,7 @@ def test_a_table_check_of_no_poses_returns_no_verdicts():
 
     from sagp_batched.planning import hand_geometry
     from sagp_batched.robot import load_robot
-    from sagp_batched_kernels.gripper_volume import table_penetration
+    from sagp_batched_kernels.table_penetration import table_penetration
 
     config = load_config("dataset")
     points = hand_geometry(load_robot()).vertices()

@@ -11,7 +11,8 @@ from sagp_batched.config import Config
 from sagp_batched.planning import gripper_geometry
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.gripper_volume import gripper_occupancy, gripper_occupancy_within
+from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
+from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 from sagp_batched_kernels.sampling import sample_pair_indices
 from sagp_batched.robot import load_robot
 

@@ -12,7 +12,7 @@ from sagp_batched.hand import DOP_DIRECTIONS
 from sagp_batched.robot import load_robot
 from sagp_batched.planning import gripper_geometry, hand_geometry, plan
 from sagp_batched_kernels.grasp_frames import grasp_rotations
-from sagp_batched_kernels.gripper_volume import gripper_occupancy
+from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
 from sagp_batched_kernels.hand_clearance import hand_clearance
 
 ROBOT = load_robot()

@@ -25,9 +25,8 @@ from sagp_batched.planning import (
 )
 from sagp_batched.planning.lookahead import MotionVerdicts, ScreenVerdicts
 from sagp_batched.planning.search import segment_exclusive_cumsum
-from sagp_batched_kernels import gripper_volume
-from sagp_batched_kernels.gripper_volume import table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance
+from sagp_batched_kernels.table_penetration import TABLE_BLOCK_POSES, table_penetration
 
 ROBOT = load_robot()
 
@@ -104,12 +103,12 @@ def test_the_table_check_decides_every_pose_as_checking_every_hull_point_does(yc
     assert 0.05 < through.float().mean() < 0.95
 
 
-@pytest.mark.parametrize(("shift_m", "block_poses"), [((0.0, 0.0, 0.0), gripper_volume.TABLE_BLOCK_POSES), ((30.0, -20.0, 10.0), 13)])
+@pytest.mark.parametrize(("shift_m", "block_poses"), [((0.0, 0.0, 0.0), TABLE_BLOCK_POSES), ((30.0, -20.0, 10.0), 13)])
 def test_the_table_check_decides_poses_whose_lowest_point_lies_exactly_at_the_table_top_as_every_point_does(ycb_clouds, monkeypatch, shift_m, block_poses):
     """Table tops equal to some poses' exact lowest heights (at the grasp or the pre-grasp), where
     the verdict turns on equality, also with the scene moved far from the origin and with GEMMs of
     a few poses each."""
-    monkeypatch.setattr(gripper_volume, "TABLE_BLOCK_POSES", block_poses)
+    monkeypatch.setattr("sagp_batched_kernels.table_penetration.TABLE_BLOCK_POSES", block_poses)
     screened = screen_candidates([ycb_clouds["025_mug"]], CONFIG, [0])
     hand = hand_geometry(ROBOT)
     centre, rotation = screened.centre_world + torch.tensor(shift_m), screened.rotation_world

@@ -1,7 +1,7 @@
 """The open gripper as the planner models it: its collision proxies, its hulls, its jaw width."""
 from __future__ import annotations
 
-from sagp_batched_kernels.gripper_volume import GripperGeometry
+from sagp_batched_kernels.gripper_occupancy import GripperGeometry
 
 from ..config import PlannerConfig
 from ..hand import HandGeometry, load_hand_geometry

@@ -11,8 +11,9 @@ import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.gripper_volume import gripper_occupancy_within, table_cover, table_penetration
 from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
+from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
+from sagp_batched_kernels.table_penetration import table_cover, table_penetration
 
 from ..config import Config, MemoryConfig, PlannerConfig
 from ..hand import DOP_DIRECTIONS

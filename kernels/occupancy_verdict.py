@@ -1,20 +1,6 @@
-"""Collision proxies for a parallel-jaw gripper: swept-volume occupancy and table penetration.
-
-The gripper is described in the grasp frame (origin at the contact midpoint, y = closing axis,
-z = approach, see ``grasp_frames``) by three axis-aligned boxes:
-
-* two finger slabs, one outside each contact: |x| <= finger_width/2, z from the finger root to the
-  fingertip, and |y| from just outside the contact (width/2 + contact_clearance) out to the open
-  finger's back face (open_width/2 + finger_thickness). This is the volume each finger sweeps while
-  closing from fully open to the contacts, so any point in it is something the finger would hit
-  before touching the grasped surface: the published method's "box swept between the fingers".
-* the palm: |x| <= palm_width/2, |y| <= palm_span/2, from the finger root back by palm_depth.
-
-Points between the contacts (|y| < width/2) are the part being grasped and are not counted; the
-``contact_clearance`` keeps the grasped surfaces' own points (which lie at |y| ~ width/2) out of
-the count.
-
-The table check (``table_penetration``) takes any set of gripper points in the grasp frame.
+"""The volume verdict: whether each pose's gripper holds at most a limit of points, decided as
+``gripper_occupancy``'s exhaustive count would decide it, from bounds on the count that most poses
+settle without that count (see ``gripper_occupancy_within``).
 """
 from __future__ import annotations
 
@@ -24,10 +10,8 @@ from typing import NamedTuple
 
 import torch
 
-from .grasp_frames import scene_points_about
+from .gripper_occupancy import GripperGeometry, gripper_occupancy
 
-# Float32 rounding of the table check's bounds (a few 1e-8 m at these sizes) is far inside this.
-TABLE_BOUND_SLACK_M = 1e-5
 # How far the volume verdict's coordinates may stray from the exhaustive GEMM's: twice the most
 # that their rounding moves them (for grasp centres within ~4.8 m, L1, of the origin; see
 # ``gripper_occupancy_within``).
@@ -36,125 +20,6 @@ VOLUME_SLACK_M = 2e-5
 # at 5,000 and at 500,000 pairs, blocks of 32k to 256k pairs took ever less time (fewer Python
 # rounds), the plans' chunk_elements capping them here.
 VOLUME_BLOCK_ELEMENTS = 262_144
-# Poses whose heights of hand points the table check takes from one GEMM: the heights (~1 MB for
-# the 32-point cover) stay in cache for the minimum that follows (at 500,000 pairs one GEMM over
-# every pose of a block of candidates made the check ~4x slower); 4,096 to 16,384 measured alike.
-TABLE_BLOCK_POSES = 8192
-# Points that bound a pose's lowest hand point for the table check: 32 of the hand's 204 hull
-# vertices cover every vertex within 2.5 cm, leaving ~10 % of a cloud's poses to check on all.
-TABLE_COVER_POINTS = 32
-
-
-class GripperOccupancy(NamedTuple):
-    """Points inside each candidate gripper, split by part: (C, K) int64 each."""
-
-    fingers: torch.Tensor  # inside the two swept finger slabs
-    palm: torch.Tensor  # inside the palm box
-
-    @property
-    def total(self) -> torch.Tensor:
-        """Points inside the finger slabs or the palm (the boxes are disjoint along z)."""
-        return self.fingers + self.palm
-
-
-class GripperGeometry(NamedTuple):
-    """Gripper dimensions in metres, grasp frame (see module docstring)."""
-
-    open_width_m: float
-    finger_width_m: float
-    finger_thickness_m: float
-    finger_length_m: float
-    fingertip_offset_m: float  # how far the fingertips reach beyond the grasp point along +z
-    palm_width_m: float
-    palm_span_m: float
-    palm_depth_m: float
-    contact_clearance_m: float
-
-    @property
-    def finger_y_max(self) -> float:
-        """Outer |y| of the finger slabs: the open finger's back face."""
-        return self.open_width_m / 2 + self.finger_thickness_m
-
-    @property
-    def finger_z_min(self) -> float:
-        """The finger root along z, where the fingers meet the palm."""
-        return self.fingertip_offset_m - self.finger_length_m
-
-    @property
-    def palm_z_min(self) -> float:
-        """The palm's back face along z."""
-        return self.finger_z_min - self.palm_depth_m
-
-
-def gripper_occupancy(
-    points: torch.Tensor,
-    object_index: torch.Tensor,
-    centre: torch.Tensor,
-    rotation: torch.Tensor,
-    width_m: torch.Tensor,
-    geometry: GripperGeometry,
-    chunk_elements: int,
-    poses: torch.Tensor | None = None,
-) -> GripperOccupancy:
-    """Count the points inside each candidate gripper's swept finger slabs and its palm.
-
-    Args:
-        points: (B, N, 3) points of B scenes (object plus obstacle points), world frame, metres.
-            Scenes with fewer points are padded with NaN rows, which are never inside.
-        object_index: (C,) int64 scene of each candidate, in [0, B).
-        centre: (C, 3) grasp centres (contact midpoints), world frame.
-        rotation: (C, K, 3, 3) grasp rotations (grasp frame -> world) for K approaches per candidate.
-        width_m: (C,) contact distances.
-        geometry: gripper dimensions.
-        chunk_elements: bound on the number of (candidate, approach, point) triples held in
-            memory at once; work is split over candidates to respect it.
-        poses: optional (C, K) bool, the (candidate, approach) poses to count (default all);
-            the others are reported as 0.
-
-    Returns:
-        ``GripperOccupancy`` of (C, K) int64 counts: finger slabs, palm and their ``total``.
-    """
-    if points.ndim != 3 or points.shape[-1] != 3:
-        raise ValueError(f"points must be (B, N, 3), got {tuple(points.shape)}")
-    if rotation.ndim != 4 or rotation.shape[-2:] != (3, 3) or rotation.shape[0] != centre.shape[0]:
-        raise ValueError(f"rotation must be (C, K, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
-    n_candidates, n_approaches = rotation.shape[:2]
-    if poses is None:
-        poses = torch.ones(n_candidates, n_approaches, dtype=torch.bool)
-    n_points = points.shape[1]
-    finger_z_max, finger_z_min, palm_z_min = geometry.fingertip_offset_m, geometry.finger_z_min, geometry.palm_z_min
-    finger_y_max = geometry.finger_y_max
-    finger_z_mid, finger_z_half = (finger_z_min + finger_z_max) / 2, (finger_z_max - finger_z_min) / 2
-    palm_z_mid, palm_z_half = (palm_z_min + finger_z_min) / 2, (finger_z_min - palm_z_min) / 2
-    finger_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
-    palm_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
-    step = max(1, chunk_elements // max(1, n_approaches * n_points))
-    counted = poses.any(dim=1).nonzero().squeeze(1)
-    for start in range(0, counted.numel(), step):
-        rows = counted[start : start + step]
-        chosen = poses[rows].reshape(-1).nonzero().squeeze(1)  # flat (candidate, approach) in the chunk
-        relative = scene_points_about(points, object_index[rows], centre[rows])  # (c, N, 3)
-        # Grasp-frame coordinates R^T (p - centre) as one batched GEMM with the points along the
-        # long output dimension: (c, K*3, 3) @ (c, 3, N) -> (c, K, 3, N). Every approach takes
-        # part even where only some are counted: the GEMM's rounding depends on its shape.
-        grasp_axes = rotation[rows].transpose(-1, -2).reshape(rows.numel(), n_approaches * 3, 3)
-        local = (grasp_axes @ relative.transpose(1, 2)).view(-1, 3, n_points)[chosen]  # (R, 3, N)
-        abs_x = local[:, 0].abs()
-        abs_y = local[:, 1].abs()
-        z = local[:, 2]
-        # Each interval test is one |value - middle| <= half-length comparison to halve the passes
-        # over the (R, N) coordinates, the planner's most expensive tensors.
-        finger_y_min = (width_m[rows] / 2 + geometry.contact_clearance_m).repeat_interleave(n_approaches)[chosen, None]
-        in_finger_y = (abs_y - (finger_y_min + finger_y_max) / 2).abs() <= (finger_y_max - finger_y_min) / 2
-        in_finger_xz = (abs_x <= geometry.finger_width_m / 2) & ((z - finger_z_mid).abs() <= finger_z_half)
-        in_fingers = in_finger_y & in_finger_xz
-        in_palm_xy = (abs_y <= geometry.palm_span_m / 2) & (abs_x <= geometry.palm_width_m / 2)
-        in_palm = in_palm_xy & ((z - palm_z_mid).abs() <= palm_z_half)
-        pose_index = (rows[:, None] * n_approaches + torch.arange(n_approaches)).view(-1)[chosen]
-        finger_counts[pose_index] = in_fingers.sum(dim=-1)
-        palm_counts[pose_index] = in_palm.sum(dim=-1)
-    shape = (n_candidates, n_approaches)
-    return GripperOccupancy(finger_counts.view(shape), palm_counts.view(shape))
 
 
 class _Layout(NamedTuple):
@@ -210,6 +75,23 @@ def gripper_occupancy_within(
         (C, K) bool: ``poses & (gripper_occupancy(...).total.to(float32) <= limit[:, None])``.
     """
     n_candidates, n_approaches = rotation.shape[:2]
+    layout, pose_row, pose_slot = _closing_layout(poses, object_index, centre, rotation, width_m, geometry)
+    pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
+    maybe, surely = _pose_bounds(layout, points.permute(2, 0, 1).contiguous(), geometry, pose_budget)
+    pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= _centre_reach_l1(geometry)
+    within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
+    undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
+    within[pose_row, pose_slot] = pose_ok & (maybe <= pose_limit)
+    undecided[pose_row, pose_slot] = ~pose_ok | ((maybe > pose_limit) & (surely <= pose_limit))
+    return _counted_where_undecided(within, undecided, points, object_index, centre, rotation, width_m, geometry, limit, chunk_elements)
+
+
+def _closing_layout(
+    poses: torch.Tensor, object_index: torch.Tensor, centre: torch.Tensor, rotation: torch.Tensor, width_m: torch.Tensor, geometry: GripperGeometry
+) -> tuple[_Layout, torch.Tensor, torch.Tensor]:
+    """The (C, K) bool ``poses`` to decide, laid out for ``_pose_bounds`` in groups that share one
+    closing axis; and each laid-out pose's candidate and approach, (R,) int64 each, in that order."""
+    n_approaches = rotation.shape[1]
     finger_z_max, finger_z_min, finger_y_max = geometry.fingertip_offset_m, geometry.finger_z_min, geometry.finger_y_max
     pose_row, pose_slot = poses.nonzero(as_tuple=True)
     # The poses in groups that share one closing axis, then each pose's grasp axes as rows
@@ -229,14 +111,7 @@ def gripper_occupancy_within(
         closing_axis, closing_offset, (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2, scene,
         ((scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1).tolist(), axes[:, 0::2].transpose(0, 1), offset[:, 0::2].transpose(0, 1), classes,
     )
-    pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
-    maybe, surely = _pose_bounds(layout, points.permute(2, 0, 1).contiguous(), geometry, pose_budget)
-    pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= _centre_reach_l1(geometry)
-    within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-    undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-    within[pose_row, pose_slot] = pose_ok & (maybe <= pose_limit)
-    undecided[pose_row, pose_slot] = ~pose_ok | ((maybe > pose_limit) & (surely <= pose_limit))
-    return _counted_where_undecided(within, undecided, points, object_index, centre, rotation, width_m, geometry, limit, chunk_elements)
+    return layout, pose_row, pose_slot
 
 
 def _centre_reach_l1(geometry: GripperGeometry) -> float:
@@ -396,83 +271,3 @@ def _counted_where_undecided(
         within[exhaustive] = torch.where(mine, occupancy.total.to(torch.float32) <= limit[exhaustive, None], within[exhaustive])
     return within
 
-
-def table_penetration(
-    centre: torch.Tensor,
-    rotation: torch.Tensor,
-    gripper_points_local: torch.Tensor,
-    retreat_m: float,
-    table_top_z_m: float,
-    cover: tuple[torch.Tensor, float] | None = None,
-) -> torch.Tensor:
-    """Whether the open gripper dips below the table top at the grasp or at the pre-grasp pose.
-
-    The pre-grasp pose is the grasp pose moved ``retreat_m`` back along the approach (grasp -z).
-
-    Args:
-        centre: (C, 3) grasp centres, world frame, metres.
-        rotation: (C, K, 3, 3) grasp rotations (grasp frame -> world).
-        gripper_points_local: (M, 3) points bounding the open gripper (e.g. its collision hulls'
-            vertices) in the grasp frame, metres.
-        retreat_m: pre-grasp distance back along the approach, metres.
-        table_top_z_m: world height of the table top, metres.
-        cover: ``table_cover(gripper_points_local)``, if the caller keeps it for fixed points
-            (default: computed here).
-
-    Returns:
-        (C, K) bool, True where some gripper point is below the table top at either pose.
-    """
-    # Only world z matters: z_world = centre_z + R[2, :] . point.
-    row_z = rotation[..., 2, :]  # (C, K, 3)
-    points = gripper_points_local.to(rotation)
-    drop = retreat_m * rotation[..., 2, 2]  # (C, K) the pre-grasp's lowest point is this much lower
-    # Most poses are decided by a few points: the lowest of a subset that covers every point
-    # within ``reach`` bounds the lowest point from above (it is a real point) and, less
-    # ``reach``, from below (z is 1-Lipschitz in the point, the rows of R being unit). Only poses
-    # whose bounds straddle the table top are evaluated on every point, with the same GEMM as the
-    # exhaustive check, so every verdict is bit-for-bit the exhaustive one; the slack absorbs the
-    # bounds' float32 rounding.
-    subset, reach = table_cover(points) if cover is None else cover
-    upper = centre[:, 2, None] + _lowest_along(row_z, points[subset])
-    lower = upper - reach
-    through = (upper < table_top_z_m - TABLE_BOUND_SLACK_M) | (upper - drop < table_top_z_m - TABLE_BOUND_SLACK_M)
-    clear = (lower >= table_top_z_m + TABLE_BOUND_SLACK_M) & (lower - drop >= table_top_z_m + TABLE_BOUND_SLACK_M)
-    poses, slots = (~(through | clear)).nonzero(as_tuple=True)
-    if not poses.numel():
-        return through
-    # MKL picks another summation order for GEMMs of fewer than 4 rows; padding the batch to 8
-    # rows keeps the exhaustive check's rounding.
-    padded = torch.cat((poses, poses.new_zeros(max(0, 8 - poses.numel()))))
-    padded_slots = torch.cat((slots, slots.new_zeros(max(0, 8 - slots.numel()))))
-    # Rounding is monotonic, so adding the centre's height to the lowest of the GEMM's heights
-    # gives the lowest of the heights with it added, bit for bit, at one addition per pose.
-    lowest_grasp = centre[poses, 2] + _lowest_along(row_z[padded, padded_slots], points)[: poses.numel()]
-    # Retreating along -approach changes every point's height by -retreat * approach_z.
-    lowest_pregrasp = lowest_grasp - drop[poses, slots]
-    through[poses, slots] = (lowest_grasp < table_top_z_m) | (lowest_pregrasp < table_top_z_m)
-    return through
-
-
-def _lowest_along(directions: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """(...) the least of (M, 3) ``points``' heights along each of (..., 3) ``directions``: the
-    minima of ``directions @ points.T``, in near-equal GEMMs of at most ``TABLE_BLOCK_POSES``
-    directions and at least half as many unless there are fewer in all: never the fewer than 4
-    rows that MKL rounds otherwise, so each height rounds as in one GEMM over every direction."""
-    n_blocks = -(-directions[..., 0].numel() // TABLE_BLOCK_POSES)
-    # amin, not min: min also finds the indices, which made it several times slower.
-    if n_blocks <= 1:  # most calls: no split and concatenation, ~10 us each
-        return (directions @ points.T).amin(dim=-1)
-    blocks = directions.reshape(-1, 3).tensor_split(n_blocks)
-    return torch.cat([(block @ points.T).amin(dim=1) for block in blocks]).view(directions.shape[:-1])
-
-
-def table_cover(points: torch.Tensor) -> tuple[torch.Tensor, float]:
-    """The ``TABLE_COVER_POINTS`` farthest-point subset of (M, 3) ``points`` that ``table_penetration``
-    bounds poses by: (S,) indices and the largest distance (metres) from any point to its nearest
-    subset point."""
-    chosen = [0]
-    distance = (points - points[0]).norm(dim=1)
-    for _ in range(min(TABLE_COVER_POINTS, points.shape[0]) - 1):
-        chosen.append(int(distance.argmax()))
-        distance = torch.minimum(distance, (points - points[chosen[-1]]).norm(dim=1))
-    return torch.tensor(chosen), float(distance.max()) if points.shape[0] else 0.0
