@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sagp_batched.functional_regions import RegionBox, load_regions, mesh_vertices
+from sagp_batched.world.functional_regions import RegionBox, load_regions, mesh_vertices
 
 GRID_M = 0.01
 # (title, index of the horizontal axis, index of the vertical axis)

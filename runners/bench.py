@@ -28,10 +28,10 @@ from pathlib import Path
 
 import torch
 
-from sagp_batched.benchmark import BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud
-from sagp_batched.ik_benchmark import benchmark_ik
+from sagp_batched.benchmarks.planner_speed import BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud
+from sagp_batched.benchmarks.ik_speed import benchmark_ik
 from sagp_batched.config import load_config
-from sagp_batched.objects import embedded_ycb_dir, load_object_set
+from sagp_batched.world.objects import embedded_ycb_dir, load_object_set
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
 from sagp_batched.runtime import DEFAULT_TORCH_THREADS, configure_torch
 
@@ -147,12 +147,12 @@ def _ray_worker_memory(args: argparse.Namespace) -> int:
     import tempfile
     import time
 
-    from sagp_batched.benchmark import worker_memory
+    from sagp_batched.benchmarks.planner_speed import worker_memory
     from sagp_batched.config import ConfigError
-    from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError
+    from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError
     from sagp_batched.preflight import PreflightError, check_ray_address, check_ray_installed
     from sagp_batched.run_directory import WORKERS_FILE
-    from sagp_batched.study import run_study
+    from sagp_batched.study.run import run_study
 
     out = args.study_out or Path(tempfile.mkdtemp(prefix="sagp_ray_memory_"))
     objects_dir = _ycb_dir(args.objects_dir)

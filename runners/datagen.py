@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from sagp_batched.config import ConfigError
-from sagp_batched.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
+from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 
@@ -69,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sagp_batched.dataset_run import dataset_object_ids, generate_dataset
+    from sagp_batched.datasets.run import dataset_object_ids, generate_dataset
 
     args = build_parser().parse_args(argv)
     config = config_or_report(args, SETTING_FLAGS)

@@ -12,15 +12,15 @@ The public API: build a scene, perceive, plan, zone, rate, score, execute::
 from .attempt import AttemptDiagnostics
 from .config import GEOMETRY_ONLY_WEIGHTS, Config, ConfigError, ScoreWeights, load_config
 from .execution import execute_grasp, execute_ranked
-from .objects import ObjectSet, ObjectSpec, load_object_set
-from .perception import capture
+from .world.objects import ObjectSet, ObjectSpec, load_object_set
+from .world.perception import capture
 from .planning import PlanResult, plan, plan_batch
 from .rating import ZoneRating, get_rater
-from .scene import Scene
-from .scoring import score_candidates
-from .study import run_study
+from .world.scene import Scene
+from .semantics.scoring import score_candidates
+from .study.run import run_study
 from .types import CameraData, Grasp, GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
-from .zones import ZoneDecomposition, assign_zones
+from .semantics.zones import ZoneDecomposition, assign_zones
 
 __version__ = "0.1.0"
 

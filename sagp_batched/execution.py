@@ -32,11 +32,11 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from .config import Config, ExecutionConfig, MotionConfig, ShakeConfig
-from .ik import panda_ik
-from .motion import grasp_waypoint_index, motion_waypoints
+from .robot.ik import panda_ik
+from .robot.motion import grasp_waypoint_index, motion_waypoints
 from .attempt import AttemptDiagnostics, PlannerPrediction
-from .robot import RobotDescription
-from .scene import Scene, make_camera
+from .robot.description import RobotDescription
+from .world.scene import Scene, make_camera
 from .seeds import ik_restart_seed
 from .types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
 

@@ -12,8 +12,8 @@ from typing import Any
 import math
 
 from .config import Config
-from .judging import GraspPlacement, TaskOutcome
-from .objects import ObjectSpec
+from .study.judging import GraspPlacement, TaskOutcome
+from .world.objects import ObjectSpec
 from .seeds import candidate_seed, scene_seed
 from .types import METHODS, TASKS, Grasp, GraspAttempt
 

@@ -13,7 +13,7 @@ from typing import Callable
 import pytest
 
 import runners.batch
-from sagp_batched.objects import embedded_ycb_dir
+from sagp_batched.world.objects import embedded_ycb_dir
 
 OBJECT_ID = "005_tomato_soup_can"
 # A case's flag of this value is left out of the base command.

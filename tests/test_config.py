@@ -112,7 +112,7 @@ def test_sections_made_in_code_are_checked_like_profiles():
 
 
 def test_the_robot_is_read_from_its_file_and_an_unknown_one_is_refused_by_name():
-    from sagp_batched.robot import load_robot
+    from sagp_batched.robot.description import load_robot
 
     robot = load_robot("panda")
     assert robot.n_arm_joints == len(robot.arm_joints) == len(robot.home_joints) == len(robot.joint_twist_rad)

@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from sagp_batched.dataset import (
+from sagp_batched.datasets.dataset import (
     LabelledGrasps, ObjectPhysics, UntestedGrasps, copy_object_mesh, read_progress, split_of, write_graspgen_file, write_object_file,
     write_splits,
 )
-from sagp_batched.objects import load_object_set
+from sagp_batched.world.objects import load_object_set
 
 h5py = pytest.importorskip("h5py")
 
@@ -95,8 +95,8 @@ def test_a_stray_flat_part_in_a_collision_mesh_adds_no_volume_and_raises_nothing
     """Scanned meshes carry stray triangles; qhull cannot build their hull, and they hold no volume."""
     import trimesh
 
-    from sagp_batched.datagen import object_physics
-    from sagp_batched.objects import ObjectSpec
+    from sagp_batched.datasets.datagen import object_physics
+    from sagp_batched.world.objects import ObjectSpec
 
     box = trimesh.creation.box(extents=(0.1, 0.05, 0.02))
     stray = trimesh.Trimesh(vertices=[[0.3, 0, 0], [0.31, 0, 0], [0.3, 0.01, 0]], faces=[[0, 1, 2]])

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from sagp_batched.config import load_config
-from sagp_batched.datagen import ObjectLabeller, object_labels
-from sagp_batched.objects import load_object_set
+from sagp_batched.datasets.datagen import ObjectLabeller, object_labels
+from sagp_batched.world.objects import load_object_set
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +64,7 @@ def test_a_table_check_of_no_poses_returns_no_verdicts():
     import torch
 
     from sagp_batched.planning import hand_geometry
-    from sagp_batched.robot import load_robot
+    from sagp_batched.robot.description import load_robot
     from sagp_batched_kernels.table_penetration import table_penetration
 
     config = load_config("dataset")

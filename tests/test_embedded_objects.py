@@ -7,7 +7,7 @@ import numpy as np
 import pybullet
 import pytest
 
-from sagp_batched.objects import EMBEDDED_YCB_SOURCE, YCB_ASYMMETRIC_IDS, YCB_DIR_ENV, embedded_ycb_dir, load_object_set
+from sagp_batched.world.objects import EMBEDDED_YCB_SOURCE, YCB_ASYMMETRIC_IDS, YCB_DIR_ENV, embedded_ycb_dir, load_object_set
 
 from ycb_paths import FULL_YCB_DIR, HAVE_FULL_YCB
 

@@ -6,8 +6,8 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from sagp_batched.export import write_acronym
-from sagp_batched.objects import ObjectSpec
+from sagp_batched.datasets.export import write_acronym
+from sagp_batched.world.objects import ObjectSpec
 from sagp_batched.types import GraspAttempt, GraspCandidates, PerceivedCloud
 
 h5py = pytest.importorskip("h5py")
@@ -168,7 +168,7 @@ def test_exported_ycb_mug_names_its_textured_mesh_relative_to_the_objects_root(t
 
 
 def test_acronym_poses_map_back_to_the_planners_grasp_frames():
-    from sagp_batched.export import acronym_gripper_transforms_object, planner_frames_from_acronym
+    from sagp_batched.datasets.export import acronym_gripper_transforms_object, planner_frames_from_acronym
 
     candidates, cloud, _, _ = _trial(np.random.default_rng(2), 12)
     in_object = candidates.transform(cloud.object_from_world, "object")

@@ -14,12 +14,12 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched.attempt import ATTEMPT_RECORD_FIELDS, AttemptDiagnostics, PlannerPrediction
 from sagp_batched.config import Config
-from sagp_batched.judging import GraspPlacement, TaskOutcome
-from sagp_batched.methods import RankingInputs, get_method
-from sagp_batched.objects import ObjectSpec
+from sagp_batched.study.judging import GraspPlacement, TaskOutcome
+from sagp_batched.study.methods import RankingInputs, get_method
+from sagp_batched.world.objects import ObjectSpec
 from sagp_batched.records import ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
 from sagp_batched.types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, PerceivedCloud
-from sagp_batched.zones import decompose
+from sagp_batched.semantics.zones import decompose
 
 
 def _batch(n: int, seed: int = 0) -> GraspCandidates:

@@ -3,9 +3,9 @@ import pytest
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched.robot import load_robot
-from sagp_batched.benchmark import BenchmarkSettings
-from sagp_batched.ik_benchmark import (
+from sagp_batched.robot.description import load_robot
+from sagp_batched.benchmarks.planner_speed import BenchmarkSettings
+from sagp_batched.benchmarks.ik_speed import (
     benchmark_ik,
     benchmark_ik_solvers,
     reach_bound_from_shoulder_m,
@@ -14,7 +14,7 @@ from sagp_batched.ik_benchmark import (
     unreachable_ik_targets,
 )
 from sagp_batched.config import Config
-from sagp_batched.ik import PandaIK
+from sagp_batched.robot.ik import PandaIK
 
 ROBOT = load_robot()
 

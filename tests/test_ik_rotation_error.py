@@ -4,7 +4,7 @@ import math
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched.ik import _rotation_error_vector
+from sagp_batched.robot.ik import _rotation_error_vector
 
 
 def test_rotation_error_equals_pk_matrix_to_axis_angle_bit_for_bit_from_zero_to_a_half_turn():

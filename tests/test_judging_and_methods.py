@@ -2,7 +2,7 @@
 import pytest
 
 from sagp_batched.config import TaskConfig
-from sagp_batched.judging import judge_task
+from sagp_batched.study.judging import judge_task
 
 PUBLISHED = TaskConfig()
 
@@ -36,7 +36,7 @@ def test_an_unknown_task_is_named():
 
 
 def test_every_method_name_has_one_registered_ranking_only_vlm_direct_asks_a_model_itself_only_sagp_ranks_by_the_rating_and_only_go_is_timed_without_it():
-    from sagp_batched.methods import REGISTRY, get_method
+    from sagp_batched.study.methods import REGISTRY, get_method
     from sagp_batched.types import METHODS
 
     assert tuple(REGISTRY) == METHODS
@@ -50,8 +50,8 @@ def test_every_method_name_has_one_registered_ranking_only_vlm_direct_asks_a_mod
 def test_the_robot_is_described_once_and_its_joints_are_found_by_name_in_the_loaded_urdf():
     import pybullet
 
-    from sagp_batched.hand import hand_to_grasp_target_m
-    from sagp_batched.robot import body_indices, load_robot
+    from sagp_batched.robot.hand import hand_to_grasp_target_m
+    from sagp_batched.robot.description import body_indices, load_robot
 
     robot = load_robot()
 

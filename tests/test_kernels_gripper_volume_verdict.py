@@ -14,7 +14,7 @@ from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotatio
 from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
 from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 from sagp_batched_kernels.sampling import sample_pair_indices
-from sagp_batched.robot import load_robot
+from sagp_batched.robot.description import load_robot
 
 ROBOT = load_robot()
 

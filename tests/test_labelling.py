@@ -13,11 +13,11 @@ from scipy.spatial.transform import Rotation
 from sagp_batched import Config, Grasp, capture, plan
 from sagp_batched.config import ConfigError, ShakeConfig, load_config
 from sagp_batched.execution import execute_grasp, shake_profile
-from sagp_batched.collision_urdf import floating_hand_urdf
-from sagp_batched.labelling import ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
-from sagp_batched.objects import load_object_set
-from sagp_batched.robot import load_robot
-from sagp_batched.scene import Scene
+from sagp_batched.datasets.collision_urdf import floating_hand_urdf
+from sagp_batched.datasets.labelling import ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
+from sagp_batched.world.objects import load_object_set
+from sagp_batched.robot.description import load_robot
+from sagp_batched.world.scene import Scene
 from sagp_batched.types import InvalidGraspError
 
 ROBOT = load_robot()
@@ -265,7 +265,7 @@ def test_grasps_given_as_arrays_take_their_approach_from_the_orientation_and_bad
 
 
 def test_an_objects_collision_only_urdf_collides_as_its_urdf_and_names_no_visual(tmp_path):
-    from sagp_batched.collision_urdf import collision_only_urdf
+    from sagp_batched.datasets.collision_urdf import collision_only_urdf
 
     spec = load_object_set(None).get("025_mug")
     path = collision_only_urdf(spec.urdf_path, tmp_path)

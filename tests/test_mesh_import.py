@@ -12,11 +12,11 @@ import pytest
 import trimesh
 
 from sagp_batched import Config
-from sagp_batched import mesh_decompose, mesh_import
-from sagp_batched.mesh_import import CACHE_DIR_ENV
-from sagp_batched.mesh_settings import MeshImportSettings
-from sagp_batched.objects import ObjectSetError, embedded_ycb_dir, load_object_set
-from sagp_batched.scene import Scene
+from sagp_batched.world import mesh_decompose, mesh_import
+from sagp_batched.world.mesh_import import CACHE_DIR_ENV
+from sagp_batched.world.mesh_settings import MeshImportSettings
+from sagp_batched.world.objects import ObjectSetError, embedded_ycb_dir, load_object_set
+from sagp_batched.world.scene import Scene
 
 # V-HACD at a low resolution: a second or two per concave test object.
 QUICK = dict(decomposer="vhacd", vhacd_resolution=20_000)

@@ -1,7 +1,7 @@
 """Study metrics and their 95 % Wilson intervals."""
 import pytest
 
-from sagp_batched.metrics import per_object, summarise, wilson_interval
+from sagp_batched.study.metrics import per_object, summarise, wilson_interval
 
 
 def test_wilson_interval_matches_the_textbook_values():

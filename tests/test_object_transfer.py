@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 import trimesh
 
-from sagp_batched.export import object_mesh_reference
-from sagp_batched.mesh_settings import MeshImportSettings
-from sagp_batched.object_transfer import (
+from sagp_batched.datasets.export import object_mesh_reference
+from sagp_batched.world.mesh_settings import MeshImportSettings
+from sagp_batched.world.object_transfer import (
     ObjectTransferError, materialise, materialised_dir, pack_objects, referenced_files, transfer_dir,
 )
-from sagp_batched.objects import embedded_ycb_dir, load_object_set
+from sagp_batched.world.objects import embedded_ycb_dir, load_object_set
 
 YCB_IDS = ["025_mug", "003_cracker_box", "061_foam_brick"]
 

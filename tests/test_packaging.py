@@ -148,7 +148,7 @@ def test_installed_wheel_runs_the_console_scripts_and_the_readme_example_outside
         "import json, sagp_batched, sagp_batched_kernels, sagp_batched_runners\n"
         "from sagp_batched import load_config\n"
         "from sagp_batched.config import resolve_profile_path\n"
-        "from sagp_batched.objects import load_object_set\n"
+        "from sagp_batched.world.objects import load_object_set\n"
         "assert load_config('datagen').run.export_grasps\n"
         "print(json.dumps({'modules': [m.__file__ for m in (sagp_batched, sagp_batched_kernels, sagp_batched_runners)],"
         " 'datagen': str(resolve_profile_path('datagen')), 'objects': load_object_set(None).source}))\n"

@@ -8,8 +8,8 @@ import torch
 
 from planner_clouds import box_surface, cylinder_surface, make_cloud
 from sagp_batched.config import Config
-from sagp_batched.hand import DOP_DIRECTIONS
-from sagp_batched.robot import load_robot
+from sagp_batched.robot.hand import DOP_DIRECTIONS
+from sagp_batched.robot.description import load_robot
 from sagp_batched.planning import gripper_geometry, hand_geometry, plan
 from sagp_batched_kernels.grasp_frames import grasp_rotations
 from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
@@ -143,7 +143,7 @@ def test_k_dop_clearance_is_a_lower_bound_of_the_distance_to_each_hull():
 def test_a_grasp_whose_pregrasp_is_out_of_reach_is_rejected_though_the_grasp_pose_is_reachable():
     """Reached from beyond the object (approach tilted 30 deg toward the robot) at 65 cm, the hand
     can close on the grasp, but the pre-grasp 10 cm back along the approach lies outside the arm's reach."""
-    from sagp_batched.ik import panda_ik
+    from sagp_batched.robot.ik import panda_ik
     from sagp_batched.planning import check_motions
 
     tilt = math.radians(30.0)
@@ -160,7 +160,7 @@ def test_a_grasp_whose_pregrasp_is_out_of_reach_is_rejected_though_the_grasp_pos
     motion_down = check_motions(centre, DOWN.view(1, 3), down[:, 0], ik, CONFIG)
     assert motion_down.feasible.item()
     # Its joint path reaches every waypoint through pytorch-kinematics' forward kinematics.
-    from sagp_batched.motion import motion_waypoints
+    from sagp_batched.robot.motion import motion_waypoints
 
     reached = ik.forward(motion_down.joint_path[0])[:, :3, 3]
     waypoints = motion_waypoints(centre, DOWN.view(1, 3), CONFIG.motion)[0]

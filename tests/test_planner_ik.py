@@ -6,10 +6,10 @@ import math
 import pytest
 import torch
 
-from sagp_batched.ik_benchmark import reachable_ik_targets, shoulder_world
+from sagp_batched.benchmarks.ik_speed import reachable_ik_targets, shoulder_world
 from sagp_batched.config import Config
-from sagp_batched.ik import PandaIK
-from sagp_batched.robot import load_robot
+from sagp_batched.robot.ik import PandaIK
+from sagp_batched.robot.description import load_robot
 
 ROBOT = load_robot()
 
@@ -114,7 +114,7 @@ def test_answers_keep_clear_of_the_joint_limits_where_another_solution_allows(ik
 def _descent_and_lift(ik, grasp_joints):
     """Waypoints of execution's motion through the grasp pose of (N, 7) ``grasp_joints``, approaching
     along the grasp frame's z axis, with the grasp waypoint left out; and the grasp frames."""
-    from sagp_batched.motion import grasp_waypoint_index, motion_waypoints
+    from sagp_batched.robot.motion import grasp_waypoint_index, motion_waypoints
 
     pose = ik.forward(grasp_joints)
     waypoints = motion_waypoints(pose[:, :3, 3], pose[:, :3, 2], Config().motion)
@@ -124,7 +124,7 @@ def _descent_and_lift(ik, grasp_joints):
 
 def _largest_step(grasp_joints, path_joints):
     """Largest joint change between neighbouring waypoints, the grasp's joints among them."""
-    from sagp_batched.motion import grasp_waypoint_index
+    from sagp_batched.robot.motion import grasp_waypoint_index
 
     index = grasp_waypoint_index(Config().motion)
     joints = torch.cat((path_joints[:, :index], grasp_joints[:, None], path_joints[:, index:]), dim=1)

@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from planner_clouds import box_surface, cylinder_surface, make_cloud
-from sagp_batched.robot import load_robot
+from sagp_batched.robot.description import load_robot
 from sagp_batched.config import Config
-from sagp_batched.ik import panda_ik
+from sagp_batched.robot.ik import panda_ik
 from sagp_batched.planning import plan, plan_batch, sample_inputs, screen_candidates
 
 ROBOT = load_robot()
@@ -89,7 +89,7 @@ def test_bad_cloud_is_named():
 
 @pytest.mark.slow
 def test_loop_reference_gives_the_same_candidates_and_mostly_agrees_on_ik(box_cloud, can_cloud):
-    from sagp_batched.reference import plan_reference
+    from sagp_batched.planning.reference import plan_reference
 
     for cloud in (box_cloud, can_cloud):
         reference = plan_reference(cloud, CONFIG, sample_inputs(cloud, ROBOT, CONFIG.planner, CONFIG.memory, 0))

@@ -7,7 +7,7 @@ from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.planning import sample_inputs
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.sampling import sample_pair_indices
-from sagp_batched.robot import load_robot
+from sagp_batched.robot.description import load_robot
 
 ROBOT = load_robot()
 MEMORY = Config().memory

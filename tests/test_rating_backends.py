@@ -382,7 +382,7 @@ def test_vlm_direct_through_the_local_vlm_and_the_endpoint(tiny_qwen2_vl, endpoi
     from test_rating_vlm_direct import candidates, cloud
 
     from sagp_batched.config import Config
-    from sagp_batched.vlm_direct import get_vd_client, vlm_direct_rank
+    from sagp_batched.semantics.vlm_direct import get_vd_client, vlm_direct_rank
 
     unranked = candidates(12)
     batch = unranked.ranked_by(unranked.s_geom)
@@ -420,9 +420,9 @@ def test_a_fully_cached_rerun_never_loads_the_model(tmp_path):
 
 def test_the_oracle_rates_the_mug_handle_zone_good_and_is_labelled_an_upper_bound():
     from sagp_batched.config import RatingConfig
-    from sagp_batched.functional_regions import load_regions
+    from sagp_batched.world.functional_regions import load_regions
     from sagp_batched.rating import get_rater
-    from sagp_batched.report import rater_note
+    from sagp_batched.study.report import rater_note
 
     oracle = get_rater(RatingConfig(backend="oracle"))
     assert oracle.uses_ground_truth and "upper bound" in oracle.model
@@ -453,7 +453,7 @@ def test_the_oracle_rates_the_mug_handle_zone_good_and_is_labelled_an_upper_boun
 def marked_scene():
     from test_zone_marks import synthetic_cloud
 
-    from sagp_batched.zones import decompose
+    from sagp_batched.semantics.zones import decompose
 
     cloud = synthetic_cloud()
     return cloud, decompose(cloud.points_world)
@@ -467,7 +467,7 @@ def sent_image_and_prompt(request) -> tuple[np.ndarray, str]:
 
 def test_the_endpoint_is_shown_the_marked_crop_and_told_to_use_the_marks(endpoint, tmp_path):
     from sagp_batched.rating import PROMPT_VERSION
-    from sagp_batched.zone_marks import draw_zone_marks, rating_image
+    from sagp_batched.semantics.zone_marks import draw_zone_marks, rating_image
 
     cloud, zones = marked_scene()
     endpoint.script = [("answer", json.dumps(GOOD_ANSWER)), ("answer", json.dumps(GOOD_ANSWER))]
@@ -489,7 +489,7 @@ def test_the_endpoint_is_shown_the_marked_crop_and_told_to_use_the_marks(endpoin
 
 def test_the_local_vlm_rates_a_marked_crop_end_to_end(tiny_qwen2_vl, tmp_path):
     from sagp_batched.rating import PROMPT_VERSION
-    from sagp_batched.zone_marks import rating_image
+    from sagp_batched.semantics.zone_marks import rating_image
 
     cloud, zones = marked_scene()
     config = RatingConfig(backend="transformers", model=str(tiny_qwen2_vl), max_new_tokens=16, cache_dir=str(tmp_path))
@@ -502,7 +502,7 @@ def test_the_local_vlm_rates_a_marked_crop_end_to_end(tiny_qwen2_vl, tmp_path):
 
 
 def test_the_image_a_rating_was_given_is_saved_beside_its_cache_entry(tmp_path):
-    from sagp_batched.zone_marks import draw_zone_marks
+    from sagp_batched.semantics.zone_marks import draw_zone_marks
 
     cloud, zones = marked_scene()
     shown = draw_zone_marks(cloud, zones, RatingConfig()).image

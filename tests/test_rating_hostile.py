@@ -14,7 +14,7 @@ from sagp_batched.rating.prompt import answer_zone_names
 from sagp_batched.rating.raters import PriorRater, VLMRater
 from sagp_batched.rating.types import MAX_ISSUE_CHARS, MAX_REASON_CHARS, VLMRequestError
 from sagp_batched.rating.vlm import ModelAnswer
-from sagp_batched.vlm_direct import MAX_DROPPED_LISTED, parse_shortlist
+from sagp_batched.semantics.vlm_direct import MAX_DROPPED_LISTED, parse_shortlist
 
 ZONE_DESCRIPTIONS = {"top": "top: 30% of points", "middle": "middle: 40% of points", "bottom": "bottom: 25% of points",
                      "left": "left: 50% of points", "protrusion_1": "protrusion_1: 5% of points"}
@@ -286,8 +286,8 @@ class RaisingRater(PriorRater):
 
 
 def _unit_records(config, rater=None) -> dict[str, dict]:
-    from sagp_batched.experiment import TrialRunner
-    from sagp_batched.objects import load_object_set
+    from sagp_batched.study.experiment import TrialRunner
+    from sagp_batched.world.objects import load_object_set
     from sagp_batched.records import TrialUnit
 
     runner = TrialRunner(config, load_object_set(config.run.objects_dir))

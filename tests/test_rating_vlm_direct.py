@@ -10,7 +10,7 @@ import torch
 from sagp_batched.config import Config, RatingConfig
 from sagp_batched.rating import VLMRequestError
 from sagp_batched.types import CameraData, GraspCandidates, PerceivedCloud
-from sagp_batched.vlm_direct import (
+from sagp_batched.semantics.vlm_direct import (
     VLMDirectUnavailable,
     draw_candidate_markers,
     get_vd_client,

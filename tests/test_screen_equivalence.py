@@ -16,10 +16,10 @@ import torch
 
 from planner_clouds import box_surface, make_cloud
 from sagp_batched import load_object_set
-from sagp_batched.benchmark import BenchmarkSettings, mesh_cloud
+from sagp_batched.benchmarks.planner_speed import BenchmarkSettings, mesh_cloud
 from sagp_batched.config import Config
-from sagp_batched.hand import DOP_DIRECTIONS
-from sagp_batched.robot import load_robot
+from sagp_batched.robot.hand import DOP_DIRECTIONS
+from sagp_batched.robot.description import load_robot
 from sagp_batched.planning import (
     CandidateStatus, ScreenedCandidates, SearchTuning, gripper_geometry, hand_geometry, plan, plan_batch, planner, screen_candidates,
 )

@@ -6,10 +6,10 @@ import os
 
 import pytest
 
-import sagp_batched.study as study
+import sagp_batched.study.run as study
 from sagp_batched.config import load_config
-from sagp_batched.experiment import UnitResult, grasps_file
-from sagp_batched.objects import load_object_set
+from sagp_batched.study.experiment import UnitResult, grasps_file
+from sagp_batched.world.objects import load_object_set
 from sagp_batched.records import TrialRecord
 from sagp_batched.run_directory import TRIALS_FILE, WORKERS_FILE, RunDirectoryError, TrialWriter
 from sagp_batched.runtime import resident_memory_bytes

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from sagp_batched import Scene, capture, load_config, load_object_set, plan
-from sagp_batched.verdicts import VERDICTS, _verdict_quotas, classify_grasps
+from sagp_batched.datasets.verdicts import VERDICTS, _verdict_quotas, classify_grasps
 from sagp_batched_kernels.pose_nms import same_grasp
 
 

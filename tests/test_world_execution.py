@@ -9,11 +9,11 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from sagp_batched.robot import load_robot
+from sagp_batched.robot.description import load_robot
 from sagp_batched import Config, Grasp, GraspCandidates
 from sagp_batched.execution import InvalidGraspError, execute_grasp, execute_ranked
-from sagp_batched.objects import load_object_set
-from sagp_batched.scene import Scene
+from sagp_batched.world.objects import load_object_set
+from sagp_batched.world.scene import Scene
 
 from ycb_paths import YCB_DIR
 

@@ -9,8 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config, Grasp
 from sagp_batched.execution import execute_grasp
-from sagp_batched.objects import load_object_set
-from sagp_batched.scene import Scene
+from sagp_batched.world.objects import load_object_set
+from sagp_batched.world.scene import Scene
 
 from ycb_paths import YCB_DIR
 DOWN = np.array([0.0, 0.0, -1.0])

@@ -9,9 +9,9 @@ import numpy as np
 import pybullet
 import pytest
 
-from sagp_batched.robot import load_robot
+from sagp_batched.robot.description import load_robot
 from sagp_batched import Config
-from sagp_batched.objects import (
+from sagp_batched.world.objects import (
     PYBULLET_DATA_SET,
     YCB_DIR_ENV,
     ObjectLoadError,
@@ -19,7 +19,7 @@ from sagp_batched.objects import (
     UnknownObjectError,
     load_object_set,
 )
-from sagp_batched.scene import Scene
+from sagp_batched.world.scene import Scene
 
 from ycb_paths import YCB_DIR, needs_ycb
 

@@ -10,9 +10,9 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config, PerceptionFailure
-from sagp_batched.objects import PYBULLET_DATA_SET, load_object_set
-from sagp_batched.perception import backproject_views, camera_rig, capture
-from sagp_batched.scene import Scene
+from sagp_batched.world.objects import PYBULLET_DATA_SET, load_object_set
+from sagp_batched.world.perception import backproject_views, camera_rig, capture
+from sagp_batched.world.scene import Scene
 from sagp_batched_kernels.camera import backproject_to_world, linearize_depth
 
 from ycb_paths import YCB_DIR
@@ -134,7 +134,7 @@ def test_normals_of_a_concave_surface_face_the_camera_that_saw_it():
     """The inner wall of a cup, each part seen over the rim by a camera above the opposite side: its
     outward side faces the cavity and the camera; the published rule (away from the centroid)
     turns those normals into the wall."""
-    from sagp_batched.perception import outward_normals
+    from sagp_batched.world.perception import outward_normals
 
     angle = np.linspace(0.0, 2.0 * np.pi, 180, endpoint=False)
     height = np.linspace(0.0, 0.08, 27)

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from runners.zones import plot_zones
 from sagp_batched.config import ZonesConfig
 from sagp_batched.rating.prompt import describe_zones
-from sagp_batched.zones import (
+from sagp_batched.semantics.zones import (
     UNZONED,
     ZONE_INDEX,
     GEOMETRIC_ZONES,

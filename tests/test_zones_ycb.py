@@ -4,8 +4,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sagp_batched import Scene, capture, load_config, load_object_set
-from sagp_batched.functional_regions import region_membership
-from sagp_batched.zones import decompose
+from sagp_batched.world.functional_regions import region_membership
+from sagp_batched.semantics.zones import decompose
 
 POSES = (200, 201, 202, 203)
 
@@ -100,7 +100,7 @@ PUBLISHED_DESCRIPTIONS = {
 
 @pytest.mark.parametrize("object_id", sorted(PUBLISHED_DESCRIPTIONS))
 def test_the_prompt_describes_the_embedded_pitcher_and_scissors_zones_word_for_word_as_published(object_id):
-    from sagp_batched.objects import embedded_ycb_dir
+    from sagp_batched.world.objects import embedded_ycb_dir
     from sagp_batched.rating.prompt import describe_zones
 
     config = load_config("paper")

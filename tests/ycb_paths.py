@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from sagp_batched.objects import YCB_DIR_ENV, embedded_ycb_dir
+from sagp_batched.world.objects import YCB_DIR_ENV, embedded_ycb_dir
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED_YCB_DIR = REPO.parent / "shared" / "ycb"

@@ -79,7 +79,7 @@ class ShakeConfig(_Section):
 class LabellingConfig(_Section):
     """Grasp labels from simulation: the shake both modes end with, and the floating hand's motion.
 
-    Hand mode (``sagp_batched.labelling``) follows the study's motion (``[motion]``: pre-grasp
+    Hand mode (``sagp_batched.datasets.labelling``) follows the study's motion (``[motion]``: pre-grasp
     offset, lift height) and uses its grip force, finger friction, collision thresholds and success
     test from ``[execution]``; how long the floating hand takes for each phase is set here."""
 

@@ -8,7 +8,7 @@ from .settings import _Section, setting
 
 @dataclass
 class MotionConfig(_Section):
-    """Pre-grasp, straight descent onto the grasp, close, straight lift (``sagp_batched.motion``):
+    """Pre-grasp, straight descent onto the grasp, close, straight lift (``sagp_batched.robot.motion``):
     the planner solves and checks every waypoint of it, the arm and the floating hand follow it."""
 
     SECTION = "motion"

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import torch
 
 from ..config import Config
-from ..ik import panda_ik
-from ..motion import grasp_waypoint_index, waypoint_count
+from ..robot.ik import panda_ik
+from ..robot.motion import grasp_waypoint_index, waypoint_count
 from ..types import GraspCandidates, PerceivedCloud
 from .lookahead import MotionVerdicts, ScreenVerdicts, window_with_verdicts
 from .motion_check import MotionCheck, check_motions

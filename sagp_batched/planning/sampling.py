@@ -13,7 +13,7 @@ from sagp_batched_kernels.sampling import (
 )
 
 from ..config import MemoryConfig, PlannerConfig
-from ..robot import RobotDescription
+from ..robot.description import RobotDescription
 from ..types import PerceivedCloud
 from .gripper import jaw_width_limit
 

@@ -10,7 +10,7 @@ from ..types import PROTRUSION, TASKS, ZONE_NAMES, is_zone_name
 from .types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, RatingError
 
 if TYPE_CHECKING:
-    from ..zones import ObjectFacts, ZoneDecomposition, ZoneFacts
+    from ..semantics.zones import ObjectFacts, ZoneDecomposition, ZoneFacts
 
 PROMPT_VERSION = "sagp-zones-v2"
 # A model names an approach direction; a world vector ("vector") is not asked of it.

@@ -259,7 +259,7 @@ class OracleRater(Rater):
     partial_share = 0.2
 
     def __init__(self, upright_max_tilt_deg: float):
-        from ..functional_regions import load_regions
+        from ..world.functional_regions import load_regions
 
         self.regions = load_regions()
         self.prompt_version = f"oracle-{hashlib.sha256(json.dumps(sorted(self.regions)).encode()).hexdigest()[:12]}"

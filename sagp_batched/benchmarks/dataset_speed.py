@@ -1,0 +1,146 @@
+"""Dataset benchmark: labelled grasps per second per core, by mode and worker count, and where the time goes.
+
+Each case is the real dataset run (``dataset_run.generate_dataset``) of one object into a fresh
+directory: wall time from the first plan to the report (worker start-up included), and the per-stage
+seconds the workers report (reset, capture, plan, simulate, write), summed over workers. The
+per-core rate divides by wall time x workers, so idle workers (starting up, or waiting while the
+only object is planned) count against it; the busy rate divides by the seconds the stages took, the
+rate of a core kept busy, as in a run of many objects where one worker plans while others simulate.
+
+``shared_world_step_cost`` measures what a PyBullet step costs per hand-object pair when several
+pairs, far apart, share one world: the way to label many grasps per step where the step's fixed
+cost dominated.
+"""
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pybullet
+
+from ..config import Config
+from ..world.objects import ObjectSet
+from ..seeds import capture_trial
+
+STAGES = ("reset", "capture", "plan", "simulate", "write")
+
+
+def _dataset_config(config: Config, object_id: str, mode: str, n_grasps: int, workers: int) -> Config:
+    return dataclasses.replace(
+        config,
+        run=dataclasses.replace(config.run, objects=(object_id,), workers=workers, backend="local"),
+        dataset=dataclasses.replace(config.dataset, mode=mode, grasps_per_object=n_grasps),
+    )
+
+
+def benchmark_dataset_case(config: Config, objects: ObjectSet, object_id: str, mode: str, n_grasps: int, workers: int) -> dict[str, Any]:
+    """One dataset run of ``n_grasps`` grasps of ``object_id`` in ``mode`` on ``workers`` workers."""
+    from ..datasets.run import generate_dataset
+
+    run_config = _dataset_config(config, object_id, mode, n_grasps, workers)
+    entries: list[dict] = []
+    with tempfile.TemporaryDirectory(prefix="sagp_dataset_bench_") as out:
+        start = time.perf_counter()
+        generate_dataset(run_config, objects, Path(out), progress=False, on_object=entries.append)
+        wall_s = time.perf_counter() - start
+    (entry,) = entries
+    times = {stage: float(entry["times_s"].get(stage, 0.0)) for stage in STAGES}
+    labelled = int(entry["labelled"])
+    return {
+        "object": object_id, "mode": mode, "workers": workers, "grasps": n_grasps, "labelled": labelled,
+        "untested": int(entry["untested"]), "held": int(entry["held"]), "wall_s": wall_s,
+        "labels_per_s_per_core": labelled / (wall_s * workers),
+        "busy_labels_per_s_per_core": labelled / sum(times.values()),
+        "simulated_labels_per_s_per_core": labelled / times["simulate"] if times["simulate"] > 0 else None,
+        "stage_s": times,
+    }
+
+
+def benchmark_dataset(config: Config, objects: ObjectSet, object_id: str, grasps_by_mode: dict[str, int],
+                      worker_counts: Sequence[int], repeats: int) -> list[dict[str, Any]]:
+    """Medians over ``repeats`` of every (mode, workers) case, the cases interleaved within each repeat
+    so a busy spell on the machine falls on all of them alike."""
+    runs: dict[tuple[str, int], list[dict]] = {}
+    for _ in range(repeats):
+        for mode, n_grasps in grasps_by_mode.items():
+            for workers in worker_counts:
+                runs.setdefault((mode, workers), []).append(benchmark_dataset_case(config, objects, object_id, mode, n_grasps, workers))
+    rows = []
+    for (mode, workers), cases in runs.items():
+        first = cases[0]
+        rows.append({
+            **{key: first[key] for key in ("object", "mode", "workers", "grasps", "labelled", "untested", "held")},
+            "repeats": len(cases),
+            "wall_s": statistics.median(c["wall_s"] for c in cases),
+            "labels_per_s_per_core": statistics.median(c["labels_per_s_per_core"] for c in cases),
+            "busy_labels_per_s_per_core": statistics.median(c["busy_labels_per_s_per_core"] for c in cases),
+            "simulated_labels_per_s_per_core": statistics.median(c["simulated_labels_per_s_per_core"] or 0.0 for c in cases),
+            "stage_s": {stage: statistics.median(c["stage_s"][stage] for c in cases) for stage in STAGES},
+        })
+    return rows
+
+
+def projected_hours(labels_per_s_per_core: float, objects_count: int, grasps_per_object: int, cores: int) -> float:
+    """Hours for ``objects_count`` x ``grasps_per_object`` labels at a per-core rate on ``cores`` cores."""
+    return objects_count * grasps_per_object / (labels_per_s_per_core * cores) / 3600.0
+
+
+def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, pair_counts: Sequence[int],
+                           steps: int = 240, spacing_m: float = 3.0) -> list[dict[str, Any]]:
+    """Milliseconds per PyBullet step, in total and per pair, for worlds of 1..N floating hands each
+    closed on its own copy of the object (resting on its own table), the pairs ``spacing_m`` apart."""
+    from ..robot.hand import hand_to_grasp_target_m
+    from ..datasets.collision_urdf import floating_hand_urdf
+    from ..datasets.labelling import ObjectPlacement
+    from ..robot.description import robot_of
+    from ..world.scene import Scene, command_fingers, configure_physics, create_table
+
+    with Scene(config) as scene:
+        scene.reset(objects.get(object_id), trial=capture_trial(config, pose_index=0))
+        placement = ObjectPlacement.from_scene(scene)
+        top_z = pybullet.getAABB(scene.target_id, physicsClientId=scene.client)[1][2]
+    robot = robot_of(config)
+    hand_urdf = str(floating_hand_urdf(robot, config.labelling.hand_urdf_cache_dir))
+    grasp_offset_m = hand_to_grasp_target_m(robot)
+    down = (1.0, 0.0, 0.0, 0.0)  # the hand's approach axis pointing at the table
+    rows = []
+    for count in pair_counts:
+        client = pybullet.connect(pybullet.DIRECT)
+        try:
+            configure_physics(client, config.scene)
+            for pair in range(count):
+                offset = np.array([pair * spacing_m, 0.0, 0.0])
+                table_xy = tuple(np.add(config.scene.table_center_xy_m, offset[:2]))
+                create_table(client, dataclasses.replace(config.scene, table_center_xy_m=table_xy))
+                body = pybullet.loadURDF(str(placement.spec.urdf_path), flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
+                pybullet.resetBasePositionAndOrientation(body, list(np.add(placement.com_position_world, offset)), placement.com_quat_xyzw,
+                                                         physicsClientId=client)
+                # A top-down grasp 2 cm below the object's top, the hand pinned by its grasp target.
+                target = [placement.com_position_world[0] + offset[0], placement.com_position_world[1], top_z - 0.02]
+                hand = pybullet.loadURDF(hand_urdf, physicsClientId=client)
+                inertial = pybullet.getDynamicsInfo(hand, -1, physicsClientId=client)[3:5]
+                target_in_base = pybullet.multiplyTransforms(*pybullet.invertTransform(*inertial), [0.0, 0.0, grasp_offset_m], [0.0, 0.0, 0.0, 1.0])
+                pybullet.resetBasePositionAndOrientation(hand, *pybullet.multiplyTransforms(target, down, *pybullet.invertTransform(*target_in_base)),
+                                                         physicsClientId=client)
+                pybullet.createConstraint(hand, -1, -1, -1, pybullet.JOINT_FIXED, [0.0, 0.0, 0.0], parentFramePosition=target_in_base[0],
+                                          childFramePosition=target, parentFrameOrientation=target_in_base[1], childFrameOrientation=down,
+                                          physicsClientId=client)
+                names = {pybullet.getJointInfo(hand, j, physicsClientId=client)[1].decode(): j
+                         for j in range(pybullet.getNumJoints(hand, physicsClientId=client))}
+                command_fingers(client, hand, [names[n] for n in robot.finger_joints], 0.0, config.execution.gripper_force_n)
+            for _ in range(steps // 4):  # the fingers close and the contacts form before the timing
+                pybullet.stepSimulation(physicsClientId=client)
+            contacts = len(pybullet.getContactPoints(physicsClientId=client))
+            start = time.perf_counter()
+            for _ in range(steps):
+                pybullet.stepSimulation(physicsClientId=client)
+            step_ms = (time.perf_counter() - start) / steps * 1e3
+        finally:
+            pybullet.disconnect(client)
+        rows.append({"pairs": count, "contacts": contacts, "step_ms": step_ms, "step_ms_per_pair": step_ms / count})
+    return rows

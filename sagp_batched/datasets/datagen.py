@@ -1,0 +1,358 @@
+"""Labelled grasp datasets: for each object and resting pose, capture once, plan, and label grasps by simulation.
+
+``ObjectLabeller.plan_object`` captures and plans each of an object's captures once for all their
+grasps; ``ObjectLabeller.simulate`` labels a chunk of them; ``object_labels`` joins the chunks.
+``dataset_run.generate_dataset`` spreads plans and chunks over workers, writes each finished object at
+once (``dataset``) and resumes where a stopped run left off.
+
+What a label is: the outcome of simulating the grasp (``labelling``): held after the lift and the
+shake, or dropped, with the object's motion during closing and shaking. The grasps are the planner's
+antipodal candidates across its verdicts (``verdicts.classify_grasps``): the feasible ones and those it
+rejects, so the dataset has both classes and measures the planner's calibration. A grasp whose
+simulation could not run (in ``arm`` mode: no arm solution for a grasp the planner rejected) is kept
+apart as untested, never written as a failure.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from ..config import Config
+from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
+from .export import acronym_gripper_transforms_object, planner_frames_from_acronym
+from ..world.objects import ObjectSet, ObjectSpec
+from ..seeds import capture_trial, labelling_seed
+from ..types import Grasp, GraspCandidates, PerceptionFailure
+from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
+
+if TYPE_CHECKING:
+    import trimesh
+
+# The tasks a dataset's zone ratings are asked for: t3 is t1 among distractors, which a dataset
+# of single objects does not place.
+DATASET_TASKS: tuple[str, ...] = ("t1", "t2")
+# PyBullet's lateral friction where a URDF gives none.
+PYBULLET_DEFAULT_FRICTION = 0.5
+
+
+def object_physics(spec: ObjectSpec) -> ObjectPhysics:
+    """What the simulator was given for ``spec``: an imported object's figures from its import
+    metadata (the solid's volume and full inertia, the density that made its mass), else the
+    URDF's mass, COM, inertia and friction with the volume of its collision hulls (the solid
+    PyBullet collides) and density = mass / volume."""
+    from ..world.mesh_import import METADATA_FILE
+
+    metadata_path = Path(spec.urdf_path).with_name(METADATA_FILE)
+    if metadata_path.is_file():
+        import json
+
+        metadata = json.loads(metadata_path.read_text())
+        return ObjectPhysics(float(metadata["mass_kg"]), float(metadata["density_kg_m3"]), float(metadata["friction"]),
+                             tuple(metadata["com_m"]), tuple(tuple(row) for row in metadata["inertia_kg_m2"]),
+                             float(metadata["volume_m3"]))
+    return _urdf_physics(spec)
+
+
+def _urdf_physics(spec: ObjectSpec) -> ObjectPhysics:
+    import trimesh
+
+    link = ElementTree.parse(spec.urdf_path).getroot().find("link")
+    inertial = link.find("inertial")
+    mass = float(inertial.find("mass").get("value")) if inertial is not None else spec.mass_kg
+    origin = inertial.find("origin") if inertial is not None else None
+    com = tuple(float(v) for v in (origin.get("xyz") if origin is not None else "0 0 0").split())
+    inertia_element = inertial.find("inertia") if inertial is not None else None
+    values = {key: float(inertia_element.get(key, 0.0)) if inertia_element is not None else 0.0
+              for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    inertia = ((values["ixx"], values["ixy"], values["ixz"]), (values["ixy"], values["iyy"], values["iyz"]),
+               (values["ixz"], values["iyz"], values["izz"]))
+    friction_element = link.find("contact/lateral_friction")
+    friction = float(friction_element.get("value")) if friction_element is not None else PYBULLET_DEFAULT_FRICTION
+    mesh_element = link.find("collision/geometry/mesh")
+    volume = 0.0
+    if mesh_element is not None:
+        scale = np.array([float(v) for v in (mesh_element.get("scale") or "1 1 1").split()])
+        mesh = trimesh.load(Path(spec.urdf_path).parent / mesh_element.get("filename"), force="mesh")
+        mesh.apply_scale(scale)
+        volume = float(sum(_hull_volume(part) for part in mesh.split(only_watertight=False)))
+    density = mass / volume if volume > 0 else math.nan
+    return ObjectPhysics(mass, density, friction, com, inertia, volume)  # type: ignore[arg-type]
+
+
+def _hull_volume(part: "trimesh.Trimesh") -> float:
+    """The volume of a mesh part's convex hull; a part lying in one plane (a stray triangle or
+    sheet in a scanned mesh) has none, and qhull refuses to build its hull."""
+    from scipy.spatial import QhullError
+
+    try:
+        return float(part.convex_hull.volume)
+    except QhullError:
+        return 0.0
+
+
+@dataclass
+class ObjectLabels:
+    """One object's labelled and untested grasps, with what making them cost."""
+
+    object_id: str
+    grasps: LabelledGrasps
+    untested: UntestedGrasps
+    rater: str
+    neutral_tasks: dict[str, str]  # task -> why its rating is neutral (the rater does not know the object)
+    skipped_poses: list[str] = field(default_factory=list)
+    times_s: dict[str, float] = field(default_factory=dict)  # reset, capture, plan, simulate (summed over workers)
+
+
+@dataclass
+class PosePlan:
+    """One capture of an object, planned: the grasps picked across the planner's verdicts, with every
+    field of their label rows but the simulated outcome, and where the object settled."""
+
+    pose_index: int
+    com_position_world: tuple[float, float, float]
+    com_quat_xyzw: tuple[float, float, float, float]
+    candidates: GraspCandidates  # world frame, zones assigned
+    object_from_world: torch.Tensor  # (4, 4)
+    classified: ClassifiedGrasps
+    ratings: dict  # task -> ZoneRating
+
+    def simulated_grasps(self, mode: str) -> list[Grasp]:
+        """The grasps as simulation takes them: in ``arm`` mode a grasp the planner rejected runs
+        without its plan, as execution solves it."""
+        feasible = (self.classified.verdict == FEASIBLE).tolist()
+        grasps = [self.candidates[i] for i in range(len(self.candidates))]
+        return grasps if mode == "hand" else [g if ok else dataclasses.replace(g, joint_path=None) for g, ok in zip(grasps, feasible)]
+
+
+@dataclass
+class ObjectPlan:
+    """Every capture of one object, planned; what the captures that failed reported; planning times."""
+
+    object_id: str
+    poses: list[PosePlan]
+    skipped_poses: list[str]
+    rater: str
+    neutral_tasks: dict[str, str]
+    times_s: dict[str, float]
+
+    def chunks(self, mode: str, grasps_per_chunk: int) -> list["SimulationChunk"]:
+        """The plan's grasps in chunks of at most ``grasps_per_chunk``, each simulated on its own; in
+        ``arm`` mode one chunk a capture, its grasps in order: the arm restores the capture's saved
+        state between grasps, and PyBullet's ``restoreState`` leaves small traces of the grasp before
+        (object motions differ in the fourth decimal), so a grasp's label would depend on where a
+        chunk began."""
+        chunks = []
+        for pose in self.poses:
+            grasps = pose.simulated_grasps(mode)
+            size = grasps_per_chunk if mode == "hand" else max(1, len(grasps))
+            for first in range(0, len(grasps), size):
+                chunks.append(SimulationChunk(self.object_id, pose.pose_index, first, pose.com_position_world,
+                                              pose.com_quat_xyzw, grasps[first:first + size]))
+        return chunks
+
+
+@dataclass(frozen=True)
+class SimulationChunk:
+    """Grasps of one capture to simulate: what a worker needs and nothing of the planning worker's world."""
+
+    object_id: str
+    pose_index: int
+    first: int  # index of the chunk's first grasp among its capture's picks
+    com_position_world: tuple[float, float, float]
+    com_quat_xyzw: tuple[float, float, float, float]
+    grasps: list[Grasp]
+
+
+@dataclass
+class ChunkOutcome:
+    """A chunk's outcomes, in its order: a ``GraspLabel``, or why the grasp could not be simulated."""
+
+    chunk: SimulationChunk
+    outcomes: list
+    seconds: float
+
+
+def _failure(label) -> str:
+    return "" if label.held else f"{label.failure_reason}@{label.failed_at}"
+
+
+def _motion(value: float | None) -> float:
+    """A motion the grasp never reached (it failed before that phase) is NaN, not 0."""
+    return math.nan if value is None else float(value)
+
+
+def _zone_levels(candidates: GraspCandidates, ratings: dict) -> tuple[list[str], dict[str, list[str]]]:
+    names = candidates.primary_zone_names()
+    levels = {task: [(rating.level(name) or "") if name else "" for name in names] for task, rating in ratings.items()}
+    return names, levels
+
+
+class ObjectLabeller:
+    """Plans and simulates grasps of objects in one PyBullet client: a scene, a rater, the object set.
+
+    ``plan_object`` captures and plans each of an object's captures once for all their grasps;
+    ``simulate`` labels a chunk of them. Each grasp's simulation starts from its capture's settled
+    state alone, so a label is the same whichever labeller simulates it and with whichever others.
+    """
+
+    def __init__(self, config: Config, objects: ObjectSet):
+        from ..rating import get_rater
+        from ..world.scene import Scene
+
+        self.config, self.objects = config, objects
+        self.scene = Scene(config)
+        self.rater = get_rater(config.rating)
+
+    def close(self) -> None:
+        self.scene.close()
+
+    def _reset_to_pose(self, spec: ObjectSpec, pose_index: int) -> None:
+        """Capture ``pose_index`` places the object at a fresh seeded position and yaw, in its k-th
+        stable resting pose where it lists several."""
+        self.scene.reset(spec, trial=capture_trial(self.config, pose_index), resting_pose=pose_index % max(1, len(spec.resting_poses)))
+
+    def plan_object(self, object_id: str, n_grasps: int) -> ObjectPlan:
+        """Plan ``n_grasps`` grasps of the object, split over its captures."""
+        n_poses = self.config.dataset.captures_per_object
+        shares = [n_grasps // n_poses + (1 if k < n_grasps % n_poses else 0) for k in range(n_poses)]
+        times = dict.fromkeys(("reset", "capture", "plan"), 0.0)
+        poses, skipped, neutral = [], [], {}
+        for pose_index, share in enumerate(shares):
+            # A later capture offers the same grasps again in the object's frame: only new ones are picked.
+            picked = np.concatenate([acronym_gripper_transforms_object(p.candidates.transform(p.object_from_world, "object")) for p in poses]
+                                    + [np.zeros((0, 4, 4))])
+            taken = tuple(torch.as_tensor(a, dtype=torch.float64) for a in planner_frames_from_acronym(picked))
+            pose = self._plan_pose(self.objects.get(object_id), pose_index, share, times, taken)
+            if isinstance(pose, str):
+                skipped.append(pose)
+                continue
+            poses.append(pose)
+            neutral.update({task: (r.issues[0] if r.issues else "neutral") for task, r in pose.ratings.items() if r.is_neutral})
+        rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
+        return ObjectPlan(object_id, poses, skipped, rater, neutral, times)
+
+    def _plan_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float], taken) -> PosePlan | str:
+        """Capture ``pose_index`` classified and rated; the reason instead where the capture failed."""
+        from .labelling import ObjectPlacement
+        from ..world.perception import capture
+        from ..rating.prompt import describe_zones
+        from ..semantics.zone_marks import rating_image
+        from ..semantics.zones import assign_zones
+
+        config = self.config
+        clock = time.perf_counter()
+        self._reset_to_pose(spec, pose_index)
+        times["reset"] += time.perf_counter() - clock
+        clock = time.perf_counter()
+        try:
+            cloud = capture(self.scene, config)
+        except PerceptionFailure as failure:
+            return f"capture {pose_index}: {failure.reason}"
+        times["capture"] += time.perf_counter() - clock
+        clock = time.perf_counter()
+        classified = classify_grasps(cloud, config, labelling_seed(config, pose_index), n_grasps, taken_object=taken)
+        if not len(classified):
+            times["plan"] += time.perf_counter() - clock
+            planner = config.planner
+            if not classified.pool_size:
+                return (f"capture {pose_index}: no antipodal candidate (opposed contacts "
+                        f"{planner.min_width_m * 1000:.0f}-{planner.max_width_m * 1000:.0f} mm apart) in its cloud")
+            return f"capture {pose_index}: each of its {classified.pool_size} candidate poses repeats a grasp of an earlier capture"
+        decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
+        shown = rating_image(cloud, decomposition, config.rating)
+        descriptions = describe_zones(decomposition)
+        ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, descriptions) for task in DATASET_TASKS}
+        placement = ObjectPlacement.from_scene(self.scene)
+        times["plan"] += time.perf_counter() - clock
+        return PosePlan(pose_index, placement.com_position_world, placement.com_quat_xyzw, zoned, cloud.object_from_world, classified, ratings)
+
+    def simulate(self, chunk: SimulationChunk, mode: str | None = None) -> ChunkOutcome:
+        """Label ``chunk`` in ``mode`` (default ``dataset.mode``): ``hand``, the hand alone, each grasp in a
+        world of its own with the object where it settled (``labelling.label_grasps_hand``); ``arm``,
+        the Panda from the capture's settled state, restored before each grasp (``labelling.label_grasps_arm``;
+        a grasp the arm cannot reach is untested)."""
+        from .labelling import ObjectPlacement, label_grasps_arm, label_grasps_hand
+
+        clock = time.perf_counter()
+        spec = self.objects.get(chunk.object_id)
+        if (mode or self.config.dataset.mode) == "hand":
+            placement = ObjectPlacement(spec, chunk.com_position_world, chunk.com_quat_xyzw)
+            outcomes = list(label_grasps_hand(placement, chunk.grasps, self.config))
+        else:
+            self._reset_to_pose(spec, chunk.pose_index)
+            labels = label_grasps_arm(self.scene, chunk.grasps, self.config)
+            outcomes = [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
+        return ChunkOutcome(chunk, outcomes, time.perf_counter() - clock)
+
+    def label(self, object_id: str, n_grasps: int) -> ObjectLabels:
+        """``n_grasps`` grasps of the object planned and simulated here, one chunk a capture."""
+        plan = self.plan_object(object_id, n_grasps)
+        return object_labels(plan, [self.simulate(chunk) for chunk in plan.chunks(self.config.dataset.mode, n_grasps)])
+
+    def compare_modes(self, object_id: str, n_grasps: int) -> dict[str, int]:
+        """The same ``n_grasps`` grasps of the object's first capture simulated in hand and in arm mode:
+        how many were compared, executed in both, agreed, and held in each."""
+        pose = self._plan_pose(self.objects.get(object_id), 0, n_grasps, dict.fromkeys(("reset", "capture", "plan"), 0.0), None)
+        if isinstance(pose, str):
+            return {"compared": 0, "both_tested": 0, "agree": 0, "hand_held": 0, "arm_held": 0, "skipped": pose}
+        plan = ObjectPlan(object_id, [pose], [], "", {}, {})
+        hand, arm = ([o for chunk in plan.chunks(mode, max(1, n_grasps)) for o in self.simulate(chunk, mode).outcomes]
+                     for mode in ("hand", "arm"))
+        both = [(h, a) for h, a in zip(hand, arm) if not isinstance(h, str) and not isinstance(a, str)]
+        return {"compared": len(hand), "both_tested": len(both), "agree": sum(h.held == a.held for h, a in both),
+                "hand_held": sum(h.held for h, _ in both), "arm_held": sum(a.held for _, a in both)}
+
+
+def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome]) -> ObjectLabels:
+    """An object's labels from its plan and the outcomes of every chunk of it (in any order)."""
+    by_pose: dict[int, list] = {pose.pose_index: [None] * len(pose.candidates) for pose in plan.poses}
+    for outcome in outcomes:
+        by_pose[outcome.chunk.pose_index][outcome.chunk.first:outcome.chunk.first + len(outcome.outcomes)] = outcome.outcomes
+    parts = [_pose_labels(pose, by_pose[pose.pose_index]) for pose in plan.poses]
+    labelled = [p[0] for p in parts]
+    grasps = LabelledGrasps.concatenate(labelled) if labelled else LabelledGrasps.empty(DATASET_TASKS)
+    untested = UntestedGrasps(np.concatenate([p[1].transforms for p in parts] + [np.zeros((0, 4, 4))]), sum((p[1].reason for p in parts), []))
+    times = {**plan.times_s, "simulate": sum(o.seconds for o in outcomes)}
+    return ObjectLabels(plan.object_id, grasps, untested, plan.rater, plan.neutral_tasks, plan.skipped_poses, times)
+
+
+def _pose_labels(pose: PosePlan, outcomes: list) -> tuple[LabelledGrasps, UntestedGrasps]:
+    """The capture's simulated grasps as labels in the object frame, and the grasps whose simulation could not run."""
+    zoned, classified = pose.candidates, pose.classified
+    tested = [i for i, outcome in enumerate(outcomes) if not isinstance(outcome, str)]
+    object_frame = zoned.transform(pose.object_from_world, "object")
+    transforms = acronym_gripper_transforms_object(object_frame)
+    untested = [i for i, outcome in enumerate(outcomes) if isinstance(outcome, str)]
+    kept = torch.as_tensor(tested, dtype=torch.int64)
+    chosen = zoned.select(kept)
+    zone_names, levels = _zone_levels(chosen, pose.ratings)
+    verdicts = classified.verdict_names()
+    simulated = [outcomes[i] for i in tested]
+    labelled = LabelledGrasps(
+        transforms=transforms[tested].reshape(-1, 4, 4),
+        width_m=chosen.width_m.double().numpy(),
+        contacts=object_frame.contacts[kept].numpy().reshape(-1, 2, 3),
+        resting_pose=np.full(len(tested), pose.pose_index, dtype=np.int64),
+        verdict=[verdicts[i] for i in tested],
+        verdict_reason=[classified.reasons[i] for i in tested],
+        held=np.array([o.held for o in simulated], dtype=bool),
+        failure_reason=[_failure(o) for o in simulated],
+        motion_closing_linear_m=np.array([_motion(o.object_motion_during_closing_linear) for o in simulated]),
+        motion_closing_angular_rad=np.array([_motion(o.object_motion_during_closing_angular) for o in simulated]),
+        motion_shaking_linear_m=np.array([_motion(o.object_motion_during_shaking_linear) for o in simulated]),
+        motion_shaking_angular_rad=np.array([_motion(o.object_motion_during_shaking_angular) for o in simulated]),
+        s_geom=chosen.s_geom.double().numpy(),
+        s_reach=chosen.s_reach.double().numpy(),
+        zone=zone_names,
+        zone_rating=levels,
+    )
+    rejected = UntestedGrasps(transforms[untested].reshape(-1, 4, 4), [f"{verdicts[i]}: {outcomes[i]}" for i in untested])
+    return labelled, rejected

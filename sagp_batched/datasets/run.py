@@ -1,0 +1,358 @@
+"""A dataset run: objects planned and their grasps simulated across workers, each object written as it finishes.
+
+Work comes in two kinds: an object's plan (``ObjectLabeller.plan_object``: every capture reset,
+captured, classified and rated once), then its grasps in chunks (``ObjectLabeller.simulate``), so
+one object's simulation spreads over every worker and a worker plans the next object while others
+simulate. Labels do not depend on the chunking or on which worker simulates a chunk: each grasp's
+simulation starts from its capture's settled state alone. The driver alone writes the dataset.
+"""
+from __future__ import annotations
+
+import collections
+import math
+import os
+import socket
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import torch
+
+from ..config import Config
+from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
+from .export import planner_frames_from_acronym
+from ..world.objects import ObjectSet
+from ..run_directory import WorkerReport
+from ..runtime import ray_worker_stopped
+
+# The report's coverage figure: grasps closer than this, and turned less, count as one.
+DISTINCT_TRANSLATION_M = 0.01
+DISTINCT_ROTATION_DEG = 20.0
+
+
+@dataclass
+class DatasetResult:
+    out_dir: Path
+    new_objects: list[str]
+    manifest: dict
+
+
+def dataset_object_ids(config: Config, objects: ObjectSet) -> list[str]:
+    """The objects a dataset labels: ``run.objects``, where "all" is every object of the set."""
+    requested = list(config.run.objects)
+    if requested == ["all"]:
+        return list(objects.ids)
+    for object_id in requested:
+        objects.get(object_id)  # raises UnknownObjectError naming the id
+    return requested
+
+
+# --- workers: each holds one ObjectLabeller (one PyBullet client) for the whole run -------------------
+class _DatasetWorker:
+    """One worker process's labeller and its count of finished work, reported after each piece."""
+
+    def __init__(self, config_dict: dict, objects: ObjectSet, objects_dir: str | None):
+        from ..config import load_config
+        from ..runtime import configure_torch
+
+        configure_torch()
+        self.labeller = ObjectLabeller(load_config(overrides=config_dict), objects)
+        self.objects_dir = objects_dir
+        self.node = socket.gethostname()
+        self.done = 0
+
+    def work(self, kind: str, payload: Any) -> tuple[Any, WorkerReport]:
+        from ..runtime import resident_memory_bytes
+
+        start = time.perf_counter()
+        result = _work(self.labeller, kind, payload)
+        self.done += 1
+        return result, WorkerReport(os.getpid(), self.node, self.done, resident_memory_bytes(), time.perf_counter() - start, self.objects_dir)
+
+
+def _work(labeller: ObjectLabeller, kind: str, payload: Any) -> Any:
+    if kind == "plan":
+        object_id, n_grasps = payload
+        return labeller.plan_object(object_id, n_grasps)
+    return labeller.simulate(payload)
+
+
+_PROCESS_WORKER: _DatasetWorker | None = None
+
+
+def _init_process_worker(config_dict: dict, objects: ObjectSet) -> None:
+    global _PROCESS_WORKER
+    _PROCESS_WORKER = _DatasetWorker(config_dict, objects, None)
+
+
+def _work_in_process(kind: str, payload: Any) -> tuple[Any, WorkerReport]:
+    return _PROCESS_WORKER.work(kind, payload)
+
+
+class _InlineWorkers:
+    """Work run in this process, in the order submitted."""
+
+    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
+        self.labeller = ObjectLabeller(config, objects)
+        self.queue: collections.deque = collections.deque()
+
+    def submit(self, kind: str, payload: Any) -> None:
+        self.queue.append((kind, payload))
+
+    def __len__(self) -> int:
+        return len(self.queue)
+
+    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
+        kind, payload = self.queue.popleft()
+        return kind, _work(self.labeller, kind, payload), None
+
+    def close(self) -> None:
+        self.labeller.close()
+
+
+class _ProcessWorkers:
+    """Spawned worker processes: each a fresh interpreter with its own PyBullet client."""
+
+    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
+        import concurrent.futures
+        import multiprocessing
+
+        self._futures = concurrent.futures
+        self.pool = concurrent.futures.ProcessPoolExecutor(
+            max_workers=config.run.workers, mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init_process_worker, initargs=(config.to_dict(), objects))
+        self.running: dict = {}
+
+    def submit(self, kind: str, payload: Any) -> None:
+        self.running[self.pool.submit(_work_in_process, kind, payload)] = kind
+
+    def __len__(self) -> int:
+        return len(self.running)
+
+    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
+        done, _ = self._futures.wait(self.running, return_when=self._futures.FIRST_COMPLETED)
+        future = next(iter(done))
+        return (self.running.pop(future), *future.result())
+
+    def close(self) -> None:
+        # An interrupt or a failed write ends the run: start nothing further.
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+class _RayLabeller:
+    """A Ray actor holding one ``_DatasetWorker`` for the whole run. Its objects arrive by value from the
+    object store (``object_transfer``) and are written to this node's own cache, so no node needs the
+    driver's objects folder."""
+
+    def __init__(self, config_dict: dict, packed: Any):
+        from ..world.object_transfer import materialise, materialised_dir
+
+        self.worker = _DatasetWorker(config_dict, materialise(packed), str(materialised_dir(packed)))
+
+    def work(self, kind: str, payload: Any) -> tuple[Any, WorkerReport]:
+        return self.worker.work(kind, payload)
+
+
+class _RayWorkers:
+    """One actor per worker, each given one piece of work at a time, the rest waiting here in order."""
+
+    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
+        import ray
+
+        self.ray = ray
+        actor = ray.remote(num_cpus=1)(_RayLabeller)
+        packed_ref = ray.put(packed)  # once: each node that runs an actor fetches it
+        self.idle = [actor.remote(config.to_dict(), packed_ref) for _ in range(config.run.workers)]
+        self.waiting: collections.deque = collections.deque()
+        self.running: dict = {}
+
+    def submit(self, kind: str, payload: Any) -> None:
+        self.waiting.append((kind, payload))
+        self._dispatch()
+
+    def _dispatch(self) -> None:
+        while self.idle and self.waiting:
+            kind, payload = self.waiting.popleft()
+            worker = self.idle.pop()
+            self.running[worker.work.remote(kind, payload)] = (kind, worker)
+
+    def __len__(self) -> int:
+        return len(self.running) + len(self.waiting)
+
+    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
+        [ref], _ = self.ray.wait(list(self.running), num_returns=1)
+        kind, worker = self.running.pop(ref)
+        self.idle.append(worker)
+        try:
+            result, report = self.ray.get(ref)
+        except self.ray.exceptions.RayActorError as exc:
+            raise ray_worker_stopped(exc) from exc
+        self._dispatch()
+        return kind, result, report
+
+    def close(self) -> None:
+        for ref in self.running:
+            self.ray.cancel(ref)
+
+
+def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], packed: Any = None,
+                     on_report: Callable[[WorkerReport], None] | None = None) -> Iterator[ObjectLabels]:
+    """Each object's labels as soon as its plan and every chunk of it are done (objects in any order).
+    ``packed``: the objects packed for Ray (``object_transfer.pack_objects``); ``on_report`` hears each
+    worker process's report after each piece of work."""
+    dataset = config.dataset
+    if config.run.backend == "ray":
+        workers_type = _RayWorkers
+    else:
+        workers_type = _InlineWorkers if config.run.workers == 1 else _ProcessWorkers
+    workers = workers_type(config, objects, packed)
+    to_plan = collections.deque(object_ids)
+    unfinished: dict[str, tuple[ObjectPlan, list, int]] = {}
+
+    def plan_next() -> None:
+        if to_plan:
+            workers.submit("plan", (to_plan.popleft(), dataset.grasps_per_object))
+
+    try:
+        # Planning stays about one object per worker ahead of the simulation: the pool never idles
+        # while plans and outcomes waiting to be joined stay few.
+        for _ in range(max(1, config.run.workers)):
+            plan_next()
+        while len(workers):
+            kind, result, report = workers.next_done()
+            if report is not None and on_report is not None:
+                on_report(report)
+            if kind == "plan":
+                chunks = result.chunks(dataset.mode, dataset.grasps_per_chunk)
+                unfinished[result.object_id] = (result, [], len(chunks))
+                for chunk in chunks:
+                    workers.submit("simulate", chunk)
+                plan_next()
+                object_id = result.object_id
+            else:
+                object_id = result.chunk.object_id
+                unfinished[object_id][1].append(result)
+            plan, outcomes, n_chunks = unfinished[object_id]
+            if len(outcomes) == n_chunks:
+                del unfinished[object_id]
+                yield object_labels(plan, outcomes)
+    finally:
+        workers.close()
+
+
+def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str) -> dict:
+    """Write one object's files and return its progress line (what the report and a resume read)."""
+    from sagp_batched_kernels.pose_nms import distinct_grasp_count
+
+    from .dataset import append_progress, copy_object_mesh, write_graspgen_file, write_object_file
+
+    clock = time.perf_counter()
+    for sub in ("grasps", "graspgen", "meshes"):
+        (out_dir / sub).mkdir(exist_ok=True)
+    mesh_file, scale, mesh_to_link = copy_object_mesh(spec, out_dir / "meshes")
+    grasps = labels.grasps
+    write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, object_physics(spec),
+                      grasps, labels.untested, mode, labels.rater)
+    write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
+    centres, frames = (torch.tensor(a) for a in planner_frames_from_acronym(grasps.transforms))
+    distinct = distinct_grasp_count(centres, frames, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
+    write_s = time.perf_counter() - clock
+    entry = {
+        "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
+        "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
+        "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
+        "by_verdict": {v: [int(sum(h for h, w in zip(grasps.held, grasps.verdict) if w == v)), grasps.verdict.count(v)]
+                       for v in sorted(set(grasps.verdict))},
+        "times_s": {**labels.times_s, "write": write_s},
+    }
+    append_progress(out_dir, entry)
+    return entry
+
+
+def measure_agreement(config: Config, objects: ObjectSet, object_ids: list[str], n_grasps: int) -> dict:
+    """Hand-vs-arm agreement on ``n_grasps`` grasps of each object of ``object_ids`` (``ObjectLabeller.compare_modes``)."""
+    labeller = ObjectLabeller(config, objects)
+    try:
+        by_object = {object_id: labeller.compare_modes(object_id, n_grasps) for object_id in object_ids}
+    finally:
+        labeller.close()
+    totals = {key: sum(row[key] for row in by_object.values()) for key in ("compared", "both_tested", "agree", "hand_held", "arm_held")}
+    return {**totals, "grasps_per_object": n_grasps, "by_object": by_object}
+
+
+def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progress: bool = True,
+                     on_note: Callable[[str], None] | None = None, on_object: Callable[[dict], None] | None = None,
+                     agreement_objects: list[str] | None = None, agreement_grasps: int = 0) -> DatasetResult:
+    """Label ``config.dataset.grasps_per_object`` grasps of every object of ``config.run.objects`` into
+    ``out_dir``; a re-run into the same directory skips the objects already written. ``on_object``
+    hears each written object's progress line. With ``agreement_grasps``, the hand-vs-arm agreement
+    on that many grasps of each of ``agreement_objects`` is measured too (``agreement.json``, in the report)."""
+    from .. import provenance
+    from .dataset import read_progress
+    from .report import write_dataset_report
+    from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, WORKERS_FILE, RunLock, append_json_line, check_same_run, write_json
+
+    on_note = on_note or (lambda note: None)
+    object_ids = dataset_object_ids(config, objects)
+    packed = None
+    if config.run.backend == "ray":
+        from ..world.object_transfer import pack_objects
+
+        # Read before anything is written: a file that cannot be packed stops the run with no directory made.
+        packed = pack_objects(objects, object_ids)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    checksum = objects.checksum()
+    with RunLock(out_dir):
+        check_same_run(out_dir, config, checksum, objects.source)
+        write_json(out_dir / CONFIG_FILE, config.to_dict())
+        write_json(out_dir / PROVENANCE_FILE, provenance.collect(
+            config.to_dict(), dataset_seed=config.dataset.seed,
+            objects={"source": objects.source, "checksum": checksum, "ids": object_ids,
+                     "skipped": [list(item) for item in getattr(objects, "skipped", [])]},
+        ))
+        finished = read_progress(out_dir)
+        pending = [object_id for object_id in object_ids if object_id not in finished]
+        if finished:
+            on_note(f"{len(finished)} object(s) already in {out_dir} are kept; {len(pending)} to label")
+        bar = None
+        if progress:
+            import sys
+
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(pending), unit="object", file=sys.stderr, dynamic_ncols=True)
+        new_objects = []
+        try:
+            with _ray_connected(config):
+                def on_report(report: WorkerReport) -> None:
+                    append_json_line(out_dir / WORKERS_FILE, {**report.to_json(), "time": time.time()})
+
+                for labels in labelled_objects(config, objects, pending, packed, on_report):
+                    entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode)
+                    new_objects.append(labels.object_id)
+                    if on_object is not None:
+                        on_object(entry)
+                    if bar is not None:
+                        bar.update(1)
+                        bar.set_postfix_str(labels.object_id)
+        finally:
+            if bar is not None:
+                bar.close()
+        if agreement_grasps:
+            from .report import AGREEMENT_FILE
+
+            write_json(out_dir / AGREEMENT_FILE, measure_agreement(config, objects, list(agreement_objects or []), agreement_grasps))
+        manifest = write_dataset_report(out_dir, config, objects, object_ids)
+    return DatasetResult(out_dir, new_objects, manifest)
+
+
+def _ray_connected(config: Config):
+    """Ray connected for the run where it is the backend, else nothing."""
+    import contextlib
+
+    if config.run.backend != "ray":
+        return contextlib.nullcontext()
+    from ..runtime import ray_session
+
+    return ray_session(config.run.ray_address, config.run.workers)

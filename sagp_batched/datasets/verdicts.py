@@ -1,0 +1,182 @@
+"""Every antipodal candidate with the planner's verdict on it, for labelled datasets.
+
+``plan`` returns only the grasps it calls feasible, and screens no more candidates than it needs to
+find them. A dataset needs the rest as well: negatives, and the planner's calibration (how often a
+grasp it rejected for each reason would in fact have held). ``classify_grasps`` takes every
+(candidate, approach) pose of a cloud, keeps a set that covers the object (pose-space
+non-maximum suppression, ``kernels.pose_nms``), runs each of the planner's checks on it in the
+order the planner runs them, and picks the requested number across the verdicts.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
+
+from ..config import Config, DatasetConfig
+from ..robot.ik import panda_ik
+from ..robot.motion import grasp_waypoint_index, waypoint_count
+from ..planning import check_motions, jaw_width_limit, screen_candidates
+from ..types import GraspCandidates, PerceivedCloud
+
+# The planner's verdicts on a grasp, in the order its checks run; a grasp's verdict is the first
+# check it fails, or "feasible" when it passes them all.
+VERDICTS: tuple[str, ...] = ("feasible", "table", "volume", "hand_sweep", "grasp_ik", "motion")
+FEASIBLE = VERDICTS.index("feasible")
+
+
+@dataclass
+class ClassifiedGrasps:
+    """Grasps of one cloud (one approach each) with the planner's verdict and its reason.
+
+    ``candidates`` holds their poses, widths and contacts (world frame), ``s_geom``, ``s_reach``
+    (0 where grasp IK was not reached or failed), the joint path (zeros where not feasible) and the
+    hand's swept clearance (inf where the sweep was not reached).
+    """
+
+    candidates: GraspCandidates
+    verdict: torch.Tensor  # (N,) int64 index into VERDICTS
+    reasons: tuple[str, ...]  # (N,) why each verdict was given
+    pool_size: int  # (candidate, approach) poses the object offered
+    covering_size: int  # of them, left by the pose-space suppression
+
+    def __len__(self) -> int:
+        return len(self.candidates)
+
+    def verdict_names(self) -> list[str]:
+        return [VERDICTS[v] for v in self.verdict.tolist()]
+
+
+def _reason(verdict: str, planner, jaw_limit_m: float, clearance_m: float, too_wide: bool) -> str:
+    if verdict == "table":
+        if too_wide:
+            return f"table: contacts wider than the open jaws can descend around ({jaw_limit_m:.3f} m)"
+        return "table: the hand passes below the table's clearance at the grasp or the pre-grasp"
+    if verdict == "volume":
+        return f"volume: the closed gripper's volume holds more than {planner.occupancy_max_fraction:.0%} of the cloud's points"
+    if verdict == "hand_sweep":
+        return f"hand_sweep: the hand swept along the descent comes {clearance_m:.4f} m from the scene (margin {planner.hand_clearance_margin_m} m)"
+    if verdict == "grasp_ik":
+        return f"grasp_ik: no arm solution reaches the grasp pose within tolerance with S_reach >= {planner.min_reach}"
+    if verdict == "motion":
+        return "motion: a pre-grasp, descent or lift waypoint is out of reach on the grasp's IK branch, jumps a joint, or puts the arm near the table"
+    return "feasible: passes the table, volume, swept-hand, grasp-IK and whole-motion checks"
+
+
+def _verdict_quotas(available: dict[int, int], n_grasps: int, feasible_fraction: float) -> dict[int, int]:
+    """How many grasps to take of each verdict: ``feasible_fraction`` of them feasible, the rest
+    spread evenly over the rejection verdicts present; a verdict short of its share passes the
+    remainder on to the others."""
+    quotas = dict.fromkeys(available, 0)
+    wanted = {FEASIBLE: round(n_grasps * feasible_fraction)} if FEASIBLE in available else {}
+    rejected = [v for v in available if v != FEASIBLE]
+    for position, verdict in enumerate(rejected):
+        share = n_grasps - sum(wanted.values())
+        wanted[verdict] = share // (len(rejected) - position)
+    remaining = min(n_grasps, sum(available.values()))
+    while remaining > 0:
+        open_verdicts = [v for v in available if quotas[v] < available[v]]
+        below_share = [v for v in open_verdicts if quotas[v] < wanted.get(v, 0)] or open_verdicts
+        for verdict in below_share:
+            if remaining == 0:
+                break
+            quotas[verdict] += 1
+            remaining -= 1
+    return quotas
+
+
+def classify_grasps(
+    cloud: PerceivedCloud,
+    config: Config,
+    seed: int,
+    n_grasps: int,
+    dataset: DatasetConfig | None = None,
+    taken_object: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> ClassifiedGrasps:
+    """Up to ``n_grasps`` grasps of ``cloud`` covering the object, each with the planner's verdict.
+
+    Every (candidate, approach) pose of the screened antipodal candidates is a grasp; those within
+    ``dataset.nms_translation_m`` and ``dataset.nms_rotation_deg`` of a better one (S_geom, then
+    approach order) are dropped, and so are those that are the same grasp as one in
+    ``taken_object`` ((T, 3) centres and (T, 3, 3) frames in the object's link frame: grasps picked
+    from earlier captures of the object); the checks run on the rest; ``dataset.feasible_fraction`` of the
+    picked grasps are feasible where the object offers them, the rest spread over the rejection
+    verdicts, each drawn at random (``seed``) within its verdict so no region of the object is favoured.
+    """
+    dataset = config.dataset if dataset is None else dataset
+    planner = config.planner
+    screened = screen_candidates([cloud], config, [seed])
+    n_candidates, n_approaches = screened.n_candidates, planner.n_approaches
+    rows = torch.arange(n_candidates).repeat_interleave(n_approaches)
+    slots = torch.arange(n_approaches).repeat(n_candidates)
+    approach, rotation = screened.frames(rows, slots)
+    centre = screened.centre_world[rows]
+    rotation_threshold = math.radians(dataset.nms_rotation_deg)
+    covering = pose_nms(centre, rotation, dataset.nms_translation_m, rotation_threshold)
+    if taken_object is not None and len(taken_object[0]):
+        object_from_world = torch.as_tensor(cloud.object_from_world, dtype=torch.float64)
+        centre_object = centre[covering].double() @ object_from_world[:3, :3].T + object_from_world[:3, 3]
+        rotation_object = object_from_world[:3, :3] @ rotation[covering].double()
+        new = ~same_grasp(centre_object, rotation_object, *taken_object, dataset.nms_translation_m, rotation_threshold).any(dim=1)
+        covering = covering[new]
+    rows, slots, approach, rotation, centre = rows[covering], slots[covering], approach[covering], rotation[covering], centre[covering]
+    n = rows.numel()
+
+    verdict = torch.full((n,), FEASIBLE, dtype=torch.int64)
+    verdict[~screened.clear_of_table(rows, rotation[:, None])[:, 0]] = VERDICTS.index("table")
+    undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
+    if undecided.numel():
+        single = torch.ones(undecided.numel(), 1, dtype=torch.bool)
+        volume_ok = screened.volume_within(rows[undecided], rotation[undecided, None], single)[:, 0]
+        verdict[undecided[~volume_ok]] = VERDICTS.index("volume")
+    clearance = torch.full((n,), math.inf)
+    undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
+    if undecided.numel():
+        swept = screened.hand_clearance(rows[undecided], slots[undecided])
+        clearance[undecided] = swept.clearance_m
+        verdict[undecided[swept.blocked]] = VERDICTS.index("hand_sweep")
+    joint_path = torch.zeros(n, waypoint_count(config.motion), screened.robot.n_arm_joints)
+    s_reach = torch.zeros(n)
+    undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
+    if undecided.numel():
+        motion = check_motions(centre[undecided], approach[undecided], rotation[undecided], panda_ik(config), config)
+        verdict[undecided[motion.rejected_by[:, 0] == 1]] = VERDICTS.index("grasp_ik")
+        verdict[undecided[motion.rejected_by[:, 1] == 1]] = VERDICTS.index("motion")
+        joint_path[undecided] = motion.joint_path
+        s_reach[undecided] = motion.s_reach
+
+    generator = torch.Generator().manual_seed(int(seed))
+    order = torch.randperm(n, generator=generator)
+    available = {v: int((verdict == v).sum()) for v in range(len(VERDICTS)) if (verdict == v).any()}
+    quotas = _verdict_quotas(available, n_grasps, dataset.feasible_fraction)
+    picked = torch.cat([order[verdict[order] == v][:quota] for v, quota in quotas.items()] or [torch.zeros(0, dtype=torch.int64)])
+    picked = picked.sort().values  # back in S_geom order
+    chosen_rows = rows[picked]
+    jaw_limit_m = jaw_width_limit(screened.robot, planner)
+    too_wide = screened.width_m[chosen_rows] > jaw_limit_m
+    candidates = GraspCandidates(
+        contacts=screened.contacts_world[chosen_rows],
+        closing_axis=screened.closing_axis[chosen_rows],
+        width_m=screened.width_m[chosen_rows],
+        s_geom=screened.s_geom[chosen_rows],
+        approach=approach[picked],
+        rotation=rotation[picked],
+        s_reach=s_reach[picked],
+        ik_solution=joint_path[picked, grasp_waypoint_index(config.motion)],
+        joint_path=joint_path[picked],
+        hand_clearance_m=clearance[picked],
+        zone=torch.full((picked.numel(),), -1, dtype=torch.int64),
+        s_afford=torch.zeros(picked.numel()),
+        s_avoid=torch.zeros(picked.numel()),
+        s_task=torch.zeros(picked.numel()),
+        score=screened.s_geom[chosen_rows].clone(),
+    )
+    reasons = tuple(
+        _reason(VERDICTS[v], planner, jaw_limit_m, float(c), bool(w))
+        for v, c, w in zip(verdict[picked].tolist(), clearance[picked].tolist(), too_wide.tolist())
+    )
+    return ClassifiedGrasps(candidates, verdict[picked], reasons, n_candidates * n_approaches, n)
+
