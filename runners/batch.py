@@ -9,7 +9,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sagp_batched.config import RATING_BACKENDS, RUN_BACKENDS, ConfigError
+from sagp_batched.config import RATING_BACKENDS, RUN_BACKENDS, Config, ConfigError
 from sagp_batched.study.methods import REGISTRY
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.preflight import PreflightError, preflight
@@ -75,6 +75,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _methods_to_run(args: argparse.Namespace, config: Config) -> tuple[list[str], dict[str, str]] | None:
+    """(the methods to run, method -> why it is not run) of ``run.methods`` with this rater: a
+    profile's method that needs a model the rater lacks is dropped with its reason, one asked for
+    by --methods is refused. None once the refusal has been printed as an ``error:`` line."""
+    methods = list(config.run.methods)
+    not_run: dict[str, str] = {}
+    model_less = config.rating.backend not in MODEL_BACKENDS
+    needing_a_model = [m for m in methods if model_less and m in REGISTRY and REGISTRY[m].needs_model]
+    if needing_a_model == methods and args.methods is None:
+        print(f"error: run.methods {methods}: every method needs a model backend ({', '.join(MODEL_BACKENDS)}) and the rater "
+              f"is '{config.rating.backend}': choose --rater transformers|openai or other --methods", file=sys.stderr)
+        return None
+    for name in needing_a_model:
+        label = REGISTRY[name].label
+        reason = f"needs a model backend ({', '.join(MODEL_BACKENDS)}); the rater is '{config.rating.backend}'"
+        if args.methods is not None:
+            print(f"error: {label} {reason}: choose --rater transformers|openai or drop {name} from --methods", file=sys.stderr)
+            return None
+        methods.remove(name)
+        not_run[name] = reason + " (not run)"
+    return methods, not_run
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     config = config_or_report(args, SETTING_FLAGS)
@@ -95,22 +118,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: --resume: {config.run.out} holds no run to resume", file=sys.stderr)
         return 2
 
-    methods = list(config.run.methods)
-    not_run: dict[str, str] = {}
-    model_less = config.rating.backend not in MODEL_BACKENDS
-    needing_a_model = [m for m in methods if model_less and m in REGISTRY and REGISTRY[m].needs_model]
-    if needing_a_model == methods and args.methods is None:
-        print(f"error: run.methods {methods}: every method needs a model backend ({', '.join(MODEL_BACKENDS)}) and the rater "
-              f"is '{config.rating.backend}': choose --rater transformers|openai or other --methods", file=sys.stderr)
+    chosen = _methods_to_run(args, config)
+    if chosen is None:
         return 2
-    for name in needing_a_model:
-        label = REGISTRY[name].label
-        reason = f"needs a model backend ({', '.join(MODEL_BACKENDS)}); the rater is '{config.rating.backend}'"
-        if args.methods is not None:
-            print(f"error: {label} {reason}: choose --rater transformers|openai or drop {name} from --methods", file=sys.stderr)
-            return 2
-        methods.remove(name)
-        not_run[name] = reason + " (not run)"
+    methods, not_run = chosen
 
     try:
         preflight(config)

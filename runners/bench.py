@@ -44,7 +44,7 @@ def _ycb_dir(argument: str | None) -> Path:
     return embedded_ycb_dir()
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", required=True, type=Path, help="where to write the results")
     parser.add_argument("--objects", default="025_mug,003_cracker_box,005_tomato_soup_can", help="comma-separated YCB ids")
@@ -64,6 +64,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch-objects", default=None, help="comma-separated YCB ids the batches cycle through (default: the set's first, as many as the largest B)")
     parser.add_argument("--batch-pairs", type=int, default=5000, help="sampled pairs per cloud in the batch comparison")
     _add_ray_memory_arguments(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
     args = parser.parse_args(argv)
     if args.ray_address is not None:
         return _ray_worker_memory(args)
@@ -83,34 +88,11 @@ def main(argv: list[str] | None = None) -> int:
         ik_unreachable_targets=args.ik_unreachable,
     )
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in args.objects.split(",")]
-    results, ik = [], []
-    for threads in thread_counts:
-        configure_torch(threads)
-        for cloud in clouds:
-            for row in benchmark_object(cloud, config, settings):
-                row["threads"] = threads
-                results.append(row)
-                reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
-                stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
-                print(
-                    f"{row['object']:>22} pairs={row['pairs']:>7} threads={threads} plan={row['batched_plan_s']:.3f} s "
-                    f"({row['candidates_per_s']:.0f} pairs/s) reference={reference} | {stages} | {row['counts_last_repeat']}",
-                    flush=True,
-                )
-        if args.ik_targets > 0:
-            ik.append({"threads": threads, **benchmark_ik(config, settings)})
-            _print_ik(ik[-1])
+    results, ik = _planner_and_ik_sections(config, settings, clouds, thread_counts)
     configure_torch(thread_counts[0])
     print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
     plan_batch_rows = _plan_batch_section(args, batch_sizes, config, object_set, settings, thread_counts[0]) if batch_sizes else None
-    world = None
-    if args.world_runs > 0:
-        world = benchmark_world(object_set.get(args.world_object), config, args.world_runs)
-        print(
-            f"PyBullet, {world['object']}, {thread_counts[0]} threads, medians of {world['runs']} trials: reset {world['reset_s']:.3f} s, "
-            f"capture (3 views) {world['capture_s']:.3f} s, plan {world['plan_s']:.3f} s, "
-            f"attempt {world['attempt_s']:.3f} s, first-attempt success {world['first_attempt_success']:.0%}"
-        )
+    world = _world_section(args, config, object_set, thread_counts[0]) if args.world_runs > 0 else None
     report = {
         "results": results,
         "ik": ik,
@@ -128,6 +110,40 @@ def main(argv: list[str] | None = None) -> int:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2, default=str))
     return 0
+
+
+def _planner_and_ik_sections(config, settings: BenchmarkSettings, clouds: list, thread_counts: list[int]) -> tuple[list[dict], list[dict]]:
+    """At each thread count in turn, the planner against the loop reference on every cloud (one
+    printed line per pair count), then the IK unless ``settings.ik_targets`` is 0; (planner rows, IK rows)."""
+    results, ik = [], []
+    for threads in thread_counts:
+        configure_torch(threads)
+        for cloud in clouds:
+            for row in benchmark_object(cloud, config, settings):
+                row["threads"] = threads
+                results.append(row)
+                reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
+                stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
+                print(
+                    f"{row['object']:>22} pairs={row['pairs']:>7} threads={threads} plan={row['batched_plan_s']:.3f} s "
+                    f"({row['candidates_per_s']:.0f} pairs/s) reference={reference} | {stages} | {row['counts_last_repeat']}",
+                    flush=True,
+                )
+        if settings.ik_targets > 0:
+            ik.append({"threads": threads, **benchmark_ik(config, settings)})
+            _print_ik(ik[-1])
+    return results, ik
+
+
+def _world_section(args: argparse.Namespace, config, object_set, threads: int) -> dict:
+    """``benchmark_world``'s trials in PyBullet, printed as one line of medians."""
+    world = benchmark_world(object_set.get(args.world_object), config, args.world_runs)
+    print(
+        f"PyBullet, {world['object']}, {threads} threads, medians of {world['runs']} trials: reset {world['reset_s']:.3f} s, "
+        f"capture (3 views) {world['capture_s']:.3f} s, plan {world['plan_s']:.3f} s, "
+        f"attempt {world['attempt_s']:.3f} s, first-attempt success {world['first_attempt_success']:.0%}"
+    )
+    return world
 
 
 # --- Ray workers' memory over a long study ----------------------------------------------------------

@@ -34,25 +34,14 @@ from scipy.spatial.transform import Rotation
 
 from .collision_urdf import collision_only_urdf, floating_hand_urdf
 from ..config import Config, ShakeConfig
-from ..execution import (
-    checked_grasp,
-    achieved_shake_peaks,
-    execute_grasp,
-    fingers_touching,
-    frame_offsets,
-    lift_failure,
-    object_held,
-    pose_change,
-    push_n,
-    relative_pose,
-    set_finger_friction,
-    shake_profile,
-)
+from ..execution import checked_grasp, execute_grasp, fingers_touching, lift_failure, object_held, push_n, set_finger_friction
 from ..robot.hand import hand_to_grasp_target_m
 from ..robot.motion import grasp_waypoint_index
 from ..world.objects import ObjectLoadError, ObjectSpec
+from ..poses import pose_change, relative_pose
 from ..robot.description import robot_of
 from ..world.scene import Scene, command_fingers, configure_physics, create_table
+from ..shake import achieved_shake_peaks, frame_offsets, shake_profile
 from ..types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError
 
 @dataclass(frozen=True)
@@ -65,7 +54,7 @@ class GraspLabel:
     the grasp failed before that phase: ``closing`` in the world from just before the close to its
     end, ``shaking`` relative to the hand from the shake's start to its end.
     ``shake_achieved_peak_accelerations``: what the hand reached along and about its x, y, z
-    (m/s^2, rad/s^2; ``execution.achieved_shake_peaks``), None where it was not shaken.
+    (m/s^2, rad/s^2; ``shake.achieved_shake_peaks``), None where it was not shaken.
     """
 
     mode: str

@@ -291,7 +291,7 @@ def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progr
     from .. import provenance
     from .dataset import read_progress
     from .report import write_dataset_report
-    from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, WORKERS_FILE, RunLock, append_json_line, check_same_run, write_json
+    from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_json
 
     on_note = on_note or (lambda note: None)
     object_ids = dataset_object_ids(config, objects)
@@ -315,36 +315,46 @@ def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progr
         pending = [object_id for object_id in object_ids if object_id not in finished]
         if finished:
             on_note(f"{len(finished)} object(s) already in {out_dir} are kept; {len(pending)} to label")
-        bar = None
-        if progress:
-            import sys
-
-            from tqdm import tqdm
-
-            bar = tqdm(total=len(pending), unit="object", file=sys.stderr, dynamic_ncols=True)
-        new_objects = []
-        try:
-            with _ray_connected(config):
-                def on_report(report: WorkerReport) -> None:
-                    append_json_line(out_dir / WORKERS_FILE, {**report.to_json(), "time": time.time()})
-
-                for labels in labelled_objects(config, objects, pending, packed, on_report):
-                    entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode)
-                    new_objects.append(labels.object_id)
-                    if on_object is not None:
-                        on_object(entry)
-                    if bar is not None:
-                        bar.update(1)
-                        bar.set_postfix_str(labels.object_id)
-        finally:
-            if bar is not None:
-                bar.close()
+        new_objects = _label_pending(config, objects, out_dir, pending, packed, progress, on_object)
         if agreement_grasps:
             from .report import AGREEMENT_FILE
 
             write_json(out_dir / AGREEMENT_FILE, measure_agreement(config, objects, list(agreement_objects or []), agreement_grasps))
         manifest = write_dataset_report(out_dir, config, objects, object_ids)
     return DatasetResult(out_dir, new_objects, manifest)
+
+
+def _label_pending(config: Config, objects: ObjectSet, out_dir: Path, pending: list[str], packed: Any, progress: bool,
+                   on_object: Callable[[dict], None] | None) -> list[str]:
+    """Label the ``pending`` objects, each written (``_write_object``) as soon as it is done, the
+    workers' reports appended to ``workers.jsonl``; the objects written, in that order."""
+    from ..run_directory import WORKERS_FILE, append_json_line
+
+    bar = None
+    if progress:
+        import sys
+
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(pending), unit="object", file=sys.stderr, dynamic_ncols=True)
+    new_objects = []
+    try:
+        with _ray_connected(config):
+            def on_report(report: WorkerReport) -> None:
+                append_json_line(out_dir / WORKERS_FILE, {**report.to_json(), "time": time.time()})
+
+            for labels in labelled_objects(config, objects, pending, packed, on_report):
+                entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode)
+                new_objects.append(labels.object_id)
+                if on_object is not None:
+                    on_object(entry)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix_str(labels.object_id)
+    finally:
+        if bar is not None:
+            bar.close()
+    return new_objects
 
 
 def _ray_connected(config: Config):

@@ -19,7 +19,7 @@ from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
 from ..config import Config, DatasetConfig
 from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
-from ..planning import check_motions, jaw_width_limit, screen_candidates
+from ..planning import ScreenedCandidates, check_motions, jaw_width_limit, screen_candidates
 from ..types import GraspCandidates, PerceivedCloud
 
 # The planner's verdicts on a grasp, in the order its checks run; a grasp's verdict is the first
@@ -88,6 +88,18 @@ def _verdict_quotas(available: dict[int, int], n_grasps: int, feasible_fraction:
     return quotas
 
 
+@dataclass
+class _Poses:
+    """(candidate, approach) poses of a cloud: each one's screened candidate row and approach slot,
+    (K, 3) approach, (K, 3, 3) grasp frame and (K, 3) centre, world frame."""
+
+    rows: torch.Tensor
+    slots: torch.Tensor
+    approach: torch.Tensor
+    rotation: torch.Tensor
+    centre: torch.Tensor
+
+
 def classify_grasps(
     cloud: PerceivedCloud,
     config: Config,
@@ -109,7 +121,43 @@ def classify_grasps(
     dataset = config.dataset if dataset is None else dataset
     planner = config.planner
     screened = screen_candidates([cloud], config, [seed])
-    n_candidates, n_approaches = screened.n_candidates, planner.n_approaches
+    poses = _covering_poses(screened, cloud, planner.n_approaches, dataset, taken_object)
+    verdict, clearance, joint_path, s_reach = _planner_verdicts(screened, config, poses)
+    picked = _pick_across_verdicts(verdict, seed, n_grasps, dataset.feasible_fraction)
+    chosen_rows = poses.rows[picked]
+    jaw_limit_m = jaw_width_limit(screened.robot, planner)
+    too_wide = screened.width_m[chosen_rows] > jaw_limit_m
+    candidates = GraspCandidates(
+        contacts=screened.contacts_world[chosen_rows],
+        closing_axis=screened.closing_axis[chosen_rows],
+        width_m=screened.width_m[chosen_rows],
+        s_geom=screened.s_geom[chosen_rows],
+        approach=poses.approach[picked],
+        rotation=poses.rotation[picked],
+        s_reach=s_reach[picked],
+        ik_solution=joint_path[picked, grasp_waypoint_index(config.motion)],
+        joint_path=joint_path[picked],
+        hand_clearance_m=clearance[picked],
+        zone=torch.full((picked.numel(),), -1, dtype=torch.int64),
+        s_afford=torch.zeros(picked.numel()),
+        s_avoid=torch.zeros(picked.numel()),
+        s_task=torch.zeros(picked.numel()),
+        score=screened.s_geom[chosen_rows].clone(),
+    )
+    reasons = tuple(
+        _reason(VERDICTS[v], planner, jaw_limit_m, float(c), bool(w))
+        for v, c, w in zip(verdict[picked].tolist(), clearance[picked].tolist(), too_wide.tolist())
+    )
+    return ClassifiedGrasps(candidates, verdict[picked], reasons, screened.n_candidates * planner.n_approaches, poses.rows.numel())
+
+
+def _covering_poses(
+    screened: ScreenedCandidates, cloud: PerceivedCloud, n_approaches: int, dataset: DatasetConfig,
+    taken_object: tuple[torch.Tensor, torch.Tensor] | None,
+) -> _Poses:
+    """The (candidate, approach) poses that cover the object: those pose-space non-maximum
+    suppression keeps of every pose, less the same grasps as one of ``taken_object``."""
+    n_candidates = screened.n_candidates
     rows = torch.arange(n_candidates).repeat_interleave(n_approaches)
     slots = torch.arange(n_approaches).repeat(n_candidates)
     approach, rotation = screened.frames(rows, slots)
@@ -122,9 +170,15 @@ def classify_grasps(
         rotation_object = object_from_world[:3, :3] @ rotation[covering].double()
         new = ~same_grasp(centre_object, rotation_object, *taken_object, dataset.nms_translation_m, rotation_threshold).any(dim=1)
         covering = covering[new]
-    rows, slots, approach, rotation, centre = rows[covering], slots[covering], approach[covering], rotation[covering], centre[covering]
-    n = rows.numel()
+    return _Poses(rows[covering], slots[covering], approach[covering], rotation[covering], centre[covering])
 
+
+def _planner_verdicts(screened: ScreenedCandidates, config: Config, poses: _Poses) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Each pose's verdict, its checks run in the planner's order, each on the poses every earlier
+    one passed: (N,) verdict index, (N,) swept clearance (inf where not reached), (N, W, 7) joint
+    path and (N,) S_reach (zeros where not reached)."""
+    rows, slots, approach, rotation, centre = poses.rows, poses.slots, poses.approach, poses.rotation, poses.centre
+    n = rows.numel()
     verdict = torch.full((n,), FEASIBLE, dtype=torch.int64)
     verdict[~screened.clear_of_table(rows, rotation[:, None])[:, 0]] = VERDICTS.index("table")
     undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
@@ -147,36 +201,16 @@ def classify_grasps(
         verdict[undecided[motion.rejected_by[:, 1] == 1]] = VERDICTS.index("motion")
         joint_path[undecided] = motion.joint_path
         s_reach[undecided] = motion.s_reach
+    return verdict, clearance, joint_path, s_reach
 
+
+def _pick_across_verdicts(verdict: torch.Tensor, seed: int, n_grasps: int, feasible_fraction: float) -> torch.Tensor:
+    """Indices of the picked grasps, in S_geom order: each verdict's quota (``_verdict_quotas``) drawn
+    at random (``seed``) among its grasps."""
+    n = verdict.numel()
     generator = torch.Generator().manual_seed(int(seed))
     order = torch.randperm(n, generator=generator)
     available = {v: int((verdict == v).sum()) for v in range(len(VERDICTS)) if (verdict == v).any()}
-    quotas = _verdict_quotas(available, n_grasps, dataset.feasible_fraction)
+    quotas = _verdict_quotas(available, n_grasps, feasible_fraction)
     picked = torch.cat([order[verdict[order] == v][:quota] for v, quota in quotas.items()] or [torch.zeros(0, dtype=torch.int64)])
-    picked = picked.sort().values  # back in S_geom order
-    chosen_rows = rows[picked]
-    jaw_limit_m = jaw_width_limit(screened.robot, planner)
-    too_wide = screened.width_m[chosen_rows] > jaw_limit_m
-    candidates = GraspCandidates(
-        contacts=screened.contacts_world[chosen_rows],
-        closing_axis=screened.closing_axis[chosen_rows],
-        width_m=screened.width_m[chosen_rows],
-        s_geom=screened.s_geom[chosen_rows],
-        approach=approach[picked],
-        rotation=rotation[picked],
-        s_reach=s_reach[picked],
-        ik_solution=joint_path[picked, grasp_waypoint_index(config.motion)],
-        joint_path=joint_path[picked],
-        hand_clearance_m=clearance[picked],
-        zone=torch.full((picked.numel(),), -1, dtype=torch.int64),
-        s_afford=torch.zeros(picked.numel()),
-        s_avoid=torch.zeros(picked.numel()),
-        s_task=torch.zeros(picked.numel()),
-        score=screened.s_geom[chosen_rows].clone(),
-    )
-    reasons = tuple(
-        _reason(VERDICTS[v], planner, jaw_limit_m, float(c), bool(w))
-        for v, c, w in zip(verdict[picked].tolist(), clearance[picked].tolist(), too_wide.tolist())
-    )
-    return ClassifiedGrasps(candidates, verdict[picked], reasons, n_candidates * n_approaches, n)
-
+    return picked.sort().values  # back in S_geom order

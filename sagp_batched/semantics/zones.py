@@ -277,15 +277,7 @@ def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> 
     centroid, axes, eigenvalues = zone_kernels.principal_frame(
         batch_points, valid, up, left, front, config.isotropy_tolerance
     )
-    spread = eigenvalues[0].sort(descending=True).values
-    largest = float(spread[0])
-    degenerate, reason = None, ""
-    if n < config.min_points:
-        degenerate, reason = "too_few_points", f"{n} points, fewer than zones.min_points={config.min_points}"
-    elif largest <= 0.0 or float(spread[1]) < config.collinear_eigen_ratio * largest:
-        degenerate, reason = "collinear", f"covariance eigenvalues {spread.tolist()} span a line at most"
-    elif float(spread[2]) < config.flat_eigen_ratio * largest:
-        degenerate, reason = "flat", f"covariance eigenvalues {spread.tolist()} span a plane; its thin axis' sides are noise"
+    degenerate, reason = _degeneracy(n, eigenvalues[0], config)
     frame_fallback = degenerate in ("too_few_points", "collinear")
     if frame_fallback:
         axes = reference_axes.unsqueeze(0)
@@ -305,25 +297,8 @@ def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> 
     if split == "length":
         rule = "none"
     elif not frame_fallback:
-        far_index = far.nonzero().squeeze(1)
-        labels = torch.from_numpy(_cluster_protrusions(points[far_index].numpy(), config))
-        cluster_ids, sizes = torch.unique(labels[labels >= 0], return_counts=True)
-        large = sizes >= config.min_protrusion_points
-        # Largest first (ties by cluster id), so protrusion_1 is the biggest part that sticks out.
-        order = sorted(zip((-sizes[large]).tolist(), cluster_ids[large].tolist()))
-        for new_id, (_, cluster_id) in enumerate(order):
-            protrusion_label[far_index[labels == cluster_id]] = new_id
-
-    n_protrusions = int(protrusion_label.max()) + 1
-    zone_names = GEOMETRIC_ZONES + tuple(protrusion_zone(k + 1) for k in range(n_protrusions))
-    memberships = torch.zeros(n, len(zone_names), dtype=torch.bool)
-    rows = torch.arange(n)
-    memberships[rows, primary_zone] = True
-    memberships[rows, torch.where(lateral_positive[0], ZONE_INDEX["left"], ZONE_INDEX["right"])] = True
-    memberships[rows, torch.where(depth_positive[0], ZONE_INDEX["front"], ZONE_INDEX["back"])] = True
-    in_protrusion = protrusion_label >= 0
-    memberships[rows[in_protrusion], len(GEOMETRIC_ZONES) + protrusion_label[in_protrusion]] = True
-    point_zone = torch.where(in_protrusion, len(GEOMETRIC_ZONES) + protrusion_label, primary_zone)
+        protrusion_label = _protrusion_labels(points, far, config)
+    zone_names, memberships, point_zone = _point_zones(primary_zone, lateral_positive[0], depth_positive[0], protrusion_label)
     return ZoneDecomposition(
         zone_names=zone_names, points_world=points, point_zone=point_zone, memberships=memberships,
         protrusion_label=protrusion_label, centroid_world=centroid[0], axes_world=axes[0],
@@ -331,6 +306,54 @@ def decompose(points_world: torch.Tensor, config: ZonesConfig | None = None) -> 
         protrusion_rule=rule, protrusion_distance_m=protrusion_distance, protrusion_reference_m=reference,
         split=split, length_axis_world=length_axis,
     )
+
+
+def _degeneracy(n: int, eigenvalues: torch.Tensor, config: ZonesConfig) -> tuple[str | None, str]:
+    """(``ZoneDecomposition.degenerate``, its reason) of a cloud of ``n`` points whose covariance
+    has ``eigenvalues`` (3,): None and "" for a cloud with a stable, non-flat principal frame."""
+    spread = eigenvalues.sort(descending=True).values
+    largest = float(spread[0])
+    if n < config.min_points:
+        return "too_few_points", f"{n} points, fewer than zones.min_points={config.min_points}"
+    if largest <= 0.0 or float(spread[1]) < config.collinear_eigen_ratio * largest:
+        return "collinear", f"covariance eigenvalues {spread.tolist()} span a line at most"
+    if float(spread[2]) < config.flat_eigen_ratio * largest:
+        return "flat", f"covariance eigenvalues {spread.tolist()} span a plane; its thin axis' sides are noise"
+    return None, ""
+
+
+def _protrusion_labels(points: torch.Tensor, far: torch.Tensor, config: ZonesConfig) -> torch.Tensor:
+    """(N,) protrusion of each point, -1 for none: the DBSCAN clusters of the ``far`` points of at
+    least ``min_protrusion_points``, numbered from 0 largest first."""
+    protrusion_label = torch.full((points.shape[0],), -1, dtype=torch.int64)
+    far_index = far.nonzero().squeeze(1)
+    labels = torch.from_numpy(_cluster_protrusions(points[far_index].numpy(), config))
+    cluster_ids, sizes = torch.unique(labels[labels >= 0], return_counts=True)
+    large = sizes >= config.min_protrusion_points
+    # Largest first (ties by cluster id), so protrusion_1 is the biggest part that sticks out.
+    order = sorted(zip((-sizes[large]).tolist(), cluster_ids[large].tolist()))
+    for new_id, (_, cluster_id) in enumerate(order):
+        protrusion_label[far_index[labels == cluster_id]] = new_id
+    return protrusion_label
+
+
+def _point_zones(
+    primary_zone: torch.Tensor, lateral_positive: torch.Tensor, depth_positive: torch.Tensor, protrusion_label: torch.Tensor
+) -> tuple[tuple[str, ...], torch.Tensor, torch.Tensor]:
+    """(zone names, (N, Z) memberships, (N,) primary zone) of points given their third, their lateral
+    and depth sides and their protrusion (-1 for none), which wins the primary zone over the third."""
+    n = protrusion_label.numel()
+    n_protrusions = int(protrusion_label.max()) + 1
+    zone_names = GEOMETRIC_ZONES + tuple(protrusion_zone(k + 1) for k in range(n_protrusions))
+    memberships = torch.zeros(n, len(zone_names), dtype=torch.bool)
+    rows = torch.arange(n)
+    memberships[rows, primary_zone] = True
+    memberships[rows, torch.where(lateral_positive, ZONE_INDEX["left"], ZONE_INDEX["right"])] = True
+    memberships[rows, torch.where(depth_positive, ZONE_INDEX["front"], ZONE_INDEX["back"])] = True
+    in_protrusion = protrusion_label >= 0
+    memberships[rows[in_protrusion], len(GEOMETRIC_ZONES) + protrusion_label[in_protrusion]] = True
+    point_zone = torch.where(in_protrusion, len(GEOMETRIC_ZONES) + protrusion_label, primary_zone)
+    return zone_names, memberships, point_zone
 
 
 def assign_zones(

@@ -133,8 +133,6 @@ class TrialRunner:
     def _run_unit(self, spec: ObjectSpec, unit: TrialUnit, result: UnitResult) -> None:
         from ..world.perception import capture
         from ..planning import plan
-        from ..rating.prompt import describe_zones
-        from ..semantics.zone_marks import rating_image
         from ..semantics.zones import assign_zones
 
         config, scene = self.config, self.scene
@@ -157,23 +155,7 @@ class TrialRunner:
         geometry_s = time.perf_counter() - start
 
         # Rated for every method, GO included: PZA and AC of GO are measured against the same zones.
-        start = time.perf_counter()
-        rating_failure: tuple[str, str] | None = None  # (error, traceback) when the rater raised
-        try:
-            # Only a ground-truth rater (the oracle, an upper bound) is handed the object's true pose.
-            zone_points = _zone_points_object(cloud, decomposition) if self.rater.uses_ground_truth else None
-            # What the model sees: the crop with the zones drawn on it (set-of-mark prompting), or the plain crop.
-            shown = rating_image(cloud, decomposition, config.rating)
-            rating = self.rater.rate(spec.id, spec.name, unit.task, shown, describe_zones(decomposition), zone_points)
-        except TrialTimeout:
-            raise
-        except Exception as exc:  # fails the methods that rank by the rating only; the others run on
-            rating_failure = (f"rating failed: {type(exc).__name__}: {clipped(str(exc))}", traceback.format_exc(limit=8))
-            # Named after the rater where it was built (a failed build leaves the configured backend and model).
-            rater = self._rater
-            rating = neutral_rating(getattr(rater, "backend", config.rating.backend), getattr(rater, "model", config.rating.model),
-                                    getattr(rater, "prompt_version", ""), time.perf_counter() - start, rating_failure[0])
-        rating_s = time.perf_counter() - start
+        rating, rating_failure, rating_s = self._rate(spec, unit, cloud, decomposition)
 
         ranked_by_method: dict[str, GraspCandidates] = {}
         attempts_by_method: dict[str, list] = {}
@@ -202,6 +184,31 @@ class TrialRunner:
 
             result.files[grasps_file(spec.id, unit.task, unit.trial)] = acronym_bytes(
                 spec, cloud, candidates, ranked_by_method, attempts_by_method)
+
+    def _rate(self, spec: ObjectSpec, unit: TrialUnit, cloud: PerceivedCloud, decomposition) -> tuple[ZoneRating, tuple[str, str] | None, float]:
+        """(rating, (error, traceback) when the rater raised, seconds) of the unit's zones. A failed
+        rating is neutral: it fails the methods that rank by the rating only, the others run on."""
+        from ..rating.prompt import describe_zones
+        from ..semantics.zone_marks import rating_image
+
+        config = self.config
+        start = time.perf_counter()
+        rating_failure: tuple[str, str] | None = None
+        try:
+            # Only a ground-truth rater (the oracle, an upper bound) is handed the object's true pose.
+            zone_points = _zone_points_object(cloud, decomposition) if self.rater.uses_ground_truth else None
+            # What the model sees: the crop with the zones drawn on it (set-of-mark prompting), or the plain crop.
+            shown = rating_image(cloud, decomposition, config.rating)
+            rating = self.rater.rate(spec.id, spec.name, unit.task, shown, describe_zones(decomposition), zone_points)
+        except TrialTimeout:
+            raise
+        except Exception as exc:  # recorded on the methods that need the rating
+            rating_failure = (f"rating failed: {type(exc).__name__}: {clipped(str(exc))}", traceback.format_exc(limit=8))
+            # Named after the rater where it was built (a failed build leaves the configured backend and model).
+            rater = self._rater
+            rating = neutral_rating(getattr(rater, "backend", config.rating.backend), getattr(rater, "model", config.rating.model),
+                                    getattr(rater, "prompt_version", ""), time.perf_counter() - start, rating_failure[0])
+        return rating, rating_failure, time.perf_counter() - start
 
     def _execute(self, ranked: GraspCandidates, cloud: PerceivedCloud, rating: ZoneRating, unit: TrialUnit, method: str,
                  executed: dict[int, GraspAttempt], files: dict[str, bytes]) -> ExecutedGrasps:

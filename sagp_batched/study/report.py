@@ -154,7 +154,6 @@ def write_plots(out_dir: Path, summary: dict[str, Any]) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
     plots_dir = out_dir / "plots"
     plots_dir.mkdir(exist_ok=True)
@@ -164,39 +163,16 @@ def write_plots(out_dir: Path, summary: dict[str, Any]) -> list[Path]:
     if not methods or not tasks:
         return written
 
-    def bars(ax, values_by_method, labels, title):
-        """values_by_method: method -> list of (group metrics or None, metric name), one per label."""
-        width = 0.8 / max(1, len(values_by_method))
-        x = np.arange(len(labels))
-        for i, (method, values) in enumerate(values_by_method.items()):
-            rates = [(m[name] or 0.0) if m else 0.0 for m, name in values]
-            intervals = [m["ci95"][name] if m and m["ci95"][name] else None for m, name in values]
-            errors = [[r - ci[0] if ci else 0 for ci, r in zip(intervals, rates)],
-                      [ci[1] - r if ci else 0 for ci, r in zip(intervals, rates)]]
-            ax.bar(x + i * width, rates, width, yerr=errors, capsize=3, label=METHOD_LABELS.get(method, method))
-        ax.set_xticks(x + width * (len(values_by_method) - 1) / 2, labels, rotation=30, ha="right")
-        ax.set_ylim(0, 1.05)
-        ax.set_title(title)
-        ax.legend(fontsize=8)
-
     fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.8), squeeze=False)
     for ax, task in zip(axes[0], tasks):
-        bars(ax, {m: [(summary[m].get(task, {}).get("all"), k) for k in RATE_METRICS] for m in methods}, list(RATE_METRICS), f"Task {task}")
-    fig.tight_layout()
-    path = plots_dir / "methods_by_task.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    written.append(path)
+        _method_bars(ax, {m: [(summary[m].get(task, {}).get("all"), k) for k in RATE_METRICS] for m in methods}, list(RATE_METRICS), f"Task {task}")
+    written.append(_save_figure(fig, plots_dir / "methods_by_task.png"))
 
     fig, axes = plt.subplots(1, len(tasks), figsize=(5 * len(tasks), 3.8), squeeze=False)
     for ax, task in zip(axes[0], tasks):
         groups = sorted({g for m in methods for g in summary[m].get(task, {})} - {"all"})
-        bars(ax, {m: [(summary[m].get(task, {}).get(g), "PZA") for g in groups] for m in methods}, groups, f"PZA by group, {task}")
-    fig.tight_layout()
-    path = plots_dir / "pza_by_category.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    written.append(path)
+        _method_bars(ax, {m: [(summary[m].get(task, {}).get(g), "PZA") for g in groups] for m in methods}, groups, f"PZA by group, {task}")
+    written.append(_save_figure(fig, plots_dir / "pza_by_category.png"))
 
     fig, ax = plt.subplots(figsize=(6, 3.8))
     labels = [f"{METHOD_LABELS.get(m, m)}\n{t}" for m in methods for t in tasks if t in summary[m]]
@@ -206,12 +182,37 @@ def write_plots(out_dir: Path, summary: dict[str, Any]) -> list[Path]:
     ax.bar(labels, rating, bottom=geometry, label="rating")
     ax.set_ylabel("mean planning time per trial (s)")
     ax.legend()
+    written.append(_save_figure(fig, plots_dir / "planning_time.png"))
+    return written
+
+
+def _method_bars(ax, values_by_method: dict[str, list], labels: list[str], title: str) -> None:
+    """Grouped bars of one rate per label, one bar per method, with its 95 % interval;
+    values_by_method: method -> list of (group metrics or None, metric name), one per label."""
+    import numpy as np
+
+    width = 0.8 / max(1, len(values_by_method))
+    x = np.arange(len(labels))
+    for i, (method, values) in enumerate(values_by_method.items()):
+        rates = [(m[name] or 0.0) if m else 0.0 for m, name in values]
+        intervals = [m["ci95"][name] if m and m["ci95"][name] else None for m, name in values]
+        errors = [[r - ci[0] if ci else 0 for ci, r in zip(intervals, rates)],
+                  [ci[1] - r if ci else 0 for ci, r in zip(intervals, rates)]]
+        ax.bar(x + i * width, rates, width, yerr=errors, capsize=3, label=METHOD_LABELS.get(method, method))
+    ax.set_xticks(x + width * (len(values_by_method) - 1) / 2, labels, rotation=30, ha="right")
+    ax.set_ylim(0, 1.05)
+    ax.set_title(title)
+    ax.legend(fontsize=8)
+
+
+def _save_figure(fig, path: Path) -> Path:
+    """Lay out ``fig``, write it to ``path`` and close it; the path."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
-    path = plots_dir / "planning_time.png"
     fig.savefig(path, dpi=120)
     plt.close(fig)
-    written.append(path)
-    return written
+    return path
 
 
 RATER_NOTES = {

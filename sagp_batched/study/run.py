@@ -28,8 +28,8 @@ from .experiment import TrialRunner, UnitResult
 from ..records import TrialRecord, TrialUnit, record_key
 from ..seeds import candidate_seed, scene_seed
 from ..run_directory import (
-    CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, WORKERS_FILE, RunDirectoryError, RunLock, TrialWriter, WorkerReport, append_json_line,
-    check_same_run, read_records,
+    CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, WORKERS_FILE, RunDirectoryError, RunLock, TrialsFile, TrialWriter, WorkerReport,
+    append_json_line, check_same_run, read_records,
     recover_trials_file, run_file_path, write_file_atomically, write_json,
 )
 from .metrics import summarise
@@ -247,6 +247,29 @@ def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], unit
                 on_note: Callable[[str], None]) -> StudyResult:
     from .report import write_reports
 
+    trials_path = out_dir / TRIALS_FILE
+    recovered = _open_run_directory(config, objects, methods, units, out_dir, not_run, on_note)
+    wanted = {key for u in units for key in u.keys()}
+    errors = {record_key(r) for r in recovered.records if r["error"] is not None} & wanted
+    if errors and not config.run.keep_errors:
+        on_note(f"{len(errors)} trial(s) that ended in an error run again (--keep-errors keeps them)")
+    finished = {record_key(r) for r in recovered.records} - (set() if config.run.keep_errors else errors)
+    pending = _pending_units(units, finished)
+    new_records = _run_pending(config, objects, pending, out_dir, objects_dir, packed, progress)
+
+    records = sorted((r for r in read_records(trials_path) if record_key(r) in wanted), key=record_key)
+    summary = summarise(records)
+    try:
+        write_reports(out_dir, records, summary, not_run)
+    except OSError as exc:
+        raise RunDirectoryError(f"cannot write the reports in {out_dir}: {exc.strerror or exc}; every trial is kept in {trials_path}") from exc
+    return StudyResult(out_dir, records, summary, new_records, not_run, len(recovered.rejected))
+
+
+def _open_run_directory(config: Config, objects: ObjectSet, methods: Iterable[str], units: list[TrialUnit], out_dir: Path,
+                        not_run: dict[str, str], on_note: Callable[[str], None]) -> TrialsFile:
+    """Check that ``out_dir`` holds this run (or none), set aside the torn or invalid lines of its
+    trials file and write the run's config and provenance; the trials recovered."""
     checksum = objects.checksum()
     check_same_run(out_dir, config, checksum, objects.source)
     trials_path = out_dir / TRIALS_FILE
@@ -265,15 +288,13 @@ def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], unit
         methods=list(methods),
         not_run=not_run,
     ))
+    return recovered
 
-    wanted = {key for u in units for key in u.keys()}
-    errors = {record_key(r) for r in recovered.records if r["error"] is not None} & wanted
-    if errors and not config.run.keep_errors:
-        on_note(f"{len(errors)} trial(s) that ended in an error run again (--keep-errors keeps them)")
-    finished = {record_key(r) for r in recovered.records} - (set() if config.run.keep_errors else errors)
-    pending = _pending_units(units, finished)
 
-    writer = TrialWriter(trials_path)
+def _run_pending(config: Config, objects: ObjectSet, pending: list[TrialUnit], out_dir: Path, objects_dir: str | None,
+                 packed: PackedObjects | None, progress: bool) -> int:
+    """Run ``pending`` on the configured backend, each unit written as it finishes; the records written."""
+    writer = TrialWriter(out_dir / TRIALS_FILE)
     workers_path = out_dir / WORKERS_FILE
     bar = None
     if progress:
@@ -309,11 +330,4 @@ def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], unit
         writer.close()
         if bar is not None:
             bar.close()
-
-    records = sorted((r for r in read_records(trials_path) if record_key(r) in wanted), key=record_key)
-    summary = summarise(records)
-    try:
-        write_reports(out_dir, records, summary, not_run)
-    except OSError as exc:
-        raise RunDirectoryError(f"cannot write the reports in {out_dir}: {exc.strerror or exc}; every trial is kept in {trials_path}") from exc
-    return StudyResult(out_dir, records, summary, new_records, not_run, len(recovered.rejected))
+    return new_records
