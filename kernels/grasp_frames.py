@@ -77,8 +77,7 @@ def scene_points_about(points: torch.Tensor, object_index: torch.Tensor, centre:
         centre: (c, 3) grasp centres.
 
     Candidates all of one scene (a one-object plan, or a block of scene-sorted candidates) take
-    its points by broadcasting: the same values without the (c, N, 3) gather, which cost a third
-    of the subtraction's time.
+    its points by broadcasting: the same values without the (c, N, 3) gather.
     """
     if object_index.numel():
         first, last = object_index.aminmax()

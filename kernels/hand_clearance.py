@@ -24,9 +24,8 @@ import torch
 
 # Runs of consecutive probe points (a coarse voxel subset, so roughly regions of the scene) whose
 # least-bound probe has its exact separation evaluated first: a blocked grasp almost always has
-# one of them under the margin. Four such probes were measured faster over a plan's checks than
-# eight, or than the 16 nearest overall, whose per-row selection (a partition) cost more than the
-# few more grasps they find blocked save.
+# one of them under the margin. Four such probes, not eight or the 16 nearest overall (a per-row
+# partition): the few more grasps those find blocked save less than their selection costs.
 PROBE_RUNS = 4
 # The lower bound's float32 rounding on points about the grasp centre (~1e-8 m at gripper sizes)
 # is far inside this slack.
@@ -41,7 +40,7 @@ RAW_ROUNDING_EPS = 64 * torch.finfo(torch.float32).eps
 # MKL's batched GEMM rounds like the exhaustive product only from 12 columns up.
 MIN_GEMM_COLUMNS = 16
 # (candidate, polytope, axis, probe) elements of the probes' bound computed at once: blocks of
-# ~2 MB temporaries, measured 5-9 % faster over a plan's checks than blocks of 1 MB or 4 MB.
+# ~2 MB temporaries, between smaller blocks' extra rounds and larger ones' cache misses.
 PROBE_BLOCK_ELEMENTS = 524_288
 
 
@@ -57,8 +56,8 @@ def _least_excess(projection: torch.Tensor, middle: torch.Tensor, half: torch.Te
     """(c, n) the largest slab excess |projection - middle| - half over directions, least over
     polytopes, NaN -> inf, for (d, c, n) projections and (S, d, c or 1, 1) slabs.
 
-    Directions and polytopes lead: their reductions then run along whole (c, n) planes, several
-    times faster than over a short middle dimension. In place on the one temporary: these are the
+    Directions and polytopes lead: their reductions then run along whole (c, n) planes, not
+    over a short middle dimension. In place on the one temporary: these are the
     sweep's largest tensors (MBs a block), and fresh allocations of that size cost as much as the
     arithmetic."""
     excess = (projection - middle).abs_().sub_(half).amax(dim=1).amin(dim=0)
@@ -112,8 +111,8 @@ def _compacted(points: torch.Tensor, scene: torch.Tensor, centre: torch.Tensor, 
 
     Only the chosen points are moved to the grasp centre: the same float32 subtraction as
     ``scene_points_about``'s, so the same bits. Scattered to their places from ``nonzero``'s
-    row-major list rather than ordered by a stable sort of the mask: the sort of every
-    (row, point) flag cost an eighth of the sweep."""
+    row-major list rather than ordered by a stable sort of the mask, which would sort every
+    (row, point) flag."""
     row, point = chosen.nonzero(as_tuple=True)
     slot = torch.arange(row.numel()) - (per_row.cumsum(0) - per_row)[row]
     compact = points.new_full((chosen.shape[0], int(per_row.max()), 3), float("nan"))

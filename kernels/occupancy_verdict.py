@@ -16,9 +16,8 @@ from .gripper_occupancy import GripperGeometry, gripper_occupancy
 # that their rounding moves them (for grasp centres within ~4.8 m, L1, of the origin; see
 # ``gripper_occupancy_within``).
 VOLUME_SLACK_M = 2e-5
-# (pose, point) pairs the volume verdict takes at once, in ~6 MB of buffers it reuses: measured
-# at 5,000 and at 500,000 pairs, blocks of 32k to 256k pairs took ever less time (fewer Python
-# rounds), the plans' chunk_elements capping them here.
+# (pose, point) pairs the volume verdict takes at once, in ~6 MB of buffers it reuses: larger
+# blocks take fewer Python rounds, and the plans' chunk_elements caps them here.
 VOLUME_BLOCK_ELEMENTS = 262_144
 
 
@@ -171,8 +170,8 @@ def _pose_bounds(layout: _Layout, scene_columns: torch.Tensor, geometry: Gripper
         poses, shape = slice(pose_start, pose_start + (group_end - group_start) * size), (group_end - group_start, size)
         axes, offset = layout.xz_axes[:, poses].unflatten(1, shape), layout.xz_offset[:, poses].unflatten(1, shape)
         bounds, step = (maybe[poses].view(shape), surely[poses].view(shape)), max(1, pose_budget // size)
-        # The y terms of whole blocks' groups, up to ``pose_budget`` groups, at once: taken per
-        # block of poses (51 to 85 groups), the 500,000-pair mug's verdict took ~4 % longer.
+        # The y terms of whole blocks' groups, up to ``pose_budget`` groups, at once: fewer, larger
+        # calls than one per block of poses.
         span = step * max(1, pose_budget // step)
         for terms_first in range(group_start, group_end, span):
             terms_last = min(terms_first + span, group_end)
@@ -204,8 +203,9 @@ def _scene_rows(layout: _Layout, scene_columns: torch.Tensor, first: int, last: 
 def _coordinates(axes: torch.Tensor, offset: torch.Tensor, columns: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
     """``out`` set to the coordinates of points along world ``axes`` (..., 3), plus ``offset``
     (..., 1); ``columns`` (3, ..., N) holds the points' world x, y and z rows, broadcasting."""
-    # An out-of-place addcmul broadcasting three ways is several times slower than these; a
-    # (rows, 4) @ (4, N) GEMM with the offsets as a fourth column took 2.5x as long (K = 4).
+    # In place into ``out``: an out-of-place addcmul broadcasting three ways makes a fresh tensor
+    # per term, and a (rows, 4) @ (4, N) GEMM with the offsets as a fourth column is too thin
+    # (K = 4) to pay.
     torch.mul(axes[..., 0:1], columns[0], out=out)
     return out.addcmul_(axes[..., 1:2], columns[1]).addcmul_(axes[..., 2:3], columns[2]).add_(offset)
 
@@ -250,7 +250,7 @@ def _count_bounds(
     # face); a point within the slack of a face may be inside, or inside both boxes at their
     # common face, so it may count once more: bounds inside +- uncertain, where inside counts
     # excess <= slack and uncertain |excess| <= slack, i.e. inside less those below -slack.
-    # Comparing into float32 0/1 and summing is several times faster than through bool.
+    # Comparisons land in float32 0/1 so they sum straight into the float32 bounds, not through bool.
     maybe, surely = out
     torch.sum(torch.le(excess, raise_m + VOLUME_SLACK_M, out=palm_z), dim=-1, out=maybe)
     torch.sum(excess.lt_(raise_m - VOLUME_SLACK_M), dim=-1, out=surely)

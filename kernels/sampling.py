@@ -10,16 +10,16 @@ import math
 import torch
 
 # (pair, proposal) combinations the guided sampler scores at once, in ~10 work tensors of up to
-# 1.5 MB made once per call: at 500,000 pairs 20 % faster than scoring whole chunks in fresh ones.
+# 1.5 MB made once per call: reused, they cost none of the page faults of whole chunks scored in
+# fresh tensors.
 SCORE_BLOCK_ELEMENTS = 131_072
 # The guided sampler reads proposals' qualities from a table of every (anchor, proposal) pair of
 # the cloud when that table is smaller than the proposals drawn, up to this many entries (64 MB):
 # at 500,000 pairs of 64 proposals a 3,000-point cloud's 9M entries replace 32M proposals scored.
 QUALITY_TABLE_MAX_ENTRIES = 16_777_216
 # Proposals read from the table are drawn this many at a time (int32, 16 MB) and read in blocks of
-# this many (4 MB of indices, 4 MB of qualities), their pairs sorted by anchor: at 500,000 pairs on
-# a 3,000-point cloud 385 -> 240 ms against drawing chunk_elements (1M) of int64 at a time and
-# reading them in draw order. Sorted draws of 1M gave 280 ms, of 8M 232 ms for twice the memory.
+# this many (4 MB of indices, 4 MB of qualities), their pairs sorted by anchor so that the table is
+# read row by row: smaller draws leave the reads less local, larger ones gain little for their memory.
 QUALITY_TABLE_DRAW_ELEMENTS = 4_194_304
 QUALITY_TABLE_BLOCK_ELEMENTS = 1_048_576
 
@@ -106,7 +106,7 @@ def _best_proposals_by_scoring(
     chunk_pairs = max(1, chunk_elements // n_proposals)
     # Proposals are drawn a chunk at a time and scored a block at a time into work tensors made
     # once: fresh multi-megabyte temporaries cost more in page faults (the allocator hands them
-    # back to the system between chunks) than the arithmetic on them. Every value is as before.
+    # back to the system between chunks) than the arithmetic on them. No value depends on the blocking.
     block_pairs = max(1, min(chunk_pairs, n_pairs, SCORE_BLOCK_ELEMENTS // n_proposals))
     work = _ScoreWork(block_pairs * n_proposals, points.dtype)
     for start in range(0, n_pairs, chunk_pairs):
@@ -132,19 +132,19 @@ def _best_proposals_from_table(table: torch.Tensor, first: torch.Tensor, n_propo
     second = torch.empty_like(first)
     draw_pairs = max(1, min(first.shape[0], QUALITY_TABLE_DRAW_ELEMENTS // n_proposals))
     block_pairs = max(1, min(draw_pairs, QUALITY_TABLE_BLOCK_ELEMENTS // n_proposals))
-    # Work tensors made once (fresh multi-megabyte ones cost page faults, a quarter of the time),
-    # of int32, 7 % faster than int64 (the index arithmetic and gathers move half the bytes; the
-    # table's flat indices stay below QUALITY_TABLE_MAX_ENTRIES): the generator's draws below
-    # 2**32 are the same numbers in either type, one 32-bit draw each, element by element, so
-    # the chunking does not change them either.
+    # Work tensors made once (fresh multi-megabyte ones cost page faults), of int32 rather than
+    # int64 (the index arithmetic and gathers move half the bytes; the table's flat indices stay
+    # below QUALITY_TABLE_MAX_ENTRIES): the generator's draws below 2**32 are the same numbers in
+    # either type, one 32-bit draw each, element by element, so the chunking does not change them
+    # either.
     drawn = torch.empty(draw_pairs, n_proposals, dtype=torch.int32)
     index = torch.empty(block_pairs, n_proposals, dtype=torch.int32)
     quality = torch.empty(block_pairs, n_proposals, dtype=table.dtype)
     for start in range(0, first.shape[0], draw_pairs):
         proposal = drawn[: min(draw_pairs, first.shape[0] - start)].random_(0, n_options, generator=generator)
-        # Pairs read in anchor order read the 36 MB table (3,000 points) a 12 KB row at a time
-        # instead of at random: at 500,000 pairs the reads took 72 instead of 210 ms, for 20 ms
-        # of sorting and permuting. Equal anchors may come in any order: each pair is read alone.
+        # Pairs read in anchor order read the table (36 MB at 3,000 points) a row (12 KB) at a
+        # time instead of at random, for the price of a sort and a permutation. Equal anchors may
+        # come in any order: each pair is read alone.
         anchor, order = first[start : start + proposal.shape[0]].sort()
         for block in range(0, order.shape[0], block_pairs):
             pairs = order[block : block + block_pairs]
@@ -152,7 +152,7 @@ def _best_proposals_from_table(table: torch.Tensor, first: torch.Tensor, n_propo
             flat = torch.index_select(proposal, 0, pairs, out=index[: pairs.shape[0]]).add_(row_start.to(torch.int32))
             read = torch.index_select(table, 0, flat.view(-1), out=quality[: pairs.shape[0]].view(-1)).view(flat.shape)
             # max's index is argmax's, the first maximal proposal (an all -inf row falls back to
-            # the first), and was 20 % faster.
+            # the first), and max is the quicker of the two.
             column = flat.gather(1, read.max(dim=1, keepdim=True).indices).to(torch.int64).sub_(row_start).squeeze(1)
             # Same skip trick as sample_pair_indices: distinct from the anchor without rejection.
             second[start + pairs] = column + (column >= anchor[block : block + block_pairs])
@@ -169,8 +169,8 @@ def _proposal_quality_table(points: torch.Tensor, normals: torch.Tensor, min_wid
     table = torch.empty(n_points, n_points, dtype=points.dtype)
     start = 0
     while start < n_points:
-        # Only the upper triangle is scored, then mirrored (two thirds of the time to score every
-        # pair): swapping anchor and proposal negates the offset exactly (IEEE subtraction is
+        # Only the upper triangle is scored, then mirrored, sparing half the pairs' scoring:
+        # swapping anchor and proposal negates the offset exactly (IEEE subtraction is
         # antisymmetric), so the width is the same and the axis exactly negated, and the two
         # contact cosines swap exactly (negation commutes with rounding), so min(cos_i, cos_j) is
         # the same bits. Coincident points (offset +0 both ways) are the one exception: in reach
@@ -222,7 +222,7 @@ def _proposal_quality(
 
     def proposed(values: torch.Tensor) -> torch.Tensor:
         # index_select of the flattened proposals gives the same rows as indexing with the (C, K)
-        # tensor, and measured 3-5x faster on 2-core CPUs, where these gathers dominated sampling.
+        # tensor, through a cheaper path than advanced indexing: these gathers weigh most in sampling.
         return values[None] if flat is None else torch.index_select(values, 0, flat, out=gathered).view(offset.shape)
 
     torch.sub(proposed(points), points[anchor][:, None, :], out=offset)
@@ -231,7 +231,7 @@ def _proposal_quality(
     axis = offset.div_(torch.clamp_min(width, torch.finfo(points.dtype).tiny, out=cos_i).unsqueeze(-1))
     # The contact cosines as antipodal_pairs' (n * axis).sum(-1), whose sum over three
     # terms runs (x + y) + z: the same values from component products, without its
-    # broadcast reduction (a quarter of the sampler's time).
+    # broadcast reduction over a last axis of 3.
     _dot(proposed(normals), axis, cos_j, term)
     _dot(normals[anchor][:, None, :], axis, cos_i, term).neg_()
     torch.lt(width, min_width_m, out=out_of_reach).logical_or_(torch.gt(width, max_width_m, out=beyond))
@@ -301,8 +301,8 @@ def voxel_representatives(points: torch.Tensor, voxel_m: float) -> torch.Tensor:
     cells = cells - cells.min(dim=0).values
     extent = cells.max(dim=0).values + 1
     if math.prod(extent.tolist()) < 2**62:
-        # One int64 key per cell: a 1-D unique is ~5x faster than unique over rows, and which
-        # label a cell gets does not matter, only which points share one.
+        # One int64 key per cell: a 1-D unique sorts plain keys where unique over rows compares
+        # rows, and which label a cell gets does not matter, only which points share one.
         cells = (cells[:, 0] * extent[1] + cells[:, 1]) * extent[2] + cells[:, 2]
         _, inverse = torch.unique(cells, return_inverse=True)
     else:

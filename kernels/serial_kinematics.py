@@ -3,14 +3,13 @@
 Why not pytorch-kinematics' own (``Chain.forward_kinematics_tensor``, which these reproduce to
 float32 rounding): it composes the frames as batched 4x4 matrix products, and a product of B tiny
 matrices costs one small GEMM each, and it builds every joint's 4x4 rotation through a dozen
-intermediate tensors; on these CPUs that is ~4 us a configuration (25-38 ms for the ~7,600
-waypoints of one motion check). Here each matrix entry is a row of B values (structure of
-arrays), so a frame's product is two elementwise operations over (3, 3, 4, B) and an addition:
-~2 ms for the same 7,600. The frames are returned in that layout, (F, 3, 4, B), and the Jacobian
-reads them so: its callers need rows (an end frame's position, a link's height), and no (F, B, 4,
-4) copy is made. At the ~10 configurations of a damped-least-squares step, where every tensor
-operation costs its dispatch (a few microseconds) whatever its size, a pass is ~50 operations,
-~0.12 ms, 40% of pk's time.
+intermediate tensors, a cost per configuration that the ~7,600 waypoints of one motion check
+multiply. Here each matrix entry is a row of B values (structure of arrays), so a frame's product
+is two elementwise operations over (3, 3, 4, B) and an addition, whatever B. The frames are
+returned in that layout, (F, 3, 4, B), and the Jacobian reads them so: its callers need rows (an
+end frame's position, a link's height), and no (F, B, 4, 4) copy is made. At the ~10
+configurations of a damped-least-squares step, where every tensor operation costs its dispatch
+whatever its size, a pass is ~50 operations, fewer than pk's.
 
 Frames follow pytorch-kinematics' convention: frame f's pose is its parent's (frame f - 1, the
 base for frame 0) times its static offset (the URDF link and joint origin), times the rotation of

@@ -8,8 +8,8 @@ import torch
 # Float32 rounding of the table check's bounds (a few 1e-8 m at these sizes) is far inside this.
 TABLE_BOUND_SLACK_M = 1e-5
 # Poses whose heights of hand points the table check takes from one GEMM: the heights (~1 MB for
-# the 32-point cover) stay in cache for the minimum that follows (at 500,000 pairs one GEMM over
-# every pose of a block of candidates made the check ~4x slower); 4,096 to 16,384 measured alike.
+# the 32-point cover) stay in cache for the minimum that follows, where one GEMM over every pose
+# of a block of candidates would not; half or twice this serves as well.
 TABLE_BLOCK_POSES = 8192
 # Points that bound a pose's lowest hand point for the table check: 32 of the hand's 204 hull
 # vertices cover every vertex within 2.5 cm, leaving ~10 % of a cloud's poses to check on all.
@@ -78,8 +78,8 @@ def _lowest_along(directions: torch.Tensor, points: torch.Tensor) -> torch.Tenso
     directions and at least half as many unless there are fewer in all: never the fewer than 4
     rows that MKL rounds otherwise, so each height rounds as in one GEMM over every direction."""
     n_blocks = -(-directions[..., 0].numel() // TABLE_BLOCK_POSES)
-    # amin, not min: min also finds the indices, which made it several times slower.
-    if n_blocks <= 1:  # most calls: no split and concatenation, ~10 us each
+    # amin, not min: min also finds the indices, which are not needed.
+    if n_blocks <= 1:  # most calls: no split and concatenation
         return (directions @ points.T).amin(dim=-1)
     blocks = directions.reshape(-1, 3).tensor_split(n_blocks)
     return torch.cat([(block @ points.T).amin(dim=1) for block in blocks]).view(directions.shape[:-1])

@@ -7,9 +7,9 @@ from typing import Iterator
 
 import torch
 
-# Measured: with 2 intra-op threads torch sometimes stalls for seconds on these 2-vCPU
-# machines in small-tensor loops; 1 thread did not. The planner's tensors are small (<= 1e6
-# elements), so one thread costs little and parallelism comes from worker processes instead.
+# With 2 intra-op threads torch can stall in small-tensor loops on 2-vCPU machines; with 1 it
+# does not. The planner's tensors are small (<= 1e6 elements), so one thread costs little and
+# parallelism comes from worker processes instead.
 DEFAULT_TORCH_THREADS = 1
 
 

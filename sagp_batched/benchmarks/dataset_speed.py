@@ -8,8 +8,8 @@ only object is planned) count against it; the busy rate divides by the seconds t
 rate of a core kept busy, as in a run of many objects where one worker plans while others simulate.
 
 ``shared_world_step_cost`` measures what a PyBullet step costs per hand-object pair when several
-pairs, far apart, share one world: the way to label many grasps per step where the step's fixed
-cost dominated.
+pairs, far apart, share one world: the way to label many grasps per step where a step's fixed
+cost dominates.
 """
 from __future__ import annotations
 

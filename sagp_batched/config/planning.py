@@ -19,11 +19,11 @@ class PlannerConfig(_Section):
     n_pairs: int = setting(5000, at_least=1, at_most=MAX_PAIRS)
     # The published method fixes how many pairs, not how they are drawn. "guided" (Dex-Net/GPD antipodal sampling)
     # gives ~7x more antipodal pairs (~25x more on a mug handle) and, with the gripper volume screened
-    # lazily, keeps plans under 0.25 s on captured clouds; it lifted GO t1 GSR from 87.5 to 90.7 %
+    # lazily, costs plans little on captured clouds; it lifts GO t1 GSR from 87.5 to 90.7 %
     # (the 10 cm coffee can only has usable chord pairs when sampling seeks them). "uniform" is the
     # literal reading, kept for comparison.
     pair_sampling: str = setting("guided", choices=PAIR_SAMPLING_MODES)
-    # Second-point proposals per guided pair: 64 doubles the handle pairs of 32 for ~20 ms per 5,000 pairs.
+    # Second-point proposals per guided pair: 64 doubles the handle pairs of 32 at little cost.
     pair_proposals: int = setting(64, at_least=1)
     min_width_m: float = setting(0.005, at_least=0)
     max_width_m: float = setting(0.08, above=0)
@@ -39,7 +39,8 @@ class PlannerConfig(_Section):
     # Cloud points within this of a contact plane belong to the grasped surface (3 mm voxels + normal noise).
     contact_clearance_m: float = setting(0.004, at_least=0)
     # The occupancy fraction is estimated on a seeded subset of at most this many object points
-    # (obstacle points thinned at the same rate): standard error ~1 % at the 12 % limit, 2-5x faster.
+    # (obstacle points thinned at the same rate): standard error ~1 % at the 12 % limit, counting a
+    # fraction of a dense cloud's points.
     occupancy_max_points: int = setting(1024, at_least=1)
     # The hand's collision hulls (derived from the robot URDF) swept along the descent must keep
     # this far from every object and obstacle point: the cloud's 3 mm voxels put the true surface
@@ -47,7 +48,7 @@ class PlannerConfig(_Section):
     hand_clearance_margin_m: float = setting(0.003, at_least=0)
     # The swept-hand check tests one cloud point per cell of this size (object and obstacles):
     # every surface patch keeps points no farther apart than the 2 cm finger is wide, thin rims
-    # included, at a third of the cost of the full 3 mm cloud.
+    # included, with far fewer points than the full 3 mm cloud.
     hand_check_voxel_m: float = setting(0.006, above=0)
     # Height the fingers' hulls must keep above the table at the grasp and pre-grasp: soft finger
     # contacts pressing 0.3 mm into the table already push with the 10 N execution calls a
@@ -86,10 +87,10 @@ class IKConfig(_Section):
 
     # Grasp IK solves the Panda's closed form at this many joint-7 values evenly spread over its
     # range (plus the reference posture's), and at the finer count for targets that none of them
-    # reaches (a narrow joint-7 window). On FK of 2,000 random in-limit configurations (1 thread)
-    # 8 to 24 samples all solve 99.95 %; 16 run ~28,000 targets/s and 12 ~35,000/s, but with 12 the
-    # motion check rejects 308 grasps instead of 273 (the sum under limit_margin_rad). A 256
-    # fine grid found the one target 128 misses (a 0.012 rad window between two joint limits).
+    # reaches (a narrow joint-7 window). On FK of 2,000 random in-limit configurations 8 to 24
+    # samples all solve 99.95 %; fewer samples solve faster, but with 12 the motion check rejects
+    # 308 grasps instead of 273 (the sum under limit_margin_rad). A 256 fine grid finds the one
+    # target 128 misses (a 0.012 rad window between two joint limits).
     q7_samples: int = setting(16, at_least=1)
     q7_fine_samples: int = setting(128, at_least=1)
     # Damped-least-squares steps for closed-form answers that float32 forward kinematics puts
@@ -98,9 +99,7 @@ class IKConfig(_Section):
     # Grasp solutions at least this far from every joint limit (or as far as the preferred posture
     # is) are chosen before nearer ones: the motion check's path IK clamps at the limits. Summed
     # over 3 seeds of the cracker box, soup can and mug at 5,000 pairs, motion-check rejections
-    # were 460 without a margin and 273 at 0.4 rad (0.2: 358, 0.3: 323, 0.6: 392, measured before
-    # the 0.01 rad rounding allowance); the iterative solver this replaced had 234 motion and
-    # 1,182 grasp-IK rejections, against 473 grasp-IK rejections now.
+    # are fewest at 0.4 rad: 273, against 460 without a margin (0.2: 358, 0.3: 323, 0.6: 392).
     limit_margin_rad: float = setting(0.4, at_least=0)
     # The whole executed motion (pre-grasp, descent, lift) is solved from the grasp solution by
     # damped least squares: waypoints lie at most 20 cm from the grasp; on captured YCB grasps 4

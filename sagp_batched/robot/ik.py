@@ -5,7 +5,7 @@ of joint-7 values, for all targets of a planning call at once; per target the so
 deterministic reference posture is kept, so the same targets always give the same joints. Every
 answer is then judged by the forward kinematics of pytorch-kinematics' chain (computed by
 ``sagp_batched_kernels.serial_kinematics``, which matches pk's own to float32 rounding at a
-seventh of its cost), and the rare one that misses the tolerance (float32 rounding next to a
+fraction of its cost), and the rare one that misses the tolerance (float32 rounding next to a
 singularity) is polished by damped-least-squares steps on the chain's geometric Jacobian. The
 arm's link offsets are read from the same chain (``kinematics``).
 """
