@@ -11,7 +11,7 @@ The public API: build a scene, perceive, plan, zone, rate, score, execute::
 """
 from .attempt import AttemptDiagnostics
 from .config import GEOMETRY_ONLY_WEIGHTS, Config, ConfigError, ScoreWeights, load_config
-from .execution import execute_grasp, execute_ranked
+from .execution.pick import execute_grasp, execute_ranked
 from .world.objects import ObjectSet, ObjectSpec, load_object_set
 from .world.perception import capture
 from .planning import PlanResult, plan, plan_batch

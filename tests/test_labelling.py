@@ -12,13 +12,13 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config, Grasp, capture, plan
 from sagp_batched.config import ConfigError, ShakeConfig, load_config
-from sagp_batched.execution import execute_grasp
+from sagp_batched.execution.pick import execute_grasp
 from sagp_batched.datasets.collision_urdf import floating_hand_urdf
 from sagp_batched.datasets.labelling import ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
 from sagp_batched.world.objects import load_object_set
 from sagp_batched.robot.description import load_robot
 from sagp_batched.world.scene import Scene
-from sagp_batched.shake import shake_profile
+from sagp_batched.execution.shake import shake_profile
 from sagp_batched.types import InvalidGraspError
 
 ROBOT = load_robot()

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched.robot.description import load_robot
 from sagp_batched import Config, Grasp, GraspCandidates
-from sagp_batched.execution import InvalidGraspError, execute_grasp, execute_ranked
+from sagp_batched.execution.pick import InvalidGraspError, execute_grasp, execute_ranked
 from sagp_batched.world.objects import load_object_set
 from sagp_batched.world.scene import Scene
 
@@ -99,7 +99,7 @@ def test_ranked_execution_stops_at_the_first_success(can_scene):
 
 
 def test_a_grasp_two_rankings_share_is_simulated_once_and_each_keeps_its_place(can_scene, monkeypatch):
-    import sagp_batched.execution as execution
+    import sagp_batched.execution.pick as execution
 
     config = Config()
     beside, quat = _top_down_on_can(can_scene, offset_world=(0.05, 0.0, 0.0))

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config, Grasp
-from sagp_batched.execution import execute_grasp
+from sagp_batched.execution.pick import execute_grasp
 from sagp_batched.world.objects import load_object_set
 from sagp_batched.world.scene import Scene
 

@@ -174,7 +174,7 @@ def benchmark_plan_batch(
 def benchmark_world(spec: ObjectSpec, config: Config, runs: int) -> dict[str, Any]:
     """Medians over ``runs`` trials of one object: scene reset (with settling), capture (three views,
     merge, normals, crop), planning on the captured cloud, and one executed attempt (the best GO grasp)."""
-    from ..execution import execute_ranked
+    from ..execution.pick import execute_ranked
     from ..world.perception import capture
     from ..world.scene import Scene
 

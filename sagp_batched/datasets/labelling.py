@@ -34,14 +34,14 @@ from scipy.spatial.transform import Rotation
 
 from .collision_urdf import collision_only_urdf, floating_hand_urdf
 from ..config import Config, ShakeConfig
-from ..execution import checked_grasp, execute_grasp, fingers_touching, lift_failure, object_held, push_n, set_finger_friction
+from ..execution.pick import checked_grasp, execute_grasp, fingers_touching, lift_failure, object_held, push_n, set_finger_friction
 from ..robot.hand import hand_to_grasp_target_m
 from ..robot.motion import grasp_waypoint_index
 from ..world.objects import ObjectLoadError, ObjectSpec
-from ..poses import pose_change, relative_pose
+from ..execution.poses import pose_change, relative_pose
 from ..robot.description import robot_of
 from ..world.scene import Scene, command_fingers, configure_physics, create_table
-from ..shake import achieved_shake_peaks, frame_offsets, shake_profile
+from ..execution.shake import achieved_shake_peaks, frame_offsets, shake_profile
 from ..types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError
 
 @dataclass(frozen=True)

@@ -214,7 +214,7 @@ class TrialRunner:
                  executed: dict[int, GraspAttempt], files: dict[str, bytes]) -> ExecutedGrasps:
         """Execute the leading grasps of ``ranked`` (reusing the unit's attempts in ``executed``) and judge the
         last one tried; the attempts' images (``run.save_frames``) go into ``files``."""
-        from ..execution import execute_ranked
+        from ..execution.pick import execute_ranked
 
         config = self.config
         attempts = execute_ranked(self.scene, config, ranked, record_frames=config.run.save_frames, executed=executed)

@@ -24,15 +24,15 @@ import pybullet
 import torch
 from scipy.spatial.transform import Rotation
 
-from .attempt import AttemptDiagnostics, PlannerPrediction
-from .config import Config, ExecutionConfig, MotionConfig, ShakeConfig
-from .execution_ik import movable_joints, path_to_execute
-from .robot.motion import grasp_waypoint_index, motion_waypoints
+from ..attempt import AttemptDiagnostics, PlannerPrediction
+from ..config import Config, ExecutionConfig, MotionConfig, ShakeConfig
+from .arm_joints import movable_joints, path_to_execute
+from ..robot.motion import grasp_waypoint_index, motion_waypoints
 from .poses import pose_change, quat_angle_deg, relative_pose
-from .robot.description import RobotDescription
-from .world.scene import Scene, make_camera
+from ..robot.description import RobotDescription
+from ..world.scene import Scene, make_camera
 from .shake import achieved_shake_peaks, frame_offsets, shake_profile
-from .types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
+from ..types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
 
 
 def _robot_contacts(scene: Scene, other_body: int) -> list[tuple]:

@@ -11,7 +11,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .config import ShakeConfig
+from ..config import ShakeConfig
 
 
 @dataclass(frozen=True)
