@@ -19,13 +19,14 @@ from .rating import ZoneRating, get_rater
 from .world.scene import Scene
 from .semantics.scoring import score_candidates
 from .study.run import run_study
-from .types import CameraData, Grasp, GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
+from .grasps import Grasp, GraspCandidates, GraspPoses
+from .types import CameraData, GraspAttempt, PerceivedCloud, PerceptionFailure
 from .semantics.zones import ZoneDecomposition, assign_zones
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "GEOMETRY_ONLY_WEIGHTS", "AttemptDiagnostics", "CameraData", "Config", "ConfigError", "Grasp", "GraspAttempt", "GraspCandidates",
+    "GEOMETRY_ONLY_WEIGHTS", "AttemptDiagnostics", "CameraData", "Config", "ConfigError", "Grasp", "GraspAttempt", "GraspCandidates", "GraspPoses",
     "ObjectSet", "ObjectSpec", "PerceivedCloud", "PerceptionFailure", "PlanResult", "Scene", "ScoreWeights", "ZoneDecomposition", "ZoneRating",
     "assign_zones", "capture", "execute_grasp", "execute_ranked", "get_rater", "load_config", "load_object_set",
     "plan", "plan_batch", "run_study", "score_candidates",

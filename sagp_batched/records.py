@@ -15,7 +15,8 @@ from .config import Config
 from .study.judging import GraspPlacement, TaskOutcome
 from .world.objects import ObjectSpec
 from .seeds import candidate_seed, scene_seed
-from .types import METHODS, TASKS, Grasp, GraspAttempt
+from .grasps import Grasp
+from .types import METHODS, TASKS, GraspAttempt
 
 PLAN_COUNTS: tuple[str, ...] = ("sampled", "antipodal", "collision_free", "ik_feasible")
 STAGE_TIMES: tuple[str, ...] = ("perception", "geometry", "rating", "total_plan")

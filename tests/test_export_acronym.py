@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched.datasets.export import write_acronym
 from sagp_batched.world.objects import ObjectSpec
-from sagp_batched.types import GraspAttempt, GraspCandidates, PerceivedCloud
+from sagp_batched.grasps import GraspCandidates
+from sagp_batched.types import GraspAttempt, PerceivedCloud
 
 h5py = pytest.importorskip("h5py")
 
@@ -168,12 +169,13 @@ def test_exported_ycb_mug_names_its_textured_mesh_relative_to_the_objects_root(t
 
 
 def test_acronym_poses_map_back_to_the_planners_grasp_frames():
-    from sagp_batched.datasets.export import acronym_gripper_transforms_object, planner_frames_from_acronym
+    from sagp_batched.datasets.export import acronym_gripper_transforms_object, grasp_poses_from_acronym
 
     candidates, cloud, _, _ = _trial(np.random.default_rng(2), 12)
     in_object = candidates.transform(cloud.object_from_world, "object")
-    centre, rotation = planner_frames_from_acronym(acronym_gripper_transforms_object(in_object))
-    assert np.allclose(centre, in_object.position.numpy(), atol=1e-6)
-    assert np.allclose(rotation, in_object.rotation.numpy(), atol=1e-6)
-    with pytest.raises(ValueError, match="object frame, got a batch in the world frame"):
-        acronym_gripper_transforms_object(candidates)
+    back = grasp_poses_from_acronym(acronym_gripper_transforms_object(in_object.poses()))
+    assert back.frame == "object"
+    assert np.allclose(back.position.numpy(), in_object.position.numpy(), atol=1e-6)
+    assert np.allclose(back.rotation.numpy(), in_object.rotation.numpy(), atol=1e-6)
+    with pytest.raises(ValueError, match="object frame, got poses in the world frame"):
+        acronym_gripper_transforms_object(candidates.poses())

@@ -18,7 +18,8 @@ from sagp_batched.study.judging import GraspPlacement, TaskOutcome
 from sagp_batched.study.methods import RankingInputs, get_method
 from sagp_batched.world.objects import ObjectSpec
 from sagp_batched.records import ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
-from sagp_batched.types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, PerceivedCloud
+from sagp_batched.grasps import Grasp, GraspCandidates, InvalidGraspError
+from sagp_batched.types import GraspAttempt, PerceivedCloud
 from sagp_batched.semantics.zones import decompose
 
 
@@ -195,3 +196,22 @@ def test_a_failed_trial_records_why_with_every_field_present():
     perception = TrialRecord.build(SPEC, UNIT, "go", config, failure_reason="perception:not_visible").to_json()
     assert perception["failure_reason"] == "perception:not_visible" and perception["error"] is None
     assert math.isclose(perception["seed"], config.scene.seed_base + 3)
+
+
+def test_grasp_poses_are_one_form_for_quaternions_matrices_and_a_batch():
+    from sagp_batched import GraspPoses
+
+    batch = _batch(6)
+    poses = batch.poses()
+    assert poses.frame == "world" and len(poses) == 6 and poses.position.dtype == torch.float64
+    assert torch.allclose(poses.approach, batch.approach.double(), atol=1e-6)
+    again = GraspPoses.from_matrices(poses.matrices(), "world")
+    assert torch.equal(again.position, poses.position) and torch.equal(again.rotation, poses.rotation)
+    from_quats = GraspPoses.from_quat_xyzw(poses.position.numpy(), poses.quat_xyzw().numpy())
+    assert torch.allclose(from_quats.rotation, poses.rotation, atol=1e-9)
+    joined = GraspPoses.cat([poses, again], "world")
+    assert len(joined) == 12 and len(GraspPoses.cat([], "object")) == 0
+    with pytest.raises(ValueError, match="cannot be joined"):
+        GraspPoses.cat([poses, batch.transform(np.eye(4), "object").poses()], "world")
+    with pytest.raises(InvalidGraspError, match=r"\(N, 4, 4\)"):
+        GraspPoses.from_matrices(np.eye(4), "world")

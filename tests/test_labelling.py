@@ -10,7 +10,7 @@ import pybullet
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sagp_batched import Config, Grasp, capture, plan
+from sagp_batched import Config, Grasp, GraspPoses, capture, plan
 from sagp_batched.config import ConfigError, ShakeConfig, load_config
 from sagp_batched.execution.pick import execute_grasp
 from sagp_batched.datasets.collision_urdf import floating_hand_urdf
@@ -19,7 +19,7 @@ from sagp_batched.world.objects import load_object_set
 from sagp_batched.robot.description import load_robot
 from sagp_batched.world.scene import Scene
 from sagp_batched.execution.shake import shake_profile
-from sagp_batched.types import InvalidGraspError
+from sagp_batched.grasps import InvalidGraspError
 
 ROBOT = load_robot()
 
@@ -68,7 +68,7 @@ def _top_down(scene: Scene, along_m: float, depth_m: float, width_m: float, shif
     centre = link_position + rotation @ np.array([along_m, 0.0, 0.0])
     closing = rotation[:, 1]
     quat = Rotation.from_matrix(np.stack([np.cross(closing, DOWN), closing, DOWN], axis=1)).as_quat()
-    return grasps_from_poses([np.array([centre[0], centre[1], top - depth_m]) + shift_world], [quat], [width_m])[0]
+    return grasps_from_poses(GraspPoses.from_quat_xyzw([np.array([centre[0], centre[1], top - depth_m]) + shift_world], [quat]), [width_m])[0]
 
 
 def _cap_pinch(scene: Scene) -> Grasp:
@@ -140,7 +140,7 @@ def test_a_hand_that_starts_inside_the_object_or_drives_into_the_table_collides(
     inside = _top_down(box_scene, 0.0, 0.15, 0.072)  # the pre-grasp, 10 cm above, is still 5 cm inside the box
     table_top = config.scene.table_top_z_m
     quat = Rotation.from_matrix(np.stack([np.cross([0.0, 1.0, 0.0], DOWN), [0.0, 1.0, 0.0], DOWN], axis=1)).as_quat()
-    into_table = grasps_from_poses([[0.3, 0.3, table_top + 0.001]], [quat], [0.05])[0]  # fingertips 6 mm into the table
+    into_table = grasps_from_poses(GraspPoses.from_quat_xyzw([[0.3, 0.3, table_top + 0.001]], [quat]), [0.05])[0]  # fingertips 6 mm into the table
     labels = label_grasps_hand(box_scene, [inside, into_table], config)
     assert [(label.held, label.failure_reason, label.failed_at) for label in labels] == [
         (False, "collision", "pregrasp"),
@@ -254,15 +254,20 @@ def test_the_floating_hand_urdf_is_the_robot_s_hand_alone_with_absolute_mesh_pat
 
 def test_grasps_given_as_arrays_take_their_approach_from_the_orientation_and_bad_arrays_are_named():
     quat = Rotation.from_euler("x", 180, degrees=True).as_quat()  # z points down
-    (grasp,) = grasps_from_poses([[0.5, 0.0, 0.7]], [quat], [0.04])
+    (grasp,) = grasps_from_poses(GraspPoses.from_quat_xyzw([[0.5, 0.0, 0.7]], [quat]), [0.04])
     assert grasp.approach.numpy() == pytest.approx(DOWN) and grasp.width_m == 0.04
+    assert np.allclose(Rotation.from_quat(grasp.quat_xyzw.numpy()).as_matrix(), Rotation.from_quat(quat).as_matrix(), atol=1e-12)
     with pytest.raises(InvalidGraspError, match="one of each per grasp"):
-        grasps_from_poses([[0.5, 0.0, 0.7]] * 2, [quat], [0.04])
+        GraspPoses.from_quat_xyzw([[0.5, 0.0, 0.7]] * 2, [quat])
+    with pytest.raises(InvalidGraspError, match="one of each per grasp"):
+        grasps_from_poses(GraspPoses.from_quat_xyzw([[0.5, 0.0, 0.7]], [quat]), [0.04, 0.05])
     with pytest.raises(InvalidGraspError, match="quat_xyzw"):
-        grasps_from_poses([[0.5, 0.0, 0.7]], [[0.0, 0.0, 0.0, 0.0]], [0.04])
+        GraspPoses.from_quat_xyzw([[0.5, 0.0, 0.7]], [[0.0, 0.0, 0.0, 0.0]])
+    with pytest.raises(InvalidGraspError, match="world frame"):
+        grasps_from_poses(GraspPoses.from_quat_xyzw([[0.5, 0.0, 0.7]], [quat], frame="object"), [0.04])
     with pytest.raises(InvalidGraspError, match="width_m"):
         label_grasps_hand(ObjectPlacement(load_object_set(None).get("025_mug"), (0.5, 0.0, 0.66), (0.0, 0.0, 0.0, 1.0)),
-                          grasps_from_poses([[0.5, 0.0, 0.7]], [quat], [0.2]), Config())
+                          grasps_from_poses(GraspPoses.from_quat_xyzw([[0.5, 0.0, 0.7]], [quat]), [0.2]), Config())
 
 
 def test_an_objects_collision_only_urdf_collides_as_its_urdf_and_names_no_visual(tmp_path):

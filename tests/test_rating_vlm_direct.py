@@ -9,7 +9,8 @@ import torch
 
 from sagp_batched.config import Config, RatingConfig
 from sagp_batched.rating import VLMRequestError
-from sagp_batched.types import CameraData, GraspCandidates, PerceivedCloud
+from sagp_batched.grasps import GraspCandidates
+from sagp_batched.types import CameraData, PerceivedCloud
 from sagp_batched.semantics.vlm_direct import (
     VLMDirectUnavailable,
     draw_candidate_markers,

@@ -27,10 +27,11 @@ import torch
 
 from ..config import Config
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
-from .export import acronym_gripper_transforms_object, planner_frames_from_acronym
+from .export import acronym_gripper_transforms_object
 from ..world.objects import ObjectSet, ObjectSpec
 from ..seeds import capture_trial, labelling_seed
-from ..types import Grasp, GraspCandidates, PerceptionFailure
+from ..grasps import Grasp, GraspCandidates, GraspPoses
+from ..types import PerceptionFailure
 from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
 
 if TYPE_CHECKING:
@@ -227,9 +228,7 @@ class ObjectLabeller:
         poses, skipped, neutral = [], [], {}
         for pose_index, share in enumerate(shares):
             # A later capture offers the same grasps again in the object's frame: only new ones are picked.
-            picked = np.concatenate([acronym_gripper_transforms_object(p.candidates.transform(p.object_from_world, "object")) for p in poses]
-                                    + [np.zeros((0, 4, 4))])
-            taken = tuple(torch.as_tensor(a, dtype=torch.float64) for a in planner_frames_from_acronym(picked))
+            taken = GraspPoses.cat([p.candidates.transform(p.object_from_world, "object").poses() for p in poses], "object")
             pose = self._plan_pose(self.objects.get(object_id), pose_index, share, times, taken)
             if isinstance(pose, str):
                 skipped.append(pose)
@@ -329,7 +328,7 @@ def _pose_labels(pose: PosePlan, outcomes: list) -> tuple[LabelledGrasps, Untest
     zoned, classified = pose.candidates, pose.classified
     tested = [i for i, outcome in enumerate(outcomes) if not isinstance(outcome, str)]
     object_frame = zoned.transform(pose.object_from_world, "object")
-    transforms = acronym_gripper_transforms_object(object_frame)
+    transforms = acronym_gripper_transforms_object(object_frame.poses())
     untested = [i for i, outcome in enumerate(outcomes) if isinstance(outcome, str)]
     kept = torch.as_tensor(tested, dtype=torch.int64)
     chosen = zoned.select(kept)

@@ -41,13 +41,15 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import torch
 from scipy.spatial.transform import Rotation
 
 from ..robot.hand import hand_to_grasp_target_m
 from ..world.objects import ObjectSpec
 from ..robot.description import load_robot
 from ..run_directory import write_file_atomically
-from ..types import GraspAttempt, GraspCandidates, PerceivedCloud
+from ..grasps import GraspCandidates, GraspPoses
+from ..types import GraspAttempt, PerceivedCloud
 
 # ACRONYM's Franka gripper is the same hand as panda_hand (finger joints 0.0584 m above the base,
 # pads reaching ~0.105 m), but its fingers open along x where panda_hand's close along y. Turning
@@ -65,34 +67,34 @@ def _acronym_hand_offset_m() -> float:
     return hand_to_grasp_target_m(load_robot("panda"))
 
 
-def acronym_gripper_transforms_object(candidates_object: GraspCandidates) -> np.ndarray:
-    """(C, 4, 4) grasp poses in ACRONYM's Franka gripper convention, from candidates expressed in the
-    object's link frame (``GraspCandidates.transform(cloud.object_from_world, "object")``).
+def acronym_gripper_transforms_object(poses_object: GraspPoses) -> np.ndarray:
+    """(C, 4, 4) grasp poses in ACRONYM's Franka gripper convention, from grasp poses in the
+    object's link frame (``candidates.transform(cloud.object_from_world, "object").poses()``).
 
-    Grasp frame of the candidates: columns of ``rotation`` (C, 3, 3) are (closing x approach,
+    The planner's grasp frame: columns of ``rotation`` (C, 3, 3) are (closing x approach,
     closing axis, approach); origin at the contact midpoint ``position`` (C, 3), metres.
     Returned: rotation ``R_planner @ Rz(+90 deg)`` (x = closing axis from contact 0 to contact 1,
     z = approach) and origin ``midpoint - 0.105 m * approach`` (the gripper base, which is
     ``panda_hand``'s origin), so contact k lies at ``(-+width/2, 0, 0.105)`` in the gripper frame.
     """
-    if candidates_object.frame != "object":
-        raise ValueError(f"ACRONYM grasps are written in the object frame, got a batch in the {candidates_object.frame} frame")
-    rotation_planner = candidates_object.rotation.double().numpy()
+    if poses_object.frame != "object":
+        raise ValueError(f"ACRONYM grasps are written in the object frame, got poses in the {poses_object.frame} frame")
+    rotation_planner = poses_object.rotation.numpy()
     # The executed grasp closed its fingers at the grasp target, 0.105 m along panda_hand's z axis
     # in the robot's URDF, so the exported poses put the contacts there too.
     hand_offset = _acronym_hand_offset_m()
-    transforms = np.tile(np.eye(4), (len(candidates_object), 1, 1))
+    transforms = np.tile(np.eye(4), (len(poses_object), 1, 1))
     transforms[:, :3, :3] = rotation_planner @ ACRONYM_FROM_PLANNER_ROTATION
-    transforms[:, :3, 3] = candidates_object.position.double().numpy() - hand_offset * rotation_planner[:, :, 2]
+    transforms[:, :3, 3] = poses_object.position.numpy() - hand_offset * rotation_planner[:, :, 2]
     return transforms
 
 
-def planner_frames_from_acronym(acronym_transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(C, 3) grasp centres and (C, 3, 3) planner grasp frames (y = closing axis, z = approach) of
-    (C, 4, 4) ACRONYM gripper poses: the inverse of ``acronym_gripper_transforms_object``, same frame."""
-    rotation = acronym_transforms[:, :3, :3] @ ACRONYM_FROM_PLANNER_ROTATION.T
-    centre = acronym_transforms[:, :3, 3] + _acronym_hand_offset_m() * acronym_transforms[:, :3, 2]
-    return centre, rotation
+def grasp_poses_from_acronym(acronym_transforms_object: np.ndarray) -> GraspPoses:
+    """The planner's grasp poses (centre, frame with y = closing axis, z = approach) of (C, 4, 4)
+    ACRONYM gripper poses in the object frame: the inverse of ``acronym_gripper_transforms_object``."""
+    rotation = acronym_transforms_object[:, :3, :3] @ ACRONYM_FROM_PLANNER_ROTATION.T
+    centre = acronym_transforms_object[:, :3, 3] + _acronym_hand_offset_m() * acronym_transforms_object[:, :3, 2]
+    return GraspPoses(torch.as_tensor(centre, dtype=torch.float64), torch.as_tensor(rotation, dtype=torch.float64), "object")
 
 
 def panda_hand_transforms_object(acronym_transforms_object: np.ndarray) -> np.ndarray:
@@ -164,7 +166,7 @@ def acronym_bytes(
 
     n = len(candidates)
     candidates_object = candidates.transform(cloud.object_from_world, "object")
-    transforms = acronym_gripper_transforms_object(candidates_object)
+    transforms = acronym_gripper_transforms_object(candidates_object.poses())
     mesh_file, urdf_file, mesh_scale, mesh_to_link = object_mesh_reference(spec)
     outcome = np.full(n, UNTESTED, dtype=np.int8)  # over every method's attempts: held once is held
     executed_by_method = {}

@@ -30,7 +30,6 @@ from typing import Any, Sequence
 
 import numpy as np
 import pybullet
-from scipy.spatial.transform import Rotation
 
 from .collision_urdf import collision_only_urdf, floating_hand_urdf
 from ..config import Config, ShakeConfig
@@ -42,7 +41,8 @@ from ..execution.poses import pose_change, relative_pose
 from ..robot.description import robot_of
 from ..world.scene import Scene, command_fingers, configure_physics, create_table
 from ..execution.shake import achieved_shake_peaks, frame_offsets, shake_profile
-from ..types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError
+from ..grasps import Grasp, GraspCandidates, GraspPoses, InvalidGraspError
+from ..types import GraspAttempt
 
 @dataclass(frozen=True)
 class GraspLabel:
@@ -282,23 +282,19 @@ class _HandWorld:
 
 
 # -- inputs ------------------------------------------------------------------------------------------
-def grasps_from_poses(positions_world: Any, quats_xyzw: Any, widths_m: Any) -> list[Grasp]:
-    """Grasps given as arrays: (N, 3) centres, (N, 4) xyzw orientations of the grasp frame
-    (z = approach), (N,) contact widths; each approach is its orientation's z axis. A malformed
-    row raises ``InvalidGraspError`` naming the field."""
-    positions, quats = np.atleast_2d(np.asarray(positions_world, dtype=float)), np.atleast_2d(np.asarray(quats_xyzw, dtype=float))
+def grasps_from_poses(poses: GraspPoses, widths_m: Any) -> list[Grasp]:
+    """World-frame grasps from their poses (``GraspPoses``, e.g. ``GraspPoses.from_quat_xyzw``:
+    the grasp frame's z is the approach) and (N,) contact widths. A malformed input raises
+    ``InvalidGraspError`` naming what is wrong."""
+    if poses.frame != "world":
+        raise InvalidGraspError(f"grasps are executed in the world frame, got poses in the {poses.frame} frame")
     widths = np.atleast_1d(np.asarray(widths_m, dtype=float))
-    if positions.ndim != 2 or positions.shape[1] != 3 or quats.ndim != 2 or quats.shape[1] != 4 or widths.ndim != 1:
-        raise InvalidGraspError(f"grasps_from_poses needs (N, 3) positions, (N, 4) quaternions, (N,) widths; got {positions.shape}, {quats.shape}, {widths.shape}")
-    if not len(positions) == len(quats) == len(widths):
-        raise InvalidGraspError(f"{len(positions)} positions, {len(quats)} orientations and {len(widths)} widths: give one of each per grasp")
-    grasps = []
-    for position, quat, width in zip(positions, quats, widths):
-        if not np.all(np.isfinite(quat)) or np.linalg.norm(quat) < 1e-9:
-            raise InvalidGraspError(f"quat_xyzw must be 4 finite numbers, not all zero, got {quat.tolist()}")
-        approach = Rotation.from_quat(quat).as_matrix()[:, 2]
-        grasps.append(Grasp.from_pose(position, quat, float(width), approach))
-    return grasps
+    if widths.ndim != 1 or len(widths) != len(poses):
+        raise InvalidGraspError(f"{len(poses)} poses and {widths.size} widths: give one of each per grasp")
+    return [
+        Grasp.from_pose(position, quat, float(width), approach)
+        for position, quat, width, approach in zip(poses.position.numpy(), poses.quat_xyzw().numpy(), widths, poses.approach.numpy())
+    ]
 
 
 def _as_grasps(grasps: GraspCandidates | Sequence[Grasp]) -> list[Grasp]:
@@ -334,7 +330,7 @@ def label_grasps_hand(
 
     ``placements``: where the object rests, one for every grasp or one per grasp (an
     ``ObjectPlacement``, or a reset ``Scene`` whose settled target is taken). Grasps as a
-    ``GraspCandidates`` batch or ``Grasp`` values (``grasps_from_poses`` makes them from arrays);
+    ``GraspCandidates`` batch or ``Grasp`` values (``grasps_from_poses`` makes them from ``GraspPoses``);
     a malformed one raises ``InvalidGraspError`` before anything is simulated. Every grasp is
     simulated, so every grasp gets a label.
     """

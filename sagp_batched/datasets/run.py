@@ -17,11 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-import torch
 
 from ..config import Config
 from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
-from .export import planner_frames_from_acronym
+from .export import grasp_poses_from_acronym
 from ..world.objects import ObjectSet
 from ..run_directory import WorkerReport
 from ..runtime import ray_worker_stopped
@@ -255,8 +254,8 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str) -> dict:
     write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, object_physics(spec),
                       grasps, labels.untested, mode, labels.rater)
     write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
-    centres, frames = (torch.tensor(a) for a in planner_frames_from_acronym(grasps.transforms))
-    distinct = distinct_grasp_count(centres, frames, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
+    poses = grasp_poses_from_acronym(grasps.transforms)
+    distinct = distinct_grasp_count(poses.position, poses.rotation, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
     write_s = time.perf_counter() - clock
     entry = {
         "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),

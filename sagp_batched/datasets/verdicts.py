@@ -20,7 +20,8 @@ from ..config import Config, DatasetConfig
 from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
 from ..planning import ScreenedCandidates, check_motions, jaw_width_limit, screen_candidates
-from ..types import GraspCandidates, PerceivedCloud
+from ..grasps import GraspCandidates, GraspPoses
+from ..types import PerceivedCloud
 
 # The planner's verdicts on a grasp, in the order its checks run; a grasp's verdict is the first
 # check it fails, or "feasible" when it passes them all.
@@ -106,14 +107,14 @@ def classify_grasps(
     seed: int,
     n_grasps: int,
     dataset: DatasetConfig | None = None,
-    taken_object: tuple[torch.Tensor, torch.Tensor] | None = None,
+    taken_object: GraspPoses | None = None,
 ) -> ClassifiedGrasps:
     """Up to ``n_grasps`` grasps of ``cloud`` covering the object, each with the planner's verdict.
 
     Every (candidate, approach) pose of the screened antipodal candidates is a grasp; those within
     ``dataset.nms_translation_m`` and ``dataset.nms_rotation_deg`` of a better one (S_geom, then
     approach order) are dropped, and so are those that are the same grasp as one in
-    ``taken_object`` ((T, 3) centres and (T, 3, 3) frames in the object's link frame: grasps picked
+    ``taken_object`` (grasp poses in the object's link frame: grasps picked
     from earlier captures of the object); the checks run on the rest; ``dataset.feasible_fraction`` of the
     picked grasps are feasible where the object offers them, the rest spread over the rejection
     verdicts, each drawn at random (``seed``) within its verdict so no region of the object is favoured.
@@ -153,7 +154,7 @@ def classify_grasps(
 
 def _covering_poses(
     screened: ScreenedCandidates, cloud: PerceivedCloud, n_approaches: int, dataset: DatasetConfig,
-    taken_object: tuple[torch.Tensor, torch.Tensor] | None,
+    taken_object: GraspPoses | None,
 ) -> _Poses:
     """The (candidate, approach) poses that cover the object: those pose-space non-maximum
     suppression keeps of every pose, less the same grasps as one of ``taken_object``."""
@@ -164,11 +165,11 @@ def _covering_poses(
     centre = screened.centre_world[rows]
     rotation_threshold = math.radians(dataset.nms_rotation_deg)
     covering = pose_nms(centre, rotation, dataset.nms_translation_m, rotation_threshold)
-    if taken_object is not None and len(taken_object[0]):
+    if taken_object is not None and len(taken_object):
         object_from_world = torch.as_tensor(cloud.object_from_world, dtype=torch.float64)
         centre_object = centre[covering].double() @ object_from_world[:3, :3].T + object_from_world[:3, 3]
         rotation_object = object_from_world[:3, :3] @ rotation[covering].double()
-        new = ~same_grasp(centre_object, rotation_object, *taken_object, dataset.nms_translation_m, rotation_threshold).any(dim=1)
+        new = ~same_grasp(centre_object, rotation_object, taken_object.position, taken_object.rotation, dataset.nms_translation_m, rotation_threshold).any(dim=1)
         covering = covering[new]
     return _Poses(rows[covering], slots[covering], approach[covering], rotation[covering], centre[covering])
 

@@ -24,7 +24,7 @@ from ..robot.motion import grasp_waypoint_index
 from .poses import quat_angle_deg
 from ..world.scene import Scene
 from ..seeds import ik_restart_seed
-from ..types import as_finite_vector
+from ..grasps import as_finite_vector
 
 # Joint-limit slack for accepting an IK solution: PyBullet clamps to the limits within float noise.
 LIMIT_SLACK_RAD = 1e-6

@@ -32,7 +32,8 @@ from .poses import pose_change, quat_angle_deg, relative_pose
 from ..robot.description import RobotDescription
 from ..world.scene import Scene, make_camera
 from .shake import achieved_shake_peaks, frame_offsets, shake_profile
-from ..types import Grasp, GraspAttempt, GraspCandidates, InvalidGraspError, as_finite_vector
+from ..grasps import Grasp, GraspCandidates, InvalidGraspError, as_finite_vector
+from ..types import GraspAttempt
 
 
 def _robot_contacts(scene: Scene, other_body: int) -> list[tuple]:

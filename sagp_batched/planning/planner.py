@@ -11,7 +11,8 @@ import torch
 from ..config import Config
 from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
-from ..types import GraspCandidates, PerceivedCloud
+from ..grasps import GraspCandidates
+from ..types import PerceivedCloud
 from .lookahead import MotionVerdicts, ScreenVerdicts, window_with_verdicts
 from .motion_check import MotionCheck, check_motions
 from .sampling import check_cloud

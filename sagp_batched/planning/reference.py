@@ -22,7 +22,8 @@ import torch
 from ..config import Config, PlannerConfig
 from ..robot.hand import load_hand_geometry
 from ..robot.description import RobotDescription, robot_of
-from ..types import GraspCandidates, PerceivedCloud
+from ..grasps import GraspCandidates
+from ..types import PerceivedCloud
 
 
 class Draws(Protocol):

@@ -20,7 +20,7 @@ from sagp_batched_kernels import scoring as score_kernels
 
 from ..config import Config, ScoreWeights
 from ..rating.types import PHI, ZoneRating
-from ..types import GraspCandidates
+from ..grasps import GraspCandidates
 
 
 class ScoringInputError(ValueError):

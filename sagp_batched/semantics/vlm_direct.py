@@ -22,7 +22,8 @@ from ..rating.json_answer import MAX_NUMBER_CHARS, excerpt, extract_json_object,
 from ..rating.prompt import checked_image, task_description
 from ..rating.types import RatingError, VLMRequestError
 from ..rating.vlm import VLMClient, get_vlm_client
-from ..types import GraspCandidates, PerceivedCloud
+from ..grasps import GraspCandidates
+from ..types import PerceivedCloud
 
 log = logging.getLogger(__name__)
 

@@ -46,9 +46,8 @@ from sagp_batched_kernels import zones as zone_kernels
 
 from .._open3d import o3d
 from ..config import ZonesConfig
-from ..types import (
-    LENGTH_ZONES, PROTRUSION, SIDE_ZONES, VERTICAL_ZONES, ZONE_NAMES, GraspCandidates, PerceivedCloud, protrusion_zone,
-)
+from ..grasps import GraspCandidates
+from ..types import LENGTH_ZONES, PROTRUSION, SIDE_ZONES, VERTICAL_ZONES, ZONE_NAMES, PerceivedCloud, protrusion_zone
 
 # Zones every cloud has, in this order; its numbered protrusion zones follow them.
 GEOMETRIC_ZONES: tuple[str, ...] = tuple(name for name in ZONE_NAMES if name != PROTRUSION)

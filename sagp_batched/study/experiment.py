@@ -25,7 +25,8 @@ from ..world.objects import ObjectSet, ObjectSpec
 from ..rating.types import ZoneRating, clipped, neutral_rating
 from ..records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
 from ..seeds import candidate_seed
-from ..types import GraspAttempt, GraspCandidates, PerceivedCloud, PerceptionFailure
+from ..grasps import GraspCandidates
+from ..types import GraspAttempt, PerceivedCloud, PerceptionFailure
 
 
 class TrialTimeout(RuntimeError):

@@ -19,7 +19,8 @@ import numpy as np
 from ..config import TaskConfig
 from ..world.functional_regions import region_membership
 from ..rating.types import ZoneRating
-from ..types import TASKS, Grasp
+from ..grasps import Grasp
+from ..types import TASKS
 
 
 @dataclass(frozen=True)

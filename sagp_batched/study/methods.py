@@ -16,7 +16,8 @@ from ..rating.types import ZoneRating
 from ..semantics.scoring import score_candidates
 import torch
 
-from ..types import METHODS, GraspCandidates, PerceivedCloud
+from ..grasps import GraspCandidates
+from ..types import METHODS, PerceivedCloud
 from ..semantics.zones import ZoneDecomposition
 
 
