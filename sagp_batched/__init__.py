@@ -12,16 +12,16 @@ The public API: build a scene, perceive, plan, zone, rate, score, execute::
 from .attempt import AttemptDiagnostics
 from .config import GEOMETRY_ONLY_WEIGHTS, Config, ConfigError, ScoreWeights, load_config
 from .execution.pick import execute_grasp, execute_ranked
-from .world.objects import ObjectSet, ObjectSpec, load_object_set
-from .world.perception import capture
+from .grasps import Grasp, GraspCandidates, GraspPoses
 from .planning import PlanResult, plan, plan_batch
 from .rating import ZoneRating, get_rater
-from .world.scene import Scene
 from .semantics.scoring import score_candidates
-from .study.run import run_study
-from .grasps import Grasp, GraspCandidates, GraspPoses
-from .types import CameraData, GraspAttempt, PerceivedCloud, PerceptionFailure
 from .semantics.zones import ZoneDecomposition, assign_zones
+from .study.run import run_study
+from .types import CameraData, GraspAttempt, PerceivedCloud, PerceptionFailure
+from .world.objects import ObjectSet, ObjectSpec, load_object_set
+from .world.perception import capture
+from .world.scene import Scene
 
 __version__ = "0.1.0"
 

@@ -12,11 +12,11 @@ from typing import Any
 import math
 
 from .config import Config
-from .study.judging import GraspPlacement, TaskOutcome
-from .world.objects import ObjectSpec
-from .seeds import candidate_seed, scene_seed
 from .grasps import Grasp
+from .seeds import candidate_seed, scene_seed
+from .study.judging import GraspPlacement, TaskOutcome
 from .types import METHODS, TASKS, GraspAttempt
+from .world.objects import ObjectSpec
 
 PLAN_COUNTS: tuple[str, ...] = ("sampled", "antipodal", "collision_free", "ik_feasible")
 STAGE_TIMES: tuple[str, ...] = ("perception", "geometry", "rating", "total_plan")

@@ -24,8 +24,8 @@ import numpy as np
 import pybullet
 
 from ..config import Config
-from ..world.objects import ObjectSet
 from ..seeds import capture_trial
+from ..world.objects import ObjectSet
 
 STAGES = ("reset", "capture", "plan", "simulate", "write")
 

@@ -11,11 +11,11 @@ from typing import Any, Callable
 import pytorch_kinematics as pk
 import torch
 
-from .planner_speed import BenchmarkSettings, median
 from ..config import Config
+from ..robot.description import robot_of
 from ..robot.ik import PandaIK
 from ..robot.kinematics import link_moved_by
-from ..robot.description import robot_of
+from .planner_speed import BenchmarkSettings, median
 
 
 @dataclasses.dataclass

@@ -19,11 +19,11 @@ import torch
 
 from .._open3d import o3d
 from ..config import Config
-from ..world.objects import ObjectSpec
 from ..planning import PlanStageTimes, plan, plan_batch, sample_inputs
 from ..planning.reference import plan_reference
 from ..robot.description import robot_of
 from ..types import PerceivedCloud
+from ..world.objects import ObjectSpec
 
 STAGES = ("sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion")
 

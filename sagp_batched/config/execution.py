@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from .settings import _Section, setting
 
+
 @dataclass
 class ExecutionConfig(_Section):
     SECTION = "execution"

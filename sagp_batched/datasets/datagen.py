@@ -26,12 +26,12 @@ import numpy as np
 import torch
 
 from ..config import Config
+from ..grasps import Grasp, GraspCandidates, GraspPoses
+from ..seeds import capture_trial, labelling_seed
+from ..types import PerceptionFailure
+from ..world.objects import ObjectSet, ObjectSpec
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from .export import acronym_gripper_transforms_object
-from ..world.objects import ObjectSet, ObjectSpec
-from ..seeds import capture_trial, labelling_seed
-from ..grasps import Grasp, GraspCandidates, GraspPoses
-from ..types import PerceptionFailure
 from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
 
 if TYPE_CHECKING:

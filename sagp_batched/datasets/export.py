@@ -44,12 +44,12 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from ..robot.hand import hand_to_grasp_target_m
-from ..world.objects import ObjectSpec
-from ..robot.description import load_robot
-from ..run_directory import write_file_atomically
 from ..grasps import GraspCandidates, GraspPoses
+from ..robot.description import load_robot
+from ..robot.hand import hand_to_grasp_target_m
+from ..run_directory import write_file_atomically
 from ..types import GraspAttempt, PerceivedCloud
+from ..world.objects import ObjectSpec
 
 # ACRONYM's Franka gripper is the same hand as panda_hand (finger joints 0.0584 m above the base,
 # pads reaching ~0.105 m), but its fingers open along x where panda_hand's close along y. Turning

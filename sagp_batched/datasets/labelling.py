@@ -31,18 +31,19 @@ from typing import Any, Sequence
 import numpy as np
 import pybullet
 
-from .collision_urdf import collision_only_urdf, floating_hand_urdf
 from ..config import Config, ShakeConfig
 from ..execution.pick import checked_grasp, execute_grasp, fingers_touching, lift_failure, object_held, push_n, set_finger_friction
-from ..robot.hand import hand_to_grasp_target_m
-from ..robot.motion import grasp_waypoint_index
-from ..world.objects import ObjectLoadError, ObjectSpec
 from ..execution.poses import pose_change, relative_pose
-from ..robot.description import robot_of
-from ..world.scene import Scene, command_fingers, configure_physics, create_table
 from ..execution.shake import achieved_shake_peaks, frame_offsets, shake_profile
 from ..grasps import Grasp, GraspCandidates, GraspPoses, InvalidGraspError
+from ..robot.description import robot_of
+from ..robot.hand import hand_to_grasp_target_m
+from ..robot.motion import grasp_waypoint_index
 from ..types import GraspAttempt
+from ..world.objects import ObjectLoadError, ObjectSpec
+from ..world.scene import Scene, command_fingers, configure_physics, create_table
+from .collision_urdf import collision_only_urdf, floating_hand_urdf
+
 
 @dataclass(frozen=True)
 class GraspLabel:

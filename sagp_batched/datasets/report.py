@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 
 from ..config import Config
-from .dataset import read_progress, split_of, write_splits
-from ..study.report import count_and_rate
 from ..run_directory import write_json
+from ..study.report import count_and_rate
+from .dataset import read_progress, split_of, write_splits
 from .verdicts import VERDICTS
 
 MANIFEST_FILE = "manifest.json"

@@ -19,11 +19,11 @@ from typing import Any, Callable, Iterator
 
 
 from ..config import Config
-from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
-from .export import grasp_poses_from_acronym
-from ..world.objects import ObjectSet
 from ..run_directory import WorkerReport
 from ..runtime import ray_worker_stopped
+from ..world.objects import ObjectSet
+from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
+from .export import grasp_poses_from_acronym
 
 # The report's coverage figure: grasps closer than this, and turned less, count as one.
 DISTINCT_TRANSLATION_M = 0.01

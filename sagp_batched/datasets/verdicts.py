@@ -17,10 +17,10 @@ import torch
 from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
 
 from ..config import Config, DatasetConfig
+from ..grasps import GraspCandidates, GraspPoses
+from ..planning import ScreenedCandidates, check_motions, jaw_width_limit, screen_candidates
 from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
-from ..planning import ScreenedCandidates, check_motions, jaw_width_limit, screen_candidates
-from ..grasps import GraspCandidates, GraspPoses
 from ..types import PerceivedCloud
 
 # The planner's verdicts on a grasp, in the order its checks run; a grasp's verdict is the first

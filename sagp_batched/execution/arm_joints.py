@@ -19,12 +19,12 @@ import torch
 
 from ..attempt import AttemptDiagnostics
 from ..config import Config
+from ..grasps import as_finite_vector
 from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index
-from .poses import quat_angle_deg
-from ..world.scene import Scene
 from ..seeds import ik_restart_seed
-from ..grasps import as_finite_vector
+from ..world.scene import Scene
+from .poses import quat_angle_deg
 
 # Joint-limit slack for accepting an IK solution: PyBullet clamps to the limits within float noise.
 LIMIT_SLACK_RAD = 1e-6

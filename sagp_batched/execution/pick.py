@@ -26,14 +26,14 @@ from scipy.spatial.transform import Rotation
 
 from ..attempt import AttemptDiagnostics, PlannerPrediction
 from ..config import Config, ExecutionConfig, MotionConfig, ShakeConfig
-from .arm_joints import movable_joints, path_to_execute
-from ..robot.motion import grasp_waypoint_index, motion_waypoints
-from .poses import pose_change, quat_angle_deg, relative_pose
-from ..robot.description import RobotDescription
-from ..world.scene import Scene, make_camera
-from .shake import achieved_shake_peaks, frame_offsets, shake_profile
 from ..grasps import Grasp, GraspCandidates, InvalidGraspError, as_finite_vector
+from ..robot.description import RobotDescription
+from ..robot.motion import grasp_waypoint_index, motion_waypoints
 from ..types import GraspAttempt
+from ..world.scene import Scene, make_camera
+from .arm_joints import movable_joints, path_to_execute
+from .poses import pose_change, quat_angle_deg, relative_pose
+from .shake import achieved_shake_peaks, frame_offsets, shake_profile
 
 
 def _robot_contacts(scene: Scene, other_body: int) -> list[tuple]:

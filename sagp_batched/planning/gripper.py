@@ -4,8 +4,8 @@ from __future__ import annotations
 from sagp_batched_kernels.gripper_occupancy import GripperGeometry
 
 from ..config import PlannerConfig
-from ..robot.hand import HandGeometry, load_hand_geometry
 from ..robot.description import RobotDescription
+from ..robot.hand import HandGeometry, load_hand_geometry
 
 
 def gripper_geometry(robot: RobotDescription, planner: PlannerConfig) -> GripperGeometry:

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 import torch
 
 from ..config import Config
+from ..robot.description import RobotDescription
 from ..robot.hand import link_hulls
 from ..robot.ik import PandaIK
 from ..robot.motion import grasp_waypoint_index, motion_waypoints
-from ..robot.description import RobotDescription
 
 
 @dataclass

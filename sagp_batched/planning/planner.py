@@ -9,9 +9,9 @@ from dataclasses import dataclass
 import torch
 
 from ..config import Config
+from ..grasps import GraspCandidates
 from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
-from ..grasps import GraspCandidates
 from ..types import PerceivedCloud
 from .lookahead import MotionVerdicts, ScreenVerdicts, window_with_verdicts
 from .motion_check import MotionCheck, check_motions

@@ -20,9 +20,9 @@ import pybullet
 import torch
 
 from ..config import Config, PlannerConfig
-from ..robot.hand import load_hand_geometry
-from ..robot.description import RobotDescription, robot_of
 from ..grasps import GraspCandidates
+from ..robot.description import RobotDescription, robot_of
+from ..robot.hand import load_hand_geometry
 from ..types import PerceivedCloud
 
 

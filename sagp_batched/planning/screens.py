@@ -16,8 +16,8 @@ from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 from sagp_batched_kernels.table_penetration import table_cover, table_penetration
 
 from ..config import Config, MemoryConfig, PlannerConfig
-from ..robot.hand import DOP_DIRECTIONS
 from ..robot.description import RobotDescription, robot_of
+from ..robot.hand import DOP_DIRECTIONS
 from ..types import PerceivedCloud
 from .gripper import gripper_geometry, hand_geometry, jaw_width_limit
 from .sampling import sample_inputs

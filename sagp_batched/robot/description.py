@@ -12,11 +12,15 @@ import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pybullet
 import pybullet_data
 
-from ..config import Config, ConfigError
+from ..config.settings import ConfigError
+
+if TYPE_CHECKING:
+    from ..config import Config
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,8 @@ import torch
 from sagp_batched_kernels.panda_ik import panda_ik_closed_form, wrist_in_reach
 
 from ..config import Config, IKConfig
-from .kinematics import ChainFrames, arm_chain, link_moved_by, panda_arm_geometry
 from .description import RobotDescription, robot_of
+from .kinematics import ChainFrames, arm_chain, link_moved_by, panda_arm_geometry
 
 
 

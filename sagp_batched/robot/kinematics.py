@@ -14,8 +14,8 @@ import torch
 from sagp_batched_kernels.panda_ik import N_JOINTS, PandaArmGeometry
 from sagp_batched_kernels.serial_kinematics import SerialChain, geometric_jacobian, serial_chain, serial_chain_frames
 
-from .hand import quiet_urdf
 from .description import RobotDescription
+from .hand import quiet_urdf
 
 
 def arm_chain(robot: RobotDescription) -> pk.SerialChain:

@@ -19,8 +19,8 @@ import torch
 from sagp_batched_kernels import scoring as score_kernels
 
 from ..config import Config, ScoreWeights
-from ..rating.types import PHI, ZoneRating
 from ..grasps import GraspCandidates
+from ..rating.types import PHI, ZoneRating
 
 
 class ScoringInputError(ValueError):

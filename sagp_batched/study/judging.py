@@ -17,10 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import TaskConfig
-from ..world.functional_regions import region_membership
-from ..rating.types import ZoneRating
 from ..grasps import Grasp
+from ..rating.types import ZoneRating
 from ..types import TASKS
+from ..world.functional_regions import region_membership
 
 
 @dataclass(frozen=True)

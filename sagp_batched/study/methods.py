@@ -17,8 +17,8 @@ from ..semantics.scoring import score_candidates
 import torch
 
 from ..grasps import GraspCandidates
-from ..types import METHODS, PerceivedCloud
 from ..semantics.zones import ZoneDecomposition
+from ..types import METHODS, PerceivedCloud
 
 
 @dataclass(frozen=True)

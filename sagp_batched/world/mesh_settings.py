@@ -4,8 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .objects import sagp_cache_root
 from ..robot.description import load_robot
+from .objects import sagp_cache_root
 
 DECOMPOSERS = ("auto", "coacd", "vhacd")
 

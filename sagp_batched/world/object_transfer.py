@@ -29,8 +29,8 @@ from typing import Iterable
 import pybullet_data
 
 from ..datasets.export import objects_root
-from .objects import ObjectLoadError, ObjectSet, ObjectSpec, sagp_cache_root
 from ..run_directory import path_inside
+from .objects import ObjectLoadError, ObjectSet, ObjectSpec, sagp_cache_root
 
 TRANSFER_DIR = "transfer"
 INDEX_FILE = "objects.json"

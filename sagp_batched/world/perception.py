@@ -11,8 +11,9 @@ from sagp_batched_kernels.camera import backproject_to_world, linearize_depth
 
 from .._open3d import o3d
 from ..config import Config
-from .scene import BACKGROUND, Scene, make_camera
 from ..types import CameraData, PerceivedCloud, PerceptionFailure
+from .scene import BACKGROUND, Scene, make_camera
+
 
 def camera_rig(config: Config, look_at_world: Sequence[float]) -> list[CameraData]:
     """One overhead and two side cameras, placed by ``config.camera`` offsets around ``look_at_world``."""

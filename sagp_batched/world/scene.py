@@ -15,10 +15,10 @@ import pybullet
 from scipy.spatial.transform import Rotation
 
 from ..config import Config, SceneConfig
-from .objects import ObjectLoadError, ObjectSpec
 from ..robot.description import body_indices, robot_of
 from ..seeds import scene_seed
 from ..types import CameraData
+from .objects import ObjectLoadError, ObjectSpec
 
 # PyBullet's segmentation value is body_id + ((link_index + 1) << 24) with the flag below.
 BODY_ID_BITS = (1 << 24) - 1
