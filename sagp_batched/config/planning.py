@@ -66,7 +66,8 @@ class PlannerConfig(_Section):
 @dataclass
 class MemoryConfig(_Section):
     """How many elements the planner's batched kernels hold at once. These bound memory and set
-    speed only: every plan is the same at any value."""
+    speed only: every plan is the same at any value. They are upper bounds: a kernel works in
+    smaller blocks of its own where those suit the cache (its ``*_BLOCK_ELEMENTS`` constants)."""
 
     SECTION = "memory"
 

@@ -229,7 +229,9 @@ class ObjectLabeller:
         for pose_index, share in enumerate(shares):
             # A later capture offers the same grasps again in the object's frame: only new ones are picked.
             taken = GraspPoses.cat([p.candidates.transform(p.object_from_world, "object").poses() for p in poses], "object")
-            pose = self._plan_pose(self.objects.get(object_id), pose_index, share, times, taken)
+            pose, spent = self._plan_pose(self.objects.get(object_id), pose_index, share, taken)
+            for stage, seconds in spent.items():
+                times[stage] += seconds
             if isinstance(pose, str):
                 skipped.append(pose)
                 continue
@@ -238,8 +240,9 @@ class ObjectLabeller:
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
         return ObjectPlan(object_id, poses, skipped, rater, neutral, times)
 
-    def _plan_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, times: dict[str, float], taken) -> PosePlan | str:
-        """Capture ``pose_index`` classified and rated; the reason instead where the capture failed."""
+    def _plan_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, taken: GraspPoses | None) -> tuple[PosePlan | str, dict[str, float]]:
+        """Capture ``pose_index`` classified and rated, the reason instead where the capture failed; with
+        the seconds its reset, capture and planning took."""
         from .labelling import ObjectPlacement
         from ..world.perception import capture
         from ..rating.prompt import describe_zones
@@ -247,31 +250,32 @@ class ObjectLabeller:
         from ..semantics.zones import assign_zones
 
         config = self.config
+        spent = dict.fromkeys(("reset", "capture", "plan"), 0.0)
         clock = time.perf_counter()
         self._reset_to_pose(spec, pose_index)
-        times["reset"] += time.perf_counter() - clock
+        spent["reset"] = time.perf_counter() - clock
         clock = time.perf_counter()
         try:
             cloud = capture(self.scene, config)
         except PerceptionFailure as failure:
-            return f"capture {pose_index}: {failure.reason}"
-        times["capture"] += time.perf_counter() - clock
+            return f"capture {pose_index}: {failure.reason}", spent
+        spent["capture"] = time.perf_counter() - clock
         clock = time.perf_counter()
         classified = classify_grasps(cloud, config, labelling_seed(config, pose_index), n_grasps, taken_object=taken)
         if not len(classified):
-            times["plan"] += time.perf_counter() - clock
+            spent["plan"] = time.perf_counter() - clock
             planner = config.planner
             if not classified.pool_size:
                 return (f"capture {pose_index}: no antipodal candidate (opposed contacts "
-                        f"{planner.min_width_m * 1000:.0f}-{planner.max_width_m * 1000:.0f} mm apart) in its cloud")
-            return f"capture {pose_index}: each of its {classified.pool_size} candidate poses repeats a grasp of an earlier capture"
+                        f"{planner.min_width_m * 1000:.0f}-{planner.max_width_m * 1000:.0f} mm apart) in its cloud"), spent
+            return f"capture {pose_index}: each of its {classified.pool_size} candidate poses repeats a grasp of an earlier capture", spent
         decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
         shown = rating_image(cloud, decomposition, config.rating)
         descriptions = describe_zones(decomposition)
         ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, descriptions) for task in DATASET_TASKS}
         placement = ObjectPlacement.from_scene(self.scene)
-        times["plan"] += time.perf_counter() - clock
-        return PosePlan(pose_index, placement.com_position_world, placement.com_quat_xyzw, zoned, cloud.object_from_world, classified, ratings)
+        spent["plan"] = time.perf_counter() - clock
+        return PosePlan(pose_index, placement.com_position_world, placement.com_quat_xyzw, zoned, cloud.object_from_world, classified, ratings), spent
 
     def simulate(self, chunk: SimulationChunk, mode: str | None = None) -> ChunkOutcome:
         """Label ``chunk`` in ``mode`` (default ``dataset.mode``): ``hand``, the hand alone, each grasp in a
@@ -299,7 +303,7 @@ class ObjectLabeller:
     def compare_modes(self, object_id: str, n_grasps: int) -> dict[str, int]:
         """The same ``n_grasps`` grasps of the object's first capture simulated in hand and in arm mode:
         how many were compared, executed in both, agreed, and held in each."""
-        pose = self._plan_pose(self.objects.get(object_id), 0, n_grasps, dict.fromkeys(("reset", "capture", "plan"), 0.0), None)
+        pose, _ = self._plan_pose(self.objects.get(object_id), 0, n_grasps, None)
         if isinstance(pose, str):
             return {"compared": 0, "both_tested": 0, "agree": 0, "hand_held": 0, "arm_held": 0, "skipped": pose}
         plan = ObjectPlan(object_id, [pose], [], "", {}, {})
