@@ -10,11 +10,11 @@ import sys
 from pathlib import Path
 
 from sagp_batched.config import RATING_BACKENDS, RUN_BACKENDS, Config, ConfigError
-from sagp_batched.study.methods import REGISTRY
-from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
+from sagp_batched.study.methods import REGISTRY
 from sagp_batched.study.run import plan_units, run_study
+from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 
 from .cli import config_or_report
 

@@ -28,12 +28,12 @@ from pathlib import Path
 
 import torch
 
-from sagp_batched.benchmarks.planner_speed import BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud
 from sagp_batched.benchmarks.ik_speed import benchmark_ik
+from sagp_batched.benchmarks.planner_speed import BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud
 from sagp_batched.config import load_config
-from sagp_batched.world.objects import embedded_ycb_dir, load_object_set
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
 from sagp_batched.runtime import DEFAULT_TORCH_THREADS, configure_torch
+from sagp_batched.world.objects import embedded_ycb_dir, load_object_set
 
 
 def _ycb_dir(argument: str | None) -> Path:

@@ -16,11 +16,11 @@ import json
 import sys
 from pathlib import Path
 
-from sagp_batched.config import ConfigError, load_config
 from sagp_batched.benchmarks.dataset_speed import STAGES, benchmark_dataset, projected_hours, shared_world_step_cost
-from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
+from sagp_batched.config import ConfigError, load_config
 from sagp_batched.provenance import collect
 from sagp_batched.runtime import configure_torch
+from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 
 PROJECTION_CORES = (2, 64)
 

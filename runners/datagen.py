@@ -14,9 +14,9 @@ import sys
 from pathlib import Path
 
 from sagp_batched.config import ConfigError
-from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
+from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 
 from .cli import config_or_report
 

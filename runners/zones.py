@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 
 from sagp_batched.config import ConfigError, load_config
+from sagp_batched.rating.prompt import describe_zones
+from sagp_batched.semantics.zone_marks import PRIMARY_ZONE_RGB, PROTRUSION_RGB
+from sagp_batched.semantics.zones import GEOMETRIC_ZONES, ZONE_INDEX, ZoneDecomposition, decompose
+from sagp_batched.types import PerceptionFailure
 from sagp_batched.world.functional_regions import region_membership
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 from sagp_batched.world.perception import capture
-from sagp_batched.rating.prompt import describe_zones
 from sagp_batched.world.scene import Scene
-from sagp_batched.types import PerceptionFailure
-from sagp_batched.semantics.zone_marks import PRIMARY_ZONE_RGB, PROTRUSION_RGB
-from sagp_batched.semantics.zones import GEOMETRIC_ZONES, ZONE_INDEX, ZoneDecomposition, decompose
 
 
 # Zone colours are the ones ``zone_marks`` draws on the rating image, so the plot and the image agree.

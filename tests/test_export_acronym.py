@@ -7,9 +7,9 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from sagp_batched.datasets.export import write_acronym
-from sagp_batched.world.objects import ObjectSpec
 from sagp_batched.grasps import GraspCandidates
 from sagp_batched.types import GraspAttempt, PerceivedCloud
+from sagp_batched.world.objects import ObjectSpec
 
 h5py = pytest.importorskip("h5py")
 

@@ -3,8 +3,6 @@ import pytest
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched.robot.description import load_robot
-from sagp_batched.benchmarks.planner_speed import BenchmarkSettings
 from sagp_batched.benchmarks.ik_speed import (
     benchmark_ik,
     benchmark_ik_solvers,
@@ -13,7 +11,9 @@ from sagp_batched.benchmarks.ik_speed import (
     shoulder_world,
     unreachable_ik_targets,
 )
+from sagp_batched.benchmarks.planner_speed import BenchmarkSettings
 from sagp_batched.config import Config
+from sagp_batched.robot.description import load_robot
 from sagp_batched.robot.ik import PandaIK
 
 ROBOT = load_robot()

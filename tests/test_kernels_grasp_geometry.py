@@ -6,12 +6,12 @@ import torch
 from planner_clouds import box_surface
 from sagp_batched.config import Config
 from sagp_batched.planning import gripper_geometry, hand_geometry
+from sagp_batched.robot.description import load_robot
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations, scene_points_about
 from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
 from sagp_batched_kernels.sampling import sample_pair_indices
 from sagp_batched_kernels.table_penetration import table_penetration
-from sagp_batched.robot.description import load_robot
 
 ROBOT = load_robot()
 

@@ -9,12 +9,12 @@ import torch
 from planner_clouds import box_surface
 from sagp_batched.config import Config
 from sagp_batched.planning import gripper_geometry
+from sagp_batched.robot.description import load_robot
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
 from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
 from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 from sagp_batched_kernels.sampling import sample_pair_indices
-from sagp_batched.robot.description import load_robot
 
 ROBOT = load_robot()
 

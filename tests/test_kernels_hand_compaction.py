@@ -2,11 +2,11 @@ import pytest
 import torch
 
 from sagp_batched.config import Config
-from sagp_batched.robot.hand import DOP_DIRECTIONS
 from sagp_batched.planning import hand_geometry
+from sagp_batched.robot.description import load_robot
+from sagp_batched.robot.hand import DOP_DIRECTIONS
 from sagp_batched_kernels.grasp_frames import scene_points_about
 from sagp_batched_kernels.hand_clearance import _compacted, _least_per_run, hand_clearance, row_blocks, scene_extents
-from sagp_batched.robot.description import load_robot
 
 ROBOT = load_robot()
 

@@ -3,8 +3,8 @@ import pytest
 import pytorch_kinematics as pk
 import torch
 
-from sagp_batched.robot.kinematics import arm_chain, link_moved_by, panda_arm_geometry
 from sagp_batched.robot.description import load_robot
+from sagp_batched.robot.kinematics import arm_chain, link_moved_by, panda_arm_geometry
 from sagp_batched_kernels.panda_ik import N_BRANCHES, panda_ik_closed_form, wrist_in_reach
 
 ROBOT = load_robot()

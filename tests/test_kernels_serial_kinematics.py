@@ -5,8 +5,8 @@ import time
 import pytest
 import torch
 
-from sagp_batched.robot.kinematics import ChainFrames, arm_chain
 from sagp_batched.robot.description import load_robot
+from sagp_batched.robot.kinematics import ChainFrames, arm_chain
 
 ROBOT = load_robot()
 

@@ -12,14 +12,14 @@ from scipy.spatial.transform import Rotation
 
 from sagp_batched import Config, Grasp, GraspPoses, capture, plan
 from sagp_batched.config import ConfigError, ShakeConfig, load_config
-from sagp_batched.execution.pick import execute_grasp
 from sagp_batched.datasets.collision_urdf import floating_hand_urdf
 from sagp_batched.datasets.labelling import ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
-from sagp_batched.world.objects import load_object_set
-from sagp_batched.robot.description import load_robot
-from sagp_batched.world.scene import Scene
+from sagp_batched.execution.pick import execute_grasp
 from sagp_batched.execution.shake import shake_profile
 from sagp_batched.grasps import InvalidGraspError
+from sagp_batched.robot.description import load_robot
+from sagp_batched.world.objects import load_object_set
+from sagp_batched.world.scene import Scene
 
 ROBOT = load_robot()
 

@@ -8,9 +8,9 @@ import torch
 
 from planner_clouds import box_surface, cylinder_surface, make_cloud
 from sagp_batched.config import Config
-from sagp_batched.robot.hand import DOP_DIRECTIONS
-from sagp_batched.robot.description import load_robot
 from sagp_batched.planning import gripper_geometry, hand_geometry, plan
+from sagp_batched.robot.description import load_robot
+from sagp_batched.robot.hand import DOP_DIRECTIONS
 from sagp_batched_kernels.grasp_frames import grasp_rotations
 from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
 from sagp_batched_kernels.hand_clearance import hand_clearance

@@ -8,8 +8,8 @@ import torch
 
 from sagp_batched.benchmarks.ik_speed import reachable_ik_targets, shoulder_world
 from sagp_batched.config import Config
-from sagp_batched.robot.ik import PandaIK
 from sagp_batched.robot.description import load_robot
+from sagp_batched.robot.ik import PandaIK
 
 ROBOT = load_robot()
 

@@ -6,10 +6,10 @@ import pytest
 import torch
 
 from planner_clouds import box_surface, cylinder_surface, make_cloud
-from sagp_batched.robot.description import load_robot
 from sagp_batched.config import Config
-from sagp_batched.robot.ik import panda_ik
 from sagp_batched.planning import plan, plan_batch, sample_inputs, screen_candidates
+from sagp_batched.robot.description import load_robot
+from sagp_batched.robot.ik import panda_ik
 
 ROBOT = load_robot()
 

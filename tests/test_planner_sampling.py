@@ -5,9 +5,9 @@ import torch
 from planner_clouds import box_surface, make_cloud
 from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.planning import sample_inputs
+from sagp_batched.robot.description import load_robot
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.sampling import sample_pair_indices
-from sagp_batched.robot.description import load_robot
 
 ROBOT = load_robot()
 MEMORY = Config().memory

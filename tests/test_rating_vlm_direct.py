@@ -8,9 +8,8 @@ import pytest
 import torch
 
 from sagp_batched.config import Config, RatingConfig
-from sagp_batched.rating import VLMRequestError
 from sagp_batched.grasps import GraspCandidates
-from sagp_batched.types import CameraData, PerceivedCloud
+from sagp_batched.rating import VLMRequestError
 from sagp_batched.semantics.vlm_direct import (
     VLMDirectUnavailable,
     draw_candidate_markers,
@@ -19,6 +18,7 @@ from sagp_batched.semantics.vlm_direct import (
     project_to_crop,
     vlm_direct_rank,
 )
+from sagp_batched.types import CameraData, PerceivedCloud
 
 CROP_BOX = (270, 190, 370, 290)  # 100 x 100 pixels around the image centre
 

@@ -18,13 +18,13 @@ from planner_clouds import box_surface, make_cloud
 from sagp_batched import load_object_set
 from sagp_batched.benchmarks.planner_speed import BenchmarkSettings, mesh_cloud
 from sagp_batched.config import Config
-from sagp_batched.robot.hand import DOP_DIRECTIONS
-from sagp_batched.robot.description import load_robot
 from sagp_batched.planning import (
     CandidateStatus, ScreenedCandidates, SearchTuning, gripper_geometry, hand_geometry, plan, plan_batch, planner, screen_candidates,
 )
 from sagp_batched.planning.lookahead import MotionVerdicts, ScreenVerdicts
 from sagp_batched.planning.search import segment_exclusive_cumsum
+from sagp_batched.robot.description import load_robot
+from sagp_batched.robot.hand import DOP_DIRECTIONS
 from sagp_batched_kernels.hand_clearance import HandClearance
 from sagp_batched_kernels.table_penetration import TABLE_BLOCK_POSES, table_penetration
 

@@ -9,9 +9,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from sagp_batched.robot.description import load_robot
 from sagp_batched import Config, Grasp, GraspCandidates
 from sagp_batched.execution.pick import InvalidGraspError, execute_grasp, execute_ranked
+from sagp_batched.robot.description import load_robot
 from sagp_batched.world.objects import load_object_set
 from sagp_batched.world.scene import Scene
 

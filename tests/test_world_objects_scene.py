@@ -9,8 +9,8 @@ import numpy as np
 import pybullet
 import pytest
 
-from sagp_batched.robot.description import load_robot
 from sagp_batched import Config
+from sagp_batched.robot.description import load_robot
 from sagp_batched.world.objects import (
     PYBULLET_DATA_SET,
     YCB_DIR_ENV,

@@ -9,10 +9,10 @@ import torch
 from PIL import Image
 
 from sagp_batched.config import RatingConfig, ZonesConfig
-from sagp_batched.types import CameraData, PerceivedCloud
 from sagp_batched.semantics.vlm_direct import VLMDirectUnavailable, project_to_crop
 from sagp_batched.semantics.zone_marks import PRIMARY_ZONE_RGB, draw_zone_marks
 from sagp_batched.semantics.zones import decompose
+from sagp_batched.types import CameraData, PerceivedCloud
 
 FOCAL_PX = 240.0 / math.tan(math.radians(30.0))
 CROP_BOX = (260, 170, 380, 290)  # 120 x 120 pixels around the image centre

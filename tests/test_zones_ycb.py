@@ -4,8 +4,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sagp_batched import Scene, capture, load_config, load_object_set
-from sagp_batched.world.functional_regions import region_membership
 from sagp_batched.semantics.zones import decompose
+from sagp_batched.world.functional_regions import region_membership
 
 POSES = (200, 201, 202, 203)
 
