@@ -40,8 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from ..world.objects import ObjectSpec
-from .export import object_mesh_reference, objects_root, panda_hand_transforms_object
+from ..world.objects import ObjectSpec, objects_root
+from .export import object_mesh_reference, panda_hand_transforms_object
 
 GRIPPER_TYPE = "franka_panda"
 OBJECTS_PROGRESS_FILE = "objects.jsonl"

@@ -49,7 +49,7 @@ from ..robot.description import load_robot
 from ..robot.hand import hand_to_grasp_target_m
 from ..run_directory import write_file_atomically
 from ..types import GraspAttempt, PerceivedCloud
-from ..world.objects import ObjectSpec
+from ..world.objects import ObjectSpec, objects_root
 
 # ACRONYM's Franka gripper is the same hand as panda_hand (finger joints 0.0584 m above the base,
 # pads reaching ~0.105 m), but its fingers open along x where panda_hand's close along y. Turning
@@ -209,18 +209,6 @@ def acronym_bytes(
         f["object/mass"] = float(spec.mass_kg)
         f["gripper/type"] = "panda"
     return buffer.getvalue()
-
-
-def objects_root(urdf_path: Path) -> Path:
-    """The directory object paths are written relative to: the nearest one above the URDF holding an
-    ``objects.json`` (a YCB set), else ``pybullet_data`` when the URDF is inside it, else the URDF's own."""
-    for directory in urdf_path.parents:
-        if (directory / "objects.json").is_file():
-            return directory
-    import pybullet_data
-
-    data_dir = Path(pybullet_data.getDataPath()).resolve()
-    return data_dir if urdf_path.is_relative_to(data_dir) else urdf_path.parent
 
 
 def _relative(path: Path, root: Path) -> str:

@@ -8,7 +8,7 @@ written into a temporary folder and renamed into place, so two workers of one no
 half-written files and the second reuses the first's. The specs keep their ids, names, categories, masses,
 extents and resting poses; their URDFs point into that folder, and the set's ``checksum()`` is the driver's.
 
-Files keep their layout below the objects root that ``export.objects_root`` finds (the folder holding
+Files keep their layout below the objects root that ``objects.objects_root`` finds (the folder holding
 ``objects.json``), so what a worker exports names each mesh relative to that root exactly as the driver would.
 Objects inside ``pybullet_data`` are named by their path there instead: every worker has that folder, since
 PyBullet ships it, and the checksum check catches a worker whose copy differs.
@@ -28,9 +28,8 @@ from typing import Iterable
 
 import pybullet_data
 
-from ..datasets.export import objects_root
 from ..run_directory import path_inside
-from .objects import ObjectLoadError, ObjectSet, ObjectSpec, sagp_cache_root
+from .objects import ObjectLoadError, ObjectSet, ObjectSpec, objects_root, sagp_cache_root
 
 TRANSFER_DIR = "transfer"
 INDEX_FILE = "objects.json"

@@ -274,6 +274,16 @@ def _load_builtin() -> ObjectSet:
     return ObjectSet(f"builtin:pybullet_data:{data_dir}", specs)
 
 
+def objects_root(urdf_path: Path) -> Path:
+    """The directory object paths are written relative to: the nearest one above the URDF holding an
+    ``objects.json`` (a YCB set), else ``pybullet_data`` when the URDF is inside it, else the URDF's own."""
+    for directory in urdf_path.parents:
+        if (directory / "objects.json").is_file():
+            return directory
+    data_dir = Path(pybullet_data.getDataPath()).resolve()
+    return data_dir if urdf_path.is_relative_to(data_dir) else urdf_path.parent
+
+
 def load_object_set(objects_dir: str | Path | None = None, import_settings: MeshImportSettings | None = None) -> ObjectSet:
     """The object set from ``objects_dir``, else from env ``SAGP_YCB_DIR``, else the embedded compact YCB set.
 
