@@ -22,6 +22,11 @@ class InvalidGraspError(ValueError):
     """A grasp handed to execution is malformed; the message names the field."""
 
 
+def _check_frame(frame: str) -> None:
+    if frame not in GRASP_FRAMES:
+        raise ValueError(f"frame must be one of {GRASP_FRAMES}, got {frame!r}")
+
+
 def as_finite_vector(value: Any, length: int, name: str) -> np.ndarray:
     """``value`` (a sequence, array or tensor) as a (length,) float64 array, or ``InvalidGraspError``."""
     try:
@@ -45,8 +50,7 @@ class GraspPoses:
     frame: str = "world"  # one of ``GRASP_FRAMES``
 
     def __post_init__(self) -> None:
-        if self.frame not in GRASP_FRAMES:
-            raise ValueError(f"frame must be one of {GRASP_FRAMES}, got {self.frame!r}")
+        _check_frame(self.frame)
         n = self.position.shape[0] if self.position.dim() == 2 else -1
         if self.position.shape != (n, 3) or self.rotation.shape != (n, 3, 3):
             raise InvalidGraspError(f"grasp poses need (N, 3) positions and (N, 3, 3) rotations, got {tuple(self.position.shape)} and {tuple(self.rotation.shape)}")
@@ -142,15 +146,22 @@ class Grasp:
         approach = as_finite_vector(approach_world, 3, "approach_world")
         if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
             raise InvalidGraspError("quat_xyzw and approach_world must be non-zero")
-        rotation = Rotation.from_quat(quat).as_matrix()
+        ik_joints = None if ik_solution is None else as_finite_vector(ik_solution, 7, "ik_solution")
+        return cls.from_frame(position, Rotation.from_quat(quat).as_matrix(), width_m, approach / np.linalg.norm(approach), ik_joints)
+
+    @classmethod
+    def from_frame(cls, position: np.ndarray, rotation: np.ndarray, width_m: float, approach: np.ndarray,
+                   ik_solution: np.ndarray | None = None) -> "Grasp":
+        """A world-frame grasp from checked values: centre (3,), grasp frame (3, 3), contact width,
+        unit approach (3,) and optionally the (7,) arm joints reaching it."""
         half_width = 0.5 * float(width_m) * rotation[:, 1]
         return cls(
             candidate_id=0,
             contacts=torch.tensor(np.stack([position - half_width, position + half_width])),
             rotation=torch.tensor(rotation),
-            approach=torch.tensor(approach / np.linalg.norm(approach)),
+            approach=torch.tensor(approach),
             width_m=float(width_m),
-            ik_solution=None if ik_solution is None else torch.tensor(as_finite_vector(ik_solution, 7, "ik_solution")),
+            ik_solution=None if ik_solution is None else torch.tensor(ik_solution),
         )
 
     @property
@@ -222,8 +233,7 @@ class GraspCandidates:
     frame: str = "world"  # the frame of contacts, closing_axis, approach and rotation (``GRASP_FRAMES``)
 
     def __post_init__(self) -> None:
-        if self.frame not in GRASP_FRAMES:
-            raise ValueError(f"frame must be one of {GRASP_FRAMES}, got {self.frame!r}")
+        _check_frame(self.frame)
         if self.candidate_id is None:
             self.candidate_id = torch.arange(self.width_m.shape[0])
 

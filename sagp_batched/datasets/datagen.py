@@ -226,9 +226,9 @@ class ObjectLabeller:
         shares = [n_grasps // n_poses + (1 if k < n_grasps % n_poses else 0) for k in range(n_poses)]
         times = dict.fromkeys(("reset", "capture", "plan"), 0.0)
         poses, skipped, neutral = [], [], {}
+        # A later capture offers the same grasps again in the object's frame: only new ones are picked.
+        taken = GraspPoses.cat([], "object")
         for pose_index, share in enumerate(shares):
-            # A later capture offers the same grasps again in the object's frame: only new ones are picked.
-            taken = GraspPoses.cat([p.candidates.transform(p.object_from_world, "object").poses() for p in poses], "object")
             pose, spent = self._plan_pose(self.objects.get(object_id), pose_index, share, taken)
             for stage, seconds in spent.items():
                 times[stage] += seconds
@@ -236,6 +236,7 @@ class ObjectLabeller:
                 skipped.append(pose)
                 continue
             poses.append(pose)
+            taken = GraspPoses.cat([taken, pose.candidates.transform(pose.object_from_world, "object").poses()], "object")
             neutral.update({task: (r.issues[0] if r.issues else "neutral") for task, r in pose.ratings.items() if r.is_neutral})
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
         return ObjectPlan(object_id, poses, skipped, rater, neutral, times)

@@ -293,8 +293,8 @@ def grasps_from_poses(poses: GraspPoses, widths_m: Any) -> list[Grasp]:
     if widths.ndim != 1 or len(widths) != len(poses):
         raise InvalidGraspError(f"{len(poses)} poses and {widths.size} widths: give one of each per grasp")
     return [
-        Grasp.from_pose(position, quat, float(width), approach)
-        for position, quat, width, approach in zip(poses.position.numpy(), poses.quat_xyzw().numpy(), widths, poses.approach.numpy())
+        Grasp.from_frame(position, rotation, width, rotation[:, 2] / np.linalg.norm(rotation[:, 2]))
+        for position, rotation, width in zip(poses.position.numpy(), poses.rotation.numpy(), widths)
     ]
 
 

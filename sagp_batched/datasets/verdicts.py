@@ -211,7 +211,7 @@ def _pick_across_verdicts(verdict: torch.Tensor, seed: int, n_grasps: int, feasi
     n = verdict.numel()
     generator = torch.Generator().manual_seed(int(seed))
     order = torch.randperm(n, generator=generator)
-    available = {v: int((verdict == v).sum()) for v in range(len(VERDICTS)) if (verdict == v).any()}
+    available = {v: count for v, count in enumerate(torch.bincount(verdict, minlength=len(VERDICTS)).tolist()) if count}
     quotas = _verdict_quotas(available, n_grasps, feasible_fraction)
     picked = torch.cat([order[verdict[order] == v][:quota] for v, quota in quotas.items()] or [torch.zeros(0, dtype=torch.int64)])
     return picked.sort().values  # back in S_geom order

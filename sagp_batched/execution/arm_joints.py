@@ -30,13 +30,6 @@ from .poses import quat_angle_deg
 LIMIT_SLACK_RAD = 1e-6
 
 
-def movable_joints(scene: Scene) -> list[int]:
-    """Indices of the robot's non-fixed joints, the order PyBullet's IK and Jacobian use."""
-    client, robot = scene.client, scene.robot_id
-    return [j for j in range(pybullet.getNumJoints(robot, physicsClientId=client))
-            if pybullet.getJointInfo(robot, j, physicsClientId=client)[2] != pybullet.JOINT_FIXED]
-
-
 class _ArmIK:
     """Validated IK for ``panda_grasptarget`` in one scene (teleports the arm; call before stepping)."""
 
@@ -44,9 +37,8 @@ class _ArmIK:
         self.scene = scene
         self.config = config
         client, robot = scene.client, scene.robot_id
-        movable = movable_joints(scene)
+        movable = list(scene.robot_indices.movable_joints)
         info = [pybullet.getJointInfo(robot, j, physicsClientId=client) for j in movable]
-        self.movable = movable
         self.lower = np.array([i[8] for i in info])
         self.upper = np.array([i[9] for i in info])
         self.arm_slots = [movable.index(j) for j in scene.robot_indices.arm_joints]

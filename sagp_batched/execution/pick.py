@@ -31,7 +31,7 @@ from ..robot.description import RobotDescription
 from ..robot.motion import grasp_waypoint_index, motion_waypoints
 from ..types import GraspAttempt
 from ..world.scene import Scene, make_camera
-from .arm_joints import movable_joints, path_to_execute
+from .arm_joints import path_to_execute
 from .poses import pose_change, quat_angle_deg, relative_pose
 from .shake import achieved_shake_peaks, frame_offsets, shake_profile
 
@@ -208,7 +208,7 @@ def _shake_arm(scene: Scene, config: Config, shake: ShakeConfig, lifted_joints: 
     """
     client, robot = scene.client, scene.robot_id
     profile = shake_profile(shake, config.scene.time_step_s)
-    movable = movable_joints(scene)
+    movable = list(scene.robot_indices.movable_joints)
     positions = [state[0] for state in pybullet.getJointStates(robot, movable, physicsClientId=client)]
     rest = [0.0] * len(movable)
     linear, angular = pybullet.calculateJacobian(

@@ -118,15 +118,19 @@ class BodyIndices:
     finger_joints: tuple[int, ...]
     hand_link: int
     grasp_target_link: int
+    # Every non-fixed joint, in index order: the order PyBullet's IK and Jacobian use.
+    movable_joints: tuple[int, ...]
 
 
 def body_indices(robot: RobotDescription, body_id: int, client: int) -> BodyIndices:
     """Look ``robot``'s joints and links up by name in the loaded body ``body_id``."""
-    joints, links = {}, {}
+    joints, links, movable = {}, {}, []
     for index in range(pybullet.getNumJoints(body_id, physicsClientId=client)):
         info = pybullet.getJointInfo(body_id, index, physicsClientId=client)
         joints[info[1].decode()] = index
         links[info[12].decode()] = index
+        if info[2] != pybullet.JOINT_FIXED:
+            movable.append(index)
     names = (*robot.arm_joints, *robot.finger_joints)
     missing = [name for name in names if name not in joints] + [n for n in (robot.hand_link, robot.grasp_target_link) if n not in links]
     if missing:
@@ -136,4 +140,5 @@ def body_indices(robot: RobotDescription, body_id: int, client: int) -> BodyIndi
         finger_joints=tuple(joints[name] for name in robot.finger_joints),
         hand_link=links[robot.hand_link],
         grasp_target_link=links[robot.grasp_target_link],
+        movable_joints=tuple(movable),
     )
