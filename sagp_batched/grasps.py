@@ -27,6 +27,14 @@ def _check_frame(frame: str) -> None:
         raise ValueError(f"frame must be one of {GRASP_FRAMES}, got {frame!r}")
 
 
+def _rigid_matrix(transform: torch.Tensor | np.ndarray) -> torch.Tensor:
+    """A (4, 4) rigid transform as a float64 tensor, or ``ValueError``."""
+    matrix = torch.tensor(np.asarray(transform), dtype=torch.float64)  # a copy: a read-only array (from Ray) stays untouched
+    if matrix.shape != (4, 4) or not torch.allclose(matrix[:3, :3] @ matrix[:3, :3].T, torch.eye(3, dtype=torch.float64), atol=1e-6):
+        raise ValueError(f"transform must be a (4, 4) rigid transform, got shape {tuple(matrix.shape)}")
+    return matrix
+
+
 def as_finite_vector(value: Any, length: int, name: str) -> np.ndarray:
     """``value`` (a sequence, array or tensor) as a (length,) float64 array, or ``InvalidGraspError``."""
     try:
@@ -104,6 +112,13 @@ class GraspPoses:
         transforms[:, :3, :3] = self.rotation.numpy()
         transforms[:, :3, 3] = self.position.numpy()
         return transforms
+
+    def transform(self, transform: torch.Tensor | np.ndarray, frame: str) -> "GraspPoses":
+        """The poses moved by a (4, 4) rigid transform into ``frame``, as ``GraspCandidates.transform``
+        moves a batch: ``transform(world_from_object, "world")`` expresses object-frame poses in the world."""
+        matrix = _rigid_matrix(transform)
+        rotation, translation = matrix[:3, :3], matrix[:3, 3]
+        return GraspPoses(self.position.double() @ rotation.T + translation, rotation @ self.rotation.double(), frame)
 
     def quat_xyzw(self) -> torch.Tensor:
         """(N, 4) float64 xyzw quaternions of the grasp frames."""
@@ -305,9 +320,7 @@ class GraspCandidates:
     def transform(self, transform: torch.Tensor | np.ndarray, frame: str) -> "GraspCandidates":
         """The batch moved by a (4, 4) rigid transform into ``frame``, in float64:
         ``transform(object_from_world, "object")`` expresses a world-frame batch in the object frame."""
-        matrix = torch.tensor(np.asarray(transform), dtype=torch.float64)  # a copy: a read-only array (from Ray) stays untouched
-        if matrix.shape != (4, 4) or not torch.allclose(matrix[:3, :3] @ matrix[:3, :3].T, torch.eye(3, dtype=torch.float64), atol=1e-6):
-            raise ValueError(f"transform must be a (4, 4) rigid transform, got shape {tuple(matrix.shape)}")
+        matrix = _rigid_matrix(transform)
         rotation, translation = matrix[:3, :3], matrix[:3, 3]
         return self.with_fields(
             contacts=self.contacts.double() @ rotation.T + translation,

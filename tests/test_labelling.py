@@ -136,15 +136,15 @@ def test_hand_labels_are_the_same_whether_grasps_are_labelled_alone_or_together(
     assert all(label.mode == "hand" for label in together)
 
 
-def test_a_hand_that_starts_inside_the_object_or_drives_into_the_table_collides(box_scene, config):
+def test_a_hand_inside_the_object_or_the_table_at_the_grasp_is_a_collision_decided_by_geometry(box_scene, config):
     inside = _top_down(box_scene, 0.0, 0.15, 0.072)  # the pre-grasp, 10 cm above, is still 5 cm inside the box
     table_top = config.scene.table_top_z_m
     quat = Rotation.from_matrix(np.stack([np.cross([0.0, 1.0, 0.0], DOWN), [0.0, 1.0, 0.0], DOWN], axis=1)).as_quat()
     into_table = grasps_from_poses(GraspPoses.from_quat_xyzw([[0.3, 0.3, table_top + 0.001]], [quat]), [0.05])[0]  # fingertips 6 mm into the table
     labels = label_grasps_hand(box_scene, [inside, into_table], config)
-    assert [(label.held, label.failure_reason, label.failed_at) for label in labels] == [
-        (False, "collision", "pregrasp"),
-        (False, "collision", "descent"),
+    assert [(label.held, label.failure_reason, label.failed_at, label.simulated) for label in labels] == [
+        (False, "collision", "grasp_pose", False),
+        (False, "collision", "grasp_pose", False),
     ]
     assert labels[0].object_motion_during_closing_linear is None and labels[0].shake_achieved_peak_accelerations is None
 

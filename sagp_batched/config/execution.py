@@ -109,6 +109,17 @@ class LabellingConfig(_Section):
     hand_constraint_max_force_n: float = setting(1000.0, above=0)
     #: Where the floating hand's URDF and the objects' collision-only URDFs (absolute mesh paths) are written.
     hand_urdf_cache_dir: str = setting("~/.cache/sagp_batched/hand", non_empty=True)
+    #: An open hand reaching this far into the object's mesh or below the table at the grasp pose is
+    #: a collision decided by geometry: deeper than the contact margins simulation allows, shallower
+    #: than any grasp the simulation could still close.
+    geometry_tolerance_m: float = setting(0.001, at_least=0)
+    #: Simulations per label, the grasp's own pose and perturbed copies: a label should not hang on
+    #: a millimetre. 1 simulates the pose alone.
+    perturbed_simulations: int = setting(5, at_least=1, at_most=100)
+    #: How far each perturbed copy is moved and turned about the grasp centre: the pose error of a
+    #: calibrated arm and camera.
+    perturbation_translation_m: float = setting(0.002, at_least=0)
+    perturbation_rotation_deg: float = setting(2.0, at_least=0, at_most=90)
 
 
 @dataclass

@@ -1,72 +1,72 @@
-"""Grasp labels from simulation, in two modes, each ending with a shake (ACRONYM / GraspGen style).
+"""Grasp labels: what to label and how robustly; the protocols (``protocols``) say what is simulated
+and the engine (``pybullet_hand``) simulates it.
 
-``arm``: the study's execution (``execution.execute_grasp``) with its opt-in shake: the Panda runs
-the planned joint path, closes, lifts, holds, then the arm shakes the hand.
+``arm`` mode: the study's execution (``execution.execute_grasp``) with its opt-in shake: the Panda
+runs the planned joint path, closes, lifts, holds, then the arm shakes the hand (tabletop only).
 
-``hand``: ACRONYM's convention, far cheaper: the Panda hand alone (the robot URDF's hand subtree,
-collision meshes only, fingers as prismatic joints), carried by a fixed constraint. It starts at
-the pre-grasp (``pregrasp_offset_m`` back along the approach), moves along the approach to the
-grasp, closes with the study's grip force and finger friction, lifts ``lift_height_m``, holds and
-shakes (``ShakeConfig``); the object rests on the study's table at the trial's settled pose.
+``hand`` mode: the Panda hand alone, ACRONYM's convention and far cheaper, in either protocol:
+``tabletop`` (the object where it settled on the study's table, the hand approaching from the
+pre-grasp) or ``floating`` (the object alone, the hand appearing at the grasp). Every grasp is first
+tested by geometry on the object's true mesh (``grasp_geometry``): an open hand that already
+intersects the object or the table at the grasp pose is labelled a collision without simulating it.
+The rest are simulated, each in a world of its own built from nothing, so a label cannot depend on
+which or how many grasps are labelled with it.
 
-Hand mode takes a batch and labels each grasp in a PyBullet world of its own, built from nothing
-for that grasp, so a label cannot depend on which or how many grasps are labelled with it. Grasps
-do not share a world: PyBullet's solver stops on the residual of the whole world, sorts
-constraints and contact manifolds by island with an unstable quicksort (the several manifolds
-between a finger and a V-HACD object tie, so their order depends on the other pairs' bodies), and
-drops stale broadphase pairs a few per step across the whole world. Hands at the same pose beside
-others then differ after one step, and outcomes after a lift and a shake.
-
-Both modes judge with execution's own test (``execution.object_held``): the object's centre of
-mass ``success_height_above_table_m`` above the table and both fingers touching it, after the
-hold and again after the shake. Object motion is recorded as ACRONYM records it: during the close
-in the world (the hand holds still), during the shake in the hand's (grasp target's) frame.
+Robust labels: with ``labelling.perturbed_simulations`` K > 1 each grasp is simulated K times, at its
+pose and at K - 1 poses moved ``perturbation_translation_m`` and turned ``perturbation_rotation_deg``
+about the grasp centre in directions drawn from a seed made of the pose itself (the same grasp gets
+the same perturbations in any file and any order). The label is held where most of the K held;
+``held_fraction`` keeps the share, and the label's other fields are those of its own pose where that
+agreed with the majority, else of the first perturbed pose that did.
 """
 from __future__ import annotations
 
-import math
+import hashlib
 from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
-import pybullet
+import torch
+from scipy.spatial.transform import Rotation
 
-from ..config import Config, ShakeConfig
-from ..execution.pick import checked_grasp, execute_grasp, fingers_touching, lift_failure, object_held, push_n, set_finger_friction
-from ..execution.poses import pose_change, relative_pose
-from ..execution.shake import achieved_shake_peaks, frame_offsets, shake_profile
+from ..config import Config
+from ..execution.pick import checked_grasp, execute_grasp
 from ..grasps import Grasp, GraspCandidates, GraspPoses, InvalidGraspError
 from ..robot.description import robot_of
-from ..robot.hand import hand_to_grasp_target_m
 from ..robot.motion import grasp_waypoint_index
 from ..types import GraspAttempt
-from ..world.objects import ObjectLoadError, ObjectSpec
-from ..world.scene import Scene, command_fingers, configure_physics, create_table
-from .collision_urdf import collision_only_urdf, floating_hand_urdf
+from ..world.objects import ObjectSpec
+from ..world.scene import Scene
+from .grasp_geometry import contact_widths, object_surface, open_hand_collisions
+from .protocols import PROTOCOLS, GraspLabel, ObjectPlacement, run_floating, run_tabletop
+from .pybullet_hand import PyBulletHand
+
+__all__ = ["FloatingPlacement", "GraspLabel", "ObjectPlacement", "grasps_from_poses", "label_grasps_arm", "label_grasps_hand",
+           "label_object_grasps", "tabletop_placement"]
 
 
 @dataclass(frozen=True)
-class GraspLabel:
-    """What simulation made of one grasp.
+class FloatingPlacement:
+    """An object floating alone (the ``floating`` protocol): the world pose of its link frame.
+    Gravity pulls along the world's -z, so the pose says which way is down for the object."""
 
-    ``held``: still held after the shake. ``failure_reason``/``failed_at``: execution's reasons
-    ("unreachable" is never a label: an arm that cannot reach a grasp has not tested it) and
-    phases ("pregrasp", "descent", "close", "lift", "shake"). Object motion (m, rad), None where
-    the grasp failed before that phase: ``closing`` in the world from just before the close to its
-    end, ``shaking`` relative to the hand from the shake's start to its end.
-    ``shake_achieved_peak_accelerations``: what the hand reached along and about its x, y, z
-    (m/s^2, rad/s^2; ``shake.achieved_shake_peaks``), None where it was not shaken.
-    """
+    spec: ObjectSpec
+    link_position_world: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    link_quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
 
-    mode: str
-    held: bool
-    failure_reason: str | None
-    failed_at: str | None
-    object_motion_during_closing_linear: float | None = None
-    object_motion_during_closing_angular: float | None = None
-    object_motion_during_shaking_linear: float | None = None
-    object_motion_during_shaking_angular: float | None = None
-    shake_achieved_peak_accelerations: tuple[float, ...] | None = None
+
+@dataclass(frozen=True)
+class _Target:
+    """One simulation's hand motion in the world: start (the pre-grasp, or the grasp where the hand appears there), grasp, orientation."""
+
+    start: np.ndarray
+    grasp: np.ndarray
+    quat: np.ndarray
+
+    def moved(self, translation: np.ndarray, turn: Rotation) -> "_Target":
+        """The same motion turned by ``turn`` about the grasp centre and moved by ``translation``."""
+        grasp = self.grasp + translation
+        return _Target(grasp + turn.apply(self.start - self.grasp), grasp, (turn * Rotation.from_quat(self.quat)).as_quat())
 
 
 def _arm_label(attempt: GraspAttempt) -> GraspLabel | None:
@@ -85,201 +85,6 @@ def _arm_label(attempt: GraspAttempt) -> GraspLabel | None:
         object_motion_during_shaking_angular=diagnostics.object_motion_during_shaking_angular,
         shake_achieved_peak_accelerations=diagnostics.shake_achieved_peak_accelerations,
     )
-
-
-@dataclass(frozen=True)
-class ObjectPlacement:
-    """An object resting on the study's table: its spec and the world pose of its centre-of-mass
-    frame (what ``getBasePositionAndOrientation`` reports)."""
-
-    spec: ObjectSpec
-    com_position_world: tuple[float, float, float]
-    com_quat_xyzw: tuple[float, float, float, float]
-
-    @classmethod
-    def from_scene(cls, scene: Scene) -> "ObjectPlacement":
-        """The target of a reset ``Scene`` where it settled (the scene is restored to its saved state first)."""
-        if scene.target_spec is None:
-            raise ValueError("ObjectPlacement.from_scene needs a Scene after reset")
-        scene.restore_state()
-        position, quat = scene.centre_of_mass(scene.target_id)
-        return cls(scene.target_spec, tuple(float(v) for v in position), tuple(float(v) for v in quat))
-
-
-# -- the floating hand ------------------------------------------------------------------------------
-def _half_cosine(fraction: float) -> float:
-    """Progress along a straight move that starts and stops at rest."""
-    return 0.5 * (1.0 - math.cos(math.pi * fraction))
-
-
-class _HandWorld:
-    """A PyBullet client in which one floating hand at a time labels one grasp: every grasp gets a
-    world built from nothing (``resetSimulation``), the study's table, the object at its settled
-    pose and the hand at the grasp's pre-grasp, so no grasp's label depends on any other's."""
-
-    def __init__(self, config: Config):
-        self.config = config
-        self.client = pybullet.connect(pybullet.DIRECT)
-        self.robot = robot_of(config)
-        self.hand_urdf = str(floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir))
-        self.grasp_offset_m = hand_to_grasp_target_m(self.robot)
-        self._object_urdfs: dict[str, str] = {}
-
-    def _object_urdf(self, spec: ObjectSpec) -> str:
-        key = str(spec.urdf_path)
-        if key not in self._object_urdfs:
-            self._object_urdfs[key] = str(collision_only_urdf(spec.urdf_path, self.config.labelling.hand_urdf_cache_dir))
-        return self._object_urdfs[key]
-
-    def close(self) -> None:
-        if pybullet.isConnected(self.client):
-            pybullet.disconnect(self.client)
-
-    def __enter__(self) -> "_HandWorld":
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
-
-    # -- building ------------------------------------------------------------------------------------
-    def _build(self, placement: ObjectPlacement, pregrasp: np.ndarray, quat: np.ndarray) -> None:
-        client, config = self.client, self.config
-        pybullet.resetSimulation(physicsClientId=client)
-        configure_physics(client, config.scene)
-        pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
-        self.table = create_table(client, config.scene)
-        try:
-            self.target = pybullet.loadURDF(self._object_urdf(placement.spec), flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
-        except pybullet.error as exc:
-            raise ObjectLoadError(f"object '{placement.spec.id}': PyBullet cannot load {placement.spec.urdf_path}: {exc}") from exc
-        pybullet.resetBasePositionAndOrientation(self.target, placement.com_position_world, placement.com_quat_xyzw, physicsClientId=client)
-        self.rest_com = np.array(placement.com_position_world)
-        self.hand = pybullet.loadURDF(self.hand_urdf, physicsClientId=client)
-        names = {pybullet.getJointInfo(self.hand, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(self.hand, physicsClientId=client))}
-        self.finger_joints = tuple(names[name] for name in self.robot.finger_joints)
-        # The constraint holds the grasp target; PyBullet pins a base by its inertial frame.
-        inertial = pybullet.getDynamicsInfo(self.hand, -1, physicsClientId=client)[3:5]
-        self.target_in_base = pybullet.multiplyTransforms(*pybullet.invertTransform(*inertial), [0.0, 0.0, self.grasp_offset_m], [0.0, 0.0, 0.0, 1.0])
-        base = pybullet.multiplyTransforms(list(pregrasp), list(quat), *pybullet.invertTransform(*self.target_in_base))
-        pybullet.resetBasePositionAndOrientation(self.hand, *base, physicsClientId=client)
-        for joint in self.finger_joints:
-            pybullet.resetJointState(self.hand, joint, self.robot.open_width_m / 2.0, physicsClientId=client)
-        self._command_fingers(self.robot.open_width_m)
-        set_finger_friction(client, self.hand, self.finger_joints, config.execution)
-        self.constraint = pybullet.createConstraint(
-            self.hand, -1, -1, -1, pybullet.JOINT_FIXED, [0.0, 0.0, 0.0],
-            parentFramePosition=self.target_in_base[0], childFramePosition=list(pregrasp),
-            parentFrameOrientation=self.target_in_base[1], childFrameOrientation=list(quat),
-            physicsClientId=client,
-        )
-        self.quat = tuple(quat)
-        self._move(pregrasp)
-
-    # -- helpers -------------------------------------------------------------------------------------
-    def _command_fingers(self, width_m: float) -> None:
-        command_fingers(self.client, self.hand, self.finger_joints, width_m, self.config.execution.gripper_force_n)
-
-    def _step(self, steps: int) -> None:
-        for _ in range(steps):
-            pybullet.stepSimulation(physicsClientId=self.client)
-
-    def _move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None:
-        pybullet.changeConstraint(
-            self.constraint, jointChildPivot=list(position), jointChildFrameOrientation=list(quat or self.quat),
-            maxForce=self.config.labelling.hand_constraint_max_force_n, physicsClientId=self.client,
-        )
-
-    def _target_pose(self) -> tuple[Any, Any]:
-        """World pose of the object's centre-of-mass frame."""
-        return pybullet.getBasePositionAndOrientation(self.target, physicsClientId=self.client)
-
-    def _hand_pose(self) -> tuple[Any, Any]:
-        """World pose of the hand's grasp target."""
-        base = pybullet.getBasePositionAndOrientation(self.hand, physicsClientId=self.client)
-        return pybullet.multiplyTransforms(*base, *self.target_in_base)
-
-    def _touching(self, body: int) -> list[tuple]:
-        return pybullet.getContactPoints(bodyA=self.hand, bodyB=body, physicsClientId=self.client)
-
-    def _held(self) -> bool:
-        return object_held(self.client, self.hand, self.finger_joints, self.target, self.config)
-
-    @staticmethod
-    def _checkpoints(steps: int, count: int) -> set[int]:
-        """Steps (1-based) after which a motion of ``steps`` is checked ``count`` times, evenly, the last at its end."""
-        return {round(steps * (k + 1) / count) for k in range(count)}
-
-    # -- the sequence --------------------------------------------------------------------------------
-    def label(self, placement: ObjectPlacement, pregrasp: np.ndarray, grasp: np.ndarray, quat: np.ndarray) -> GraspLabel:
-        """Approach, close, lift, hold, shake: the label of one grasp."""
-        execution, labelling = self.config.execution, self.config.labelling
-        self._build(placement, pregrasp, quat)
-        motion: dict[str, Any] = {}
-
-        def failed(reason: str, phase: str) -> GraspLabel:
-            return GraspLabel(mode="hand", held=False, failure_reason=reason, failed_at=phase, **motion)
-
-        pybullet.performCollisionDetection(physicsClientId=self.client)
-        if self._touching(self.target) or self._touching(self.table):
-            return failed("collision", "pregrasp")
-        self._step(labelling.hand_settle_steps)
-
-        # Checked as the study checks its descent: after each of its waypoints.
-        checks = self._checkpoints(labelling.hand_approach_steps, self.config.motion.descent_waypoints)
-        for step in range(1, labelling.hand_approach_steps + 1):
-            self._move(pregrasp + (grasp - pregrasp) * _half_cosine(step / labelling.hand_approach_steps))
-            self._step(1)
-            if step in checks:
-                knocked = np.linalg.norm(np.subtract(self._target_pose()[0], self.rest_com)) > execution.knock_tolerance_m
-                if knocked or push_n(self._touching(self.table)) > execution.table_contact_max_force_n:
-                    return failed("collision", "descent")
-
-        before_close = self._target_pose()
-        self._command_fingers(0.0)
-        self._step(labelling.hand_close_steps)
-        closing = pose_change(before_close, self._target_pose())
-        motion["object_motion_during_closing_linear"], motion["object_motion_during_closing_angular"] = closing
-        touching_after_close = fingers_touching(self.client, self.hand, self.finger_joints, self.target)
-
-        checks = self._checkpoints(labelling.hand_lift_steps, self.config.motion.lift_waypoints)
-        up = np.array([0.0, 0.0, self.config.motion.lift_height_m])
-        highest_rise = 0.0
-        for step in range(1, labelling.hand_lift_steps + 1):
-            self._move(grasp + up * _half_cosine(step / labelling.hand_lift_steps))
-            self._step(1)
-            if step in checks:
-                highest_rise = max(highest_rise, float(self._target_pose()[0][2] - self.rest_com[2]))
-        self._step(labelling.hand_hold_steps)
-        if not self._held():
-            return failed(*lift_failure(highest_rise, touching_after_close, execution))
-
-        motion.update(self._shake(labelling.shake))
-        if self._held():
-            return GraspLabel(mode="hand", held=True, failure_reason=None, failed_at=None, **motion)
-        return failed("slipped", "shake")
-
-    def _shake(self, shake: ShakeConfig) -> dict[str, Any]:
-        """Follow ``shake_profile`` around the lifted pose, the constraint carrying the grasp target
-        (so rotations turn about it); the object's motion relative to the hand over the shake and
-        the peaks the hand reached (``achieved_shake_peaks`` of its pose at every step)."""
-        profile = shake_profile(shake, self.config.scene.time_step_s)
-        start = self._hand_pose()
-        object_start = relative_pose(start, self._target_pose())
-        hand_poses = []
-        for offset in profile.offsets:
-            position, _ = pybullet.multiplyTransforms(*start, offset[:3].tolist(), [0.0, 0.0, 0.0, 1.0])
-            angle = float(np.linalg.norm(offset[3:]))
-            turn = pybullet.getQuaternionFromAxisAngle((offset[3:] / angle).tolist(), angle) if angle > 0.0 else (0.0, 0.0, 0.0, 1.0)
-            self._move(position, pybullet.multiplyTransforms([0.0, 0.0, 0.0], start[1], [0.0, 0.0, 0.0], turn)[1])
-            self._step(1)
-            hand_poses.append(self._hand_pose())
-        linear, angular = pose_change(object_start, relative_pose(self._hand_pose(), self._target_pose()))
-        measured = frame_offsets(start, hand_poses)
-        return {
-            "object_motion_during_shaking_linear": linear,
-            "object_motion_during_shaking_angular": angular,
-            "shake_achieved_peak_accelerations": achieved_shake_peaks(profile, measured),
-        }
 
 
 # -- inputs ------------------------------------------------------------------------------------------
@@ -311,14 +116,50 @@ def _as_placements(placements: ObjectPlacement | Scene | Sequence[ObjectPlacemen
     return [p if isinstance(p, ObjectPlacement) else cache.setdefault(id(p), ObjectPlacement.from_scene(p)) for p in given]
 
 
-def _hand_targets(grasps: Sequence[Grasp], config: Config) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """(pre-grasp, grasp, quaternion) of each grasp: the first and the grasp waypoint of the study's motion."""
+def _tabletop_targets(grasps: Sequence[Grasp], config: Config) -> list[_Target]:
+    """The pre-grasp and the grasp waypoint of the study's motion, and the orientation, of each grasp."""
     index = grasp_waypoint_index(config.motion)
     targets = []
     for grasp in grasps:
         quat, waypoints, _ = checked_grasp(grasp, config.motion, robot_of(config))
-        targets.append((waypoints[0], waypoints[index], quat))
+        targets.append(_Target(waypoints[0], waypoints[index], quat))
     return targets
+
+
+def tabletop_placement(spec: ObjectSpec, config: Config, resting_pose: int = 0, trial: int = 0) -> ObjectPlacement:
+    """Where ``spec`` settles on the study's table in its resting pose ``resting_pose`` (the scene of ``trial``)."""
+    scene = Scene(config)
+    try:
+        scene.reset(spec, trial=trial, resting_pose=resting_pose)
+        return ObjectPlacement.from_scene(scene)
+    finally:
+        scene.close()
+
+
+# -- frames ------------------------------------------------------------------------------------------
+def _link_pose_world(placement: ObjectPlacement | FloatingPlacement) -> np.ndarray:
+    """(4, 4) the object's link frame in the world."""
+    pose = np.eye(4)
+    if isinstance(placement, FloatingPlacement):
+        pose[:3, :3] = Rotation.from_quat(placement.link_quat_xyzw).as_matrix()
+        pose[:3, 3] = placement.link_position_world
+        return pose
+    com_in_link = _com_in_link(placement.spec)
+    pose[:3, :3] = Rotation.from_quat(placement.com_quat_xyzw).as_matrix()
+    pose[:3, 3] = placement.com_position_world
+    return pose @ np.linalg.inv(com_in_link)
+
+
+def _com_in_link(spec: ObjectSpec) -> np.ndarray:
+    """(4, 4) the centre-of-mass (inertial) frame in the link frame, from the URDF's ``<inertial><origin>``."""
+    import xml.etree.ElementTree as ElementTree
+
+    origin = ElementTree.parse(spec.urdf_path).getroot().find("link/inertial/origin")
+    frame = np.eye(4)
+    if origin is not None:
+        frame[:3, :3] = Rotation.from_euler("xyz", [float(v) for v in (origin.get("rpy") or "0 0 0").split()]).as_matrix()
+        frame[:3, 3] = [float(v) for v in (origin.get("xyz") or "0 0 0").split()]
+    return frame
 
 
 # -- labelling -----------------------------------------------------------------------------------------
@@ -327,19 +168,126 @@ def label_grasps_hand(
     grasps: GraspCandidates | Sequence[Grasp],
     config: Config,
 ) -> list[GraspLabel]:
-    """Hand-mode labels of ``grasps``, in order, each from a world of its own (``_HandWorld``).
+    """Hand-mode ``tabletop`` labels of world-frame ``grasps``, in order (robust as the module says).
 
     ``placements``: where the object rests, one for every grasp or one per grasp (an
     ``ObjectPlacement``, or a reset ``Scene`` whose settled target is taken). Grasps as a
     ``GraspCandidates`` batch or ``Grasp`` values (``grasps_from_poses`` makes them from ``GraspPoses``);
-    a malformed one raises ``InvalidGraspError`` before anything is simulated. Every grasp is
-    simulated, so every grasp gets a label.
+    a malformed one raises ``InvalidGraspError`` before anything is simulated.
     """
     grasp_list = _as_grasps(grasps)
     placement_list = _as_placements(placements, len(grasp_list))
-    targets = _hand_targets(grasp_list, config)
-    with _HandWorld(config) as world:
-        return [world.label(placement, pregrasp, grasp, quat) for placement, (pregrasp, grasp, quat) in zip(placement_list, targets)]
+    return _label(placement_list, _tabletop_targets(grasp_list, config), config)
+
+
+def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, protocol: str, config: Config,
+                        placement: ObjectPlacement | FloatingPlacement | None = None) -> list[GraspLabel]:
+    """Hand-mode labels of grasps given in the object's link frame, in ``protocol``.
+
+    ``placement``: where the object is; by default floating at the world's origin, or settled on the
+    table in its first resting pose (``tabletop_placement``). ``widths_m`` (N,) or None, measured on
+    the mesh then (``grasp_geometry.contact_widths``): the hand closes fully either way, the width
+    only checks the grasp.
+    """
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+    if poses.frame != "object":
+        raise InvalidGraspError(f"object grasps are given in the object frame, got poses in the {poses.frame} frame")
+    if placement is None:
+        placement = FloatingPlacement(spec) if protocol == "floating" else tabletop_placement(spec, config)
+    if isinstance(placement, FloatingPlacement) != (protocol == "floating"):
+        raise ValueError(f"the {protocol} protocol needs a {'FloatingPlacement' if protocol == 'floating' else 'ObjectPlacement'}")
+    robot = robot_of(config)
+    widths = contact_widths(object_surface(spec), poses, robot.open_width_m) if widths_m is None else widths_m
+    world = poses.transform(_link_pose_world(placement), "world")
+    grasps = grasps_from_poses(world, widths)
+    if protocol == "tabletop":
+        return _label([placement] * len(grasps), _tabletop_targets(grasps, config), config)
+    targets = [_Target(g, g, q) for g, q in zip(world.position.numpy(), world.quat_xyzw().numpy())]
+    return _label([placement] * len(grasps), targets, config)
+
+
+def _label(placements: Sequence[ObjectPlacement | FloatingPlacement], targets: Sequence[_Target], config: Config) -> list[GraspLabel]:
+    """Each grasp's label: every simulation of it (its pose and its perturbations) tested by geometry, the clear ones simulated."""
+    samples = [[target] + _perturbed(target, config) for target in targets]
+    decided = _geometry_verdicts(placements, samples, config)
+    labels = []
+    with PyBulletHand(config) as engine:
+        for placement, poses, verdicts in zip(placements, samples, decided):
+            if verdicts[0] is not None:  # the grasp itself intersects: no simulation tests it
+                labels.append(verdicts[0])
+                continue
+            outcomes = [verdict or _simulate(engine, placement, target, config) for target, verdict in zip(poses, verdicts)]
+            labels.append(_majority(outcomes))
+    return labels
+
+
+def _simulate(engine: PyBulletHand, placement: ObjectPlacement | FloatingPlacement, target: _Target, config: Config) -> GraspLabel:
+    if isinstance(placement, FloatingPlacement):
+        pose = (placement.link_position_world, placement.link_quat_xyzw)
+        return run_floating(engine, placement.spec, pose, target.grasp, target.quat, config)
+    return run_tabletop(engine, placement, target.start, target.grasp, target.quat, config)
+
+
+def _majority(outcomes: list[GraspLabel]) -> GraspLabel:
+    if len(outcomes) == 1:
+        return outcomes[0]
+    fraction = sum(outcome.held for outcome in outcomes) / len(outcomes)
+    held = fraction > 0.5
+    representative = next(outcome for outcome in outcomes if outcome.held == held)
+    return _replace(representative, held_fraction=fraction)
+
+
+def _replace(label: GraspLabel, **changes: Any) -> GraspLabel:
+    import dataclasses
+
+    return dataclasses.replace(label, **changes)
+
+
+def _perturbed(target: _Target, config: Config) -> list[_Target]:
+    """The K - 1 perturbed copies of a target, from a seed made of the target's own pose."""
+    labelling = config.labelling
+    count = labelling.perturbed_simulations - 1
+    if count <= 0:
+        return []
+    key = np.round(np.concatenate([target.grasp, target.quat * np.sign(target.quat[np.argmax(np.abs(target.quat))])]), 6)
+    rng = np.random.default_rng(int.from_bytes(hashlib.sha256(key.tobytes()).digest()[:8], "little"))
+    directions = rng.normal(size=(count, 2, 3))
+    directions /= np.linalg.norm(directions, axis=2, keepdims=True)
+    angle = np.deg2rad(labelling.perturbation_rotation_deg)
+    return [target.moved(labelling.perturbation_translation_m * shift, Rotation.from_rotvec(angle * axis)) for shift, axis in directions]
+
+
+def _geometry_verdicts(placements: Sequence[ObjectPlacement | FloatingPlacement], samples: list[list[_Target]],
+                       config: Config) -> list[list[GraspLabel | None]]:
+    """Per grasp and sample, the collision label where the open hand intersects the object or the
+    table at the grasp pose (tested on the object's mesh, in its frame), else None."""
+    verdicts: list[list[GraspLabel | None]] = [[None] * len(s) for s in samples]
+    robot = robot_of(config)
+    # The floating hand is the hand link and its fingers: the arm's links above it are not simulated.
+    links = (robot.hand_link, *robot.finger_links)
+    by_placement: dict[int, list[tuple[int, int]]] = {}
+    for i, placement in enumerate(placements):
+        by_placement.setdefault(id(placement), []).extend((i, k) for k in range(len(samples[i])))
+    for indices in by_placement.values():
+        placement = placements[indices[0][0]]
+        world_from_object = _link_pose_world(placement)
+        targets = [samples[i][k] for i, k in indices]
+        world = GraspPoses(torch.as_tensor(np.array([t.grasp for t in targets]), dtype=torch.float64),
+                           torch.as_tensor(Rotation.from_quat([t.quat for t in targets]).as_matrix(), dtype=torch.float64), "world")
+        poses = world.transform(np.linalg.inv(world_from_object), "object")
+        table = None
+        if isinstance(placement, ObjectPlacement):  # the table top, z = top in the world, in the object's frame
+            up = world_from_object[2, :3]
+            table = (up, float(world_from_object[2, 3] - config.scene.table_top_z_m))
+        object_hit, table_hit = open_hand_collisions(object_surface(placement.spec), poses, robot, links,
+                                                     config.labelling.geometry_tolerance_m, table)
+        protocol = "floating" if isinstance(placement, FloatingPlacement) else "tabletop"
+        for (i, k), hit in zip(indices, object_hit | table_hit):
+            if hit:
+                verdicts[i][k] = GraspLabel(mode="hand", held=False, failure_reason="collision", failed_at="grasp_pose",
+                                            protocol=protocol, simulated=False)
+    return verdicts
 
 
 def label_grasps_arm(scene: Scene, grasps: GraspCandidates | Sequence[Grasp], config: Config) -> list[GraspLabel | None]:

@@ -1,0 +1,174 @@
+"""What geometry alone decides about a grasp, on the object's true mesh rather than its collision hulls.
+
+A label is the outcome of a simulation, and a simulation that starts with the open hand inside the
+object or the table tests nothing: such a grasp is labelled a collision here, without simulating it.
+The test is on the mesh the object is (its visual mesh, the surface a learner sees), so hulls that
+overfill a cavity cannot turn a free grasp into a collision.
+
+- ``ObjectSurface``: the object's mesh in its link frame, points spread over its surface, and an
+  Open3D ray-casting scene for occupancy and widths.
+- ``open_hand_collisions``: for each grasp, whether the open hand's collision hulls (the ones the
+  simulation collides) hold any of the object's surface points deeper than a tolerance, hold the
+  object's interior (a hand wholly inside a solid crosses no surface), or reach below the table.
+- ``contact_widths``: the gap the closing fingers meet along the closing axis.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial import ConvexHull
+
+from ..grasps import GraspPoses
+from ..robot.description import RobotDescription
+from ..robot.hand import DOP_DIRECTIONS, load_hand_geometry
+from ..world.objects import ObjectSpec, objects_root
+from .export import object_mesh_reference
+
+# Surface points are spread this far apart: well under a finger's 14 mm thinnest side, so a wall
+# crossing a finger always leaves points inside it.
+SURFACE_SPACING_M = 0.0015
+MAX_SURFACE_POINTS = 200_000
+# Grasps tested together: (grasps x points x 13) projections stay within a few tens of MB.
+GRASPS_PER_BLOCK = 32
+
+
+@dataclass(frozen=True)
+class ObjectSurface:
+    """An object's mesh in its link frame: points on its surface and a ray-casting scene of it."""
+
+    points: torch.Tensor  # (P, 3) float32, link frame
+    scene: object  # open3d.t.geometry.RaycastingScene of the mesh
+    watertight: bool
+
+    def inside(self, points: np.ndarray) -> np.ndarray:
+        """(M,) whether each point (link frame) lies inside the mesh; False for an open mesh, whose inside is undefined."""
+        if not self.watertight or len(points) == 0:
+            return np.zeros(len(points), dtype=bool)
+        from .._open3d import o3d
+
+        query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
+        return self.scene.compute_occupancy(query, nsamples=3).numpy() > 0.5
+
+
+def object_mesh_link(spec: ObjectSpec):
+    """The object's visual mesh as a ``trimesh.Trimesh`` in its link frame, metres."""
+    import trimesh
+
+    mesh_file, _, _, mesh_to_link = object_mesh_reference(spec)
+    if not mesh_file:
+        raise ValueError(f"object '{spec.id}' has no visual mesh to test grasps against")
+    path = objects_root(Path(spec.urdf_path).resolve()) / mesh_file
+    mesh = trimesh.load(path, force="mesh", process=True)
+    mesh.apply_transform(mesh_to_link)
+    return mesh
+
+
+@functools.lru_cache(maxsize=16)
+def object_surface(spec: ObjectSpec) -> ObjectSurface:
+    """The object's surface for geometric tests (cached per object: building it costs a mesh load)."""
+    import trimesh
+
+    from .._open3d import o3d
+
+    mesh = object_mesh_link(spec)
+    count = int(np.clip(mesh.area / SURFACE_SPACING_M**2, 1_000, MAX_SURFACE_POINTS))
+    # A fixed seed: a label never depends on the draw.
+    samples, _ = trimesh.sample.sample_surface(mesh, count, seed=0)
+    points = np.concatenate([samples, mesh.vertices])
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    return ObjectSurface(torch.as_tensor(points, dtype=torch.float32), scene, bool(mesh.is_watertight))
+
+
+@dataclass(frozen=True)
+class _HandHulls:
+    """The open hand's collision hulls in the grasp frame: k-DOP bounds to cull points, half-spaces to test them."""
+
+    dop_low: torch.Tensor  # (H, 13)
+    dop_high: torch.Tensor  # (H, 13)
+    planes: tuple[torch.Tensor, ...]  # per hull (F, 4): outward normal, offset
+    vertices: torch.Tensor  # (V, 3) every hull's vertices
+    centres: torch.Tensor  # (H, 3) each hull's vertex mean: a point well inside it
+
+
+@functools.lru_cache(maxsize=4)
+def _hand_hulls(robot: RobotDescription, links: tuple[str, ...]) -> _HandHulls:
+    geometry = load_hand_geometry(robot)
+    keep = [i for i, name in enumerate(geometry.links) if name in links]
+    hulls = [geometry.hull_vertices[i].double() for i in keep]
+    planes = tuple(torch.as_tensor(ConvexHull(hull.numpy()).equations, dtype=torch.float32) for hull in hulls)
+    return _HandHulls(geometry.dop_low[keep], geometry.dop_high[keep], planes, torch.cat(hulls).float(),
+                      torch.stack([hull.mean(dim=0) for hull in hulls]).float())
+
+
+def open_hand_collisions(
+    surface: ObjectSurface,
+    poses: GraspPoses,
+    robot: RobotDescription,
+    links: tuple[str, ...],
+    tolerance_m: float,
+    table_plane: tuple[np.ndarray, float] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) object and (N,) table collisions of the open hand at each grasp pose (object frame).
+
+    The object: a surface point inside a hull by more than ``tolerance_m``, or a hull's centre
+    inside a watertight mesh. The table: ``table_plane`` (unit normal pointing up, offset: the
+    plane is normal . x + offset = 0, object frame) with a hull vertex more than ``tolerance_m`` below it.
+    """
+    if poses.frame != "object":
+        raise ValueError(f"open-hand collisions are tested in the object frame, got poses in the {poses.frame} frame")
+    hulls = _hand_hulls(robot, links)
+    rotation, position = poses.rotation.float(), poses.position.float()
+    object_hit = np.zeros(len(poses), dtype=bool)
+    for first in range(0, len(poses), GRASPS_PER_BLOCK):
+        block = slice(first, first + GRASPS_PER_BLOCK)
+        object_hit[block] = _surface_in_hulls(surface.points, rotation[block], position[block], hulls, tolerance_m)
+    centres = (rotation @ hulls.centres.T).transpose(1, 2) + position[:, None]  # (N, H, 3)
+    object_hit |= surface.inside(centres.reshape(-1, 3).numpy()).reshape(len(poses), -1).any(axis=1)
+    table_hit = np.zeros(len(poses), dtype=bool)
+    if table_plane is not None:
+        normal, offset = table_plane
+        vertices = (rotation @ hulls.vertices.T).transpose(1, 2) + position[:, None]  # (N, V, 3)
+        heights = vertices.double().numpy() @ np.asarray(normal, dtype=float) + float(offset)
+        table_hit = (heights < -tolerance_m).any(axis=1)
+    return object_hit, table_hit
+
+
+def _surface_in_hulls(points: torch.Tensor, rotation: torch.Tensor, position: torch.Tensor, hulls: _HandHulls,
+                      tolerance_m: float) -> np.ndarray:
+    """(B,) whether any surface point lies inside any hand hull by more than ``tolerance_m``, for a block of grasps."""
+    local = torch.einsum("bji,pj->bpi", rotation, points) - torch.einsum("bji,bj->bi", rotation, position)[:, None]  # (B, P, 3)
+    along = local @ DOP_DIRECTIONS.T  # (B, P, 13)
+    hit = torch.zeros(len(rotation), dtype=torch.bool)
+    for low, high, planes in zip(hulls.dop_low, hulls.dop_high, hulls.planes):
+        near = ((along >= low - 1e-6) & (along <= high + 1e-6)).all(dim=2)  # (B, P): within the hull's k-DOP
+        grasp_index, point_index = near.nonzero(as_tuple=True)
+        if len(grasp_index) == 0:
+            continue
+        candidates = local[grasp_index, point_index]  # (K, 3)
+        depth = -(candidates @ planes[:, :3].T + planes[:, 3]).max(dim=1).values  # distance inside the hull
+        hit[grasp_index[depth > tolerance_m]] = True
+    return hit.numpy()
+
+
+def contact_widths(surface: ObjectSurface, poses: GraspPoses, open_width_m: float) -> np.ndarray:
+    """(N,) the gap between the points where each grasp's closing fingers first meet the mesh, along
+    the closing axis through the grasp centre (0 where they meet nothing), capped at ``open_width_m``."""
+    from .._open3d import o3d
+
+    if poses.frame != "object":
+        raise ValueError(f"contact widths are measured in the object frame, got poses in the {poses.frame} frame")
+    centre, closing = poses.position.numpy(), poses.rotation[:, :, 1].numpy()
+    half = open_width_m / 2.0
+    rays = []
+    for side in (1.0, -1.0):  # each finger's pad moves from the open position toward the centre
+        origin = centre + side * half * closing
+        rays.append(np.concatenate([origin, -side * closing], axis=1))
+    hits = surface.scene.cast_rays(o3d.core.Tensor(np.concatenate(rays).astype(np.float32)))["t_hit"].numpy()
+    travel = np.minimum(hits.reshape(2, -1), open_width_m)  # inf where a finger meets nothing: it closes fully
+    pad_plus, pad_minus = half - travel[0], -(half - travel[1])
+    return np.clip(pad_plus - pad_minus, 0.0, open_width_m)

@@ -1,0 +1,175 @@
+"""The PyBullet engine of hand-mode labels: one floating Panda hand and one object, in a world built
+from nothing for every simulation.
+
+The engine knows how to simulate, not what to test: ``protocols`` places the object and the hand,
+moves the hand and judges the outcome through the methods here, so a second engine implements the
+same methods and the protocols stay as they are.
+
+The hand is the robot URDF's hand subtree (collision meshes only, fingers as prismatic joints),
+carried by a fixed constraint on its grasp target. Simulations do not share a world: PyBullet's
+solver stops on the residual of the whole world, sorts constraints and contact manifolds by island
+with an unstable quicksort (the several manifolds between a finger and a decomposed object tie, so
+their order depends on the other pairs' bodies), and drops stale broadphase pairs a few per step
+across the whole world. Hands at the same pose beside others then differ after one step, and
+outcomes after a lift and a shake.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+import pybullet
+
+from ..config import Config
+from ..execution.pick import fingers_touching, object_held, push_n, set_finger_friction
+from ..execution.poses import pose_change, relative_pose
+from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets
+from ..robot.description import robot_of
+from ..robot.hand import hand_to_grasp_target_m
+from ..world.objects import ObjectLoadError, ObjectSpec
+from ..world.scene import command_fingers, configure_physics, create_table
+from .collision_urdf import collision_only_urdf, floating_hand_urdf
+
+Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
+
+
+class PyBulletHand:
+    """A PyBullet client in which one floating hand at a time labels one grasp."""
+
+    name = "pybullet"
+
+    def __init__(self, config: Config):
+        self.config = config
+        self.client = pybullet.connect(pybullet.DIRECT)
+        self.robot = robot_of(config)
+        self.hand_urdf = str(floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir))
+        self.grasp_offset_m = hand_to_grasp_target_m(self.robot)
+        self._object_urdfs: dict[str, str] = {}
+        self.table: int | None = None
+
+    def _object_urdf(self, spec: ObjectSpec) -> str:
+        key = str(spec.urdf_path)
+        if key not in self._object_urdfs:
+            self._object_urdfs[key] = str(collision_only_urdf(spec.urdf_path, self.config.labelling.hand_urdf_cache_dir))
+        return self._object_urdfs[key]
+
+    def close(self) -> None:
+        if pybullet.isConnected(self.client):
+            pybullet.disconnect(self.client)
+
+    def __enter__(self) -> "PyBulletHand":
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # -- building ------------------------------------------------------------------------------------
+    def build(self, spec: ObjectSpec, object_pose: Pose, pose_of: str, hand_position: np.ndarray, quat: np.ndarray,
+              table: bool, gravity: bool) -> None:
+        """A new world: the study's table where ``table``, the object with its centre-of-mass frame
+        (``pose_of`` "com") or its link frame ("link") at ``object_pose``, the open hand's grasp target
+        at ``hand_position`` / ``quat``, gravity on or off."""
+        client, config = self.client, self.config
+        pybullet.resetSimulation(physicsClientId=client)
+        configure_physics(client, config.scene)
+        self.set_gravity(gravity)
+        pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
+        self.table = create_table(client, config.scene) if table else None
+        try:
+            # loadURDF places the link frame; resetBasePositionAndOrientation the centre-of-mass frame.
+            link_pose = object_pose if pose_of == "link" else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+            self.target = pybullet.loadURDF(self._object_urdf(spec), *link_pose, flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
+        except pybullet.error as exc:
+            raise ObjectLoadError(f"object '{spec.id}': PyBullet cannot load {spec.urdf_path}: {exc}") from exc
+        if pose_of == "com":
+            pybullet.resetBasePositionAndOrientation(self.target, object_pose[0], object_pose[1], physicsClientId=client)
+        self.hand = pybullet.loadURDF(self.hand_urdf, physicsClientId=client)
+        names = {pybullet.getJointInfo(self.hand, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(self.hand, physicsClientId=client))}
+        self.finger_joints = tuple(names[name] for name in self.robot.finger_joints)
+        # The constraint holds the grasp target; PyBullet pins a base by its inertial frame.
+        inertial = pybullet.getDynamicsInfo(self.hand, -1, physicsClientId=client)[3:5]
+        self.target_in_base = pybullet.multiplyTransforms(*pybullet.invertTransform(*inertial), [0.0, 0.0, self.grasp_offset_m], [0.0, 0.0, 0.0, 1.0])
+        base = pybullet.multiplyTransforms(list(hand_position), list(quat), *pybullet.invertTransform(*self.target_in_base))
+        pybullet.resetBasePositionAndOrientation(self.hand, *base, physicsClientId=client)
+        for joint in self.finger_joints:
+            pybullet.resetJointState(self.hand, joint, self.robot.open_width_m / 2.0, physicsClientId=client)
+        self.command_fingers(self.robot.open_width_m)
+        set_finger_friction(client, self.hand, self.finger_joints, config.execution)
+        self.constraint = pybullet.createConstraint(
+            self.hand, -1, -1, -1, pybullet.JOINT_FIXED, [0.0, 0.0, 0.0],
+            parentFramePosition=self.target_in_base[0], childFramePosition=list(hand_position),
+            parentFrameOrientation=self.target_in_base[1], childFrameOrientation=list(quat),
+            physicsClientId=client,
+        )
+        self.quat = tuple(quat)
+        self.move(hand_position)
+
+    # -- motion --------------------------------------------------------------------------------------
+    def set_gravity(self, on: bool) -> None:
+        pybullet.setGravity(0.0, 0.0, self.config.scene.gravity_m_s2 if on else 0.0, physicsClientId=self.client)
+
+    def command_fingers(self, width_m: float) -> None:
+        command_fingers(self.client, self.hand, self.finger_joints, width_m, self.config.execution.gripper_force_n)
+
+    def step(self, steps: int) -> None:
+        for _ in range(steps):
+            pybullet.stepSimulation(physicsClientId=self.client)
+
+    def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None:
+        """Send the hand's grasp target toward a pose; it follows over the next steps."""
+        pybullet.changeConstraint(
+            self.constraint, jointChildPivot=list(position), jointChildFrameOrientation=list(quat or self.quat),
+            maxForce=self.config.labelling.hand_constraint_max_force_n, physicsClientId=self.client,
+        )
+
+    def shake(self, profile: ShakeProfile) -> dict[str, Any]:
+        """Follow ``profile`` around the hand's pose, the constraint carrying the grasp target (so
+        rotations turn about it): the object's motion relative to the hand over the shake and the
+        peaks the hand reached (``achieved_shake_peaks`` of its pose at every step)."""
+        start = self.hand_pose()
+        object_start = relative_pose(start, self.object_pose())
+        hand_poses = []
+        for offset in profile.offsets:
+            position, _ = pybullet.multiplyTransforms(*start, offset[:3].tolist(), [0.0, 0.0, 0.0, 1.0])
+            angle = float(np.linalg.norm(offset[3:]))
+            turn = pybullet.getQuaternionFromAxisAngle((offset[3:] / angle).tolist(), angle) if angle > 0.0 else (0.0, 0.0, 0.0, 1.0)
+            self.move(position, pybullet.multiplyTransforms([0.0, 0.0, 0.0], start[1], [0.0, 0.0, 0.0], turn)[1])
+            self.step(1)
+            hand_poses.append(self.hand_pose())
+        linear, angular = pose_change(object_start, relative_pose(self.hand_pose(), self.object_pose()))
+        return {
+            "object_motion_during_shaking_linear": linear,
+            "object_motion_during_shaking_angular": angular,
+            "shake_achieved_peak_accelerations": achieved_shake_peaks(profile, frame_offsets(start, hand_poses)),
+        }
+
+    # -- state ---------------------------------------------------------------------------------------
+    def object_pose(self) -> Pose:
+        """World pose of the object's centre-of-mass frame."""
+        return pybullet.getBasePositionAndOrientation(self.target, physicsClientId=self.client)
+
+    def hand_pose(self) -> Pose:
+        """World pose of the hand's grasp target."""
+        base = pybullet.getBasePositionAndOrientation(self.hand, physicsClientId=self.client)
+        return pybullet.multiplyTransforms(*base, *self.target_in_base)
+
+    def _contacts(self, body: int | None) -> list[tuple]:
+        if body is None:
+            return []
+        return pybullet.getContactPoints(bodyA=self.hand, bodyB=body, physicsClientId=self.client)
+
+    def hand_in_contact(self) -> tuple[bool, bool]:
+        """Whether the hand touches the object, and the table, before anything has moved."""
+        pybullet.performCollisionDetection(physicsClientId=self.client)
+        return bool(self._contacts(self.target)), bool(self._contacts(self.table))
+
+    def table_push_n(self) -> float:
+        """The normal force the hand pushes the table with (0 without a table)."""
+        return push_n(self._contacts(self.table))
+
+    def fingers_touching(self) -> bool:
+        return fingers_touching(self.client, self.hand, self.finger_joints, self.target)
+
+    def held_above_table(self) -> bool:
+        """Execution's success test: the object's centre of mass high enough above the table and both fingers on it."""
+        return object_held(self.client, self.hand, self.finger_joints, self.target, self.config)
