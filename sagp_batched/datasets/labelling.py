@@ -196,7 +196,7 @@ def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, prot
     if placement is None:
         placement = FloatingPlacement(spec) if protocol == "floating" else tabletop_placement(spec, config)
     if isinstance(placement, FloatingPlacement) != (protocol == "floating"):
-        raise ValueError(f"the {protocol} protocol needs a {'FloatingPlacement' if protocol == 'floating' else 'ObjectPlacement'}")
+        raise ValueError(f"the {protocol} protocol needs {'a FloatingPlacement' if protocol == 'floating' else 'an ObjectPlacement'}")
     robot = robot_of(config)
     widths = contact_widths(object_surface(spec), poses, robot.open_width_m) if widths_m is None else widths_m
     world = poses.transform(_link_pose_world(placement), "world")
