@@ -34,6 +34,7 @@ SETTING_FLAGS = {
     "--pairs": ("n_pairs", "planner", "n_pairs"),
     "--grasps-per-object": ("grasps_per_object", "dataset", "grasps_per_object"),
     "--mode": ("mode", "dataset", "mode"),
+    "--protocol": ("protocol", "dataset", "protocol"),
     "--captures": ("captures_per_object", "dataset", "captures_per_object"),
     "--grasps-per-chunk": ("grasps_per_chunk", "dataset", "grasps_per_chunk"),
 }
@@ -52,6 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--objects", type=_csv, help="comma list of object ids, or 'all' (default)")
     parser.add_argument("--grasps-per-object", type=int, help="labelled grasps per object")
     parser.add_argument("--mode", choices=("hand", "arm"), help="hand: the Panda hand alone; arm: the Panda executes the planned motion")
+    parser.add_argument("--protocol", choices=("tabletop", "floating"),
+                        help="hand mode: tabletop (the object on the table, the hand approaching) or floating "
+                             "(ACRONYM's: the object alone, grasps all around it)")
     parser.add_argument("--captures", type=int, dest="captures_per_object", help="captures (placements) per object")
     parser.add_argument("--grasps-per-chunk", type=int, help="hand mode: grasps a worker simulates as one piece of work (labels do not depend on it)")
     parser.add_argument("--out", help="dataset directory (re-running into it resumes)")

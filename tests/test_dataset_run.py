@@ -71,3 +71,21 @@ def test_a_table_check_of_no_poses_returns_no_verdicts():
     points = hand_geometry(load_robot()).vertices()
     through = table_penetration(torch.zeros(0, 3), torch.zeros(0, 4, 3, 3), points, config.motion.pregrasp_offset_m, 0.6)
     assert through.shape == (0, 4)
+
+
+def test_the_floating_protocol_plans_grasps_all_around_the_object_and_labels_them_floating(tmp_path_factory, labeller):
+    config = load_config("dataset", overrides={
+        "dataset": {"captures_per_object": 1, "protocol": "floating"}, "planner": {"n_pairs": 3000},
+        "labelling": {"perturbed_simulations": 1, "hand_urdf_cache_dir": str(tmp_path_factory.mktemp("hand"))}})
+    floating = ObjectLabeller(config, labeller.objects)
+    try:
+        plan = floating.plan_object("005_tomato_soup_can", 16)
+        labels = object_labels(plan, [floating.simulate(chunk) for chunk in plan.chunks("hand", 100)])
+    finally:
+        floating.close()
+    approach = plan.poses[0].candidates.approach
+    # The cameras see the can from above and the sides; the whole-surface cloud offers grasps from below too.
+    assert (approach[:, 2] > 0.3).any() and (approach[:, 2] < -0.3).any()
+    assert labels.grasps.held.any() and not labels.grasps.held.all()
+    geometry_verdicts = sum(v in ("volume",) for v in labels.grasps.verdict)
+    assert geometry_verdicts <= int(config.dataset.geometry_verdict_fraction * 16)

@@ -24,6 +24,9 @@ def test_quotas_give_the_feasible_share_and_spread_the_rest_over_the_rejections(
     # A verdict short of its share passes the remainder on.
     assert _verdict_quotas({0: 5, 1: 100, 2: 3}, 40, 0.5) == {0: 5, 1: 32, 2: 3}
     assert sum(_verdict_quotas({0: 2, 3: 1}, 40, 0.5).values()) == 3
+    # A capped verdict (one geometry alone fails) takes no more than its cap, even with room left.
+    assert _verdict_quotas({0: 5, 1: 100, 2: 100}, 40, 0.5, caps={1: 2}) == {0: 5, 1: 2, 2: 33}
+    assert _verdict_quotas({0: 5, 1: 100}, 40, 0.5, caps={1: 2}) == {0: 5, 1: 2}
 
 
 def test_every_grasp_the_planner_returns_is_classified_feasible(can_cloud):

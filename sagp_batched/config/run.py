@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .settings import _Section, setting
+from .settings import ConfigError, _Section, setting
 
 # Trials per (object, task), 5,000 times the published 20: a study plans all its units up front,
 # and a billion of them exhaust memory before the first trial.
@@ -52,6 +52,13 @@ class DatasetConfig(_Section):
     # "hand": the Panda hand alone moved along the approach (cheap, the arm's reach aside);
     # "arm": the Panda executes the planned joint path, as the study does.
     mode: str = setting("hand", choices=("hand", "arm"))
+    # What a hand-mode label simulates (``datasets.protocols``): "tabletop", the object where it
+    # settled on the table and the hand approaching from the pre-grasp; "floating", ACRONYM's: the
+    # object alone, the hand closing at the grasp, grasps sampled around the whole object.
+    protocol: str = setting("tabletop", choices=("tabletop", "floating"))
+    # Share of each object's grasps, at most, taken from each verdict geometry alone fails
+    # (``verdicts.GEOMETRY_VERDICTS``: the hand through the table, or in the object's points).
+    geometry_verdict_fraction: float = setting(0.05, at_least=0, at_most=1)
     # Each capture places the object at a fresh seeded position and yaw on the table (and, for an
     # object with several stable resting poses, in the next of them); its grasps share one plan.
     captures_per_object: int = setting(2, at_least=1, at_most=100)
@@ -61,3 +68,8 @@ class DatasetConfig(_Section):
     seed: int = setting(1000, at_least=0)
     # Share of objects GraspGen's valid.txt lists, chosen by a hash of the object id.
     valid_fraction: float = setting(0.2, at_least=0, at_most=1)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.mode == "arm" and self.protocol != "tabletop":
+            raise ConfigError(f"dataset.protocol '{self.protocol}' labels with the hand alone: use dataset.mode 'hand' (--mode hand)")

@@ -244,6 +244,7 @@ class ObjectLabeller:
     def _plan_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, taken: GraspPoses | None) -> tuple[PosePlan | str, dict[str, float]]:
         """Capture ``pose_index`` classified and rated, the reason instead where the capture failed; with
         the seconds its reset, capture and planning took."""
+        from .grasp_geometry import object_surface, whole_object_cloud
         from .labelling import ObjectPlacement
         from ..world.perception import capture
         from ..rating.prompt import describe_zones
@@ -260,6 +261,8 @@ class ObjectLabeller:
             cloud = capture(self.scene, config)
         except PerceptionFailure as failure:
             return f"capture {pose_index}: {failure.reason}", spent
+        if config.dataset.protocol == "floating":
+            cloud = whole_object_cloud(cloud, object_surface(spec), config.perception.voxel_size_m)
         spent["capture"] = time.perf_counter() - clock
         clock = time.perf_counter()
         classified = classify_grasps(cloud, config, labelling_seed(config, pose_index), n_grasps, taken_object=taken)
@@ -289,7 +292,7 @@ class ObjectLabeller:
         spec = self.objects.get(chunk.object_id)
         if (mode or self.config.dataset.mode) == "hand":
             placement = ObjectPlacement(spec, chunk.com_position_world, chunk.com_quat_xyzw)
-            outcomes = list(label_grasps_hand(placement, chunk.grasps, self.config))
+            outcomes = list(label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol))
         else:
             self._reset_to_pose(spec, chunk.pose_index)
             labels = label_grasps_arm(self.scene, chunk.grasps, self.config)

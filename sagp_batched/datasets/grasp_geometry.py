@@ -14,6 +14,7 @@ overfill a cavity cannot turn a free grasp into a collision.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +26,9 @@ from scipy.spatial import ConvexHull
 from ..grasps import GraspPoses
 from ..robot.description import RobotDescription
 from ..robot.hand import DOP_DIRECTIONS, load_hand_geometry
+from ..types import PerceivedCloud
 from ..world.objects import ObjectSpec, objects_root
+from ..world.perception import voxel_downsample
 from .export import object_mesh_reference
 
 # Surface points are spread this far apart: well under a finger's 14 mm thinnest side, so a wall
@@ -41,6 +44,7 @@ class ObjectSurface:
     """An object's mesh in its link frame: points on its surface and a ray-casting scene of it."""
 
     points: torch.Tensor  # (P, 3) float32, link frame
+    normals: np.ndarray  # (P, 3) outward unit normals of the faces the points lie on
     scene: object  # open3d.t.geometry.RaycastingScene of the mesh
     watertight: bool
 
@@ -77,11 +81,12 @@ def object_surface(spec: ObjectSpec) -> ObjectSurface:
     mesh = object_mesh_link(spec)
     count = int(np.clip(mesh.area / SURFACE_SPACING_M**2, 1_000, MAX_SURFACE_POINTS))
     # A fixed seed: a label never depends on the draw.
-    samples, _ = trimesh.sample.sample_surface(mesh, count, seed=0)
+    samples, faces = trimesh.sample.sample_surface(mesh, count, seed=0)
     points = np.concatenate([samples, mesh.vertices])
+    normals = np.concatenate([mesh.face_normals[faces], mesh.vertex_normals])
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-    return ObjectSurface(torch.as_tensor(points, dtype=torch.float32), scene, bool(mesh.is_watertight))
+    return ObjectSurface(torch.as_tensor(points, dtype=torch.float32), normals, scene, bool(mesh.is_watertight))
 
 
 @dataclass(frozen=True)
@@ -172,3 +177,16 @@ def contact_widths(surface: ObjectSurface, poses: GraspPoses, open_width_m: floa
     travel = np.minimum(hits.reshape(2, -1), open_width_m)  # inf where a finger meets nothing: it closes fully
     pad_plus, pad_minus = half - travel[0], -(half - travel[1])
     return np.clip(pad_plus - pad_minus, 0.0, open_width_m)
+
+
+def whole_object_cloud(cloud: PerceivedCloud, surface: ObjectSurface, voxel_size_m: float) -> PerceivedCloud:
+    """``cloud`` with its points replaced by the object's whole surface where it stands (every side,
+    the parts the cameras never see among them), at the perception's voxel size, with the mesh's
+    outward normals: the candidates of a protocol that grasps the object from any direction."""
+    world_from_object = np.linalg.inv(cloud.object_from_world)
+    points = surface.points.double().numpy() @ world_from_object[:3, :3].T + world_from_object[:3, 3]
+    points, source = voxel_downsample(points, np.arange(len(points)), voxel_size_m)
+    normals = surface.normals[source] @ world_from_object[:3, :3].T
+    return dataclasses.replace(cloud, points_world=torch.as_tensor(points, dtype=torch.float32),
+                               normals_world=torch.as_tensor(normals, dtype=torch.float32),
+                               view_index=torch.zeros(len(points), dtype=torch.int64))

@@ -167,17 +167,31 @@ def label_grasps_hand(
     placements: ObjectPlacement | Scene | Sequence[ObjectPlacement | Scene],
     grasps: GraspCandidates | Sequence[Grasp],
     config: Config,
+    protocol: str = "tabletop",
 ) -> list[GraspLabel]:
-    """Hand-mode ``tabletop`` labels of world-frame ``grasps``, in order (robust as the module says).
+    """Hand-mode labels of world-frame ``grasps``, in order (robust as the module says).
 
     ``placements``: where the object rests, one for every grasp or one per grasp (an
     ``ObjectPlacement``, or a reset ``Scene`` whose settled target is taken). Grasps as a
     ``GraspCandidates`` batch or ``Grasp`` values (``grasps_from_poses`` makes them from ``GraspPoses``);
-    a malformed one raises ``InvalidGraspError`` before anything is simulated.
+    a malformed one raises ``InvalidGraspError`` before anything is simulated. In the ``floating``
+    protocol each grasp keeps its pose on the object, which floats alone at the world's origin.
     """
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
     grasp_list = _as_grasps(grasps)
     placement_list = _as_placements(placements, len(grasp_list))
-    return _label(placement_list, _tabletop_targets(grasp_list, config), config)
+    targets = _tabletop_targets(grasp_list, config)
+    if protocol == "tabletop":
+        return _label(placement_list, targets, config)
+    floating: dict[ObjectSpec, FloatingPlacement] = {}
+    on_object = []
+    for placement, target in zip(placement_list, targets):
+        object_from_world = np.linalg.inv(_link_pose_world(placement))
+        grasp = object_from_world[:3, :3] @ target.grasp + object_from_world[:3, 3]
+        quat = (Rotation.from_matrix(object_from_world[:3, :3]) * Rotation.from_quat(target.quat)).as_quat()
+        on_object.append(_Target(grasp, grasp, quat))
+    return _label([floating.setdefault(p.spec, FloatingPlacement(p.spec)) for p in placement_list], on_object, config)
 
 
 def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, protocol: str, config: Config,

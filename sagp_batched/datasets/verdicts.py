@@ -27,6 +27,9 @@ from ..types import PerceivedCloud
 # check it fails, or "feasible" when it passes them all.
 VERDICTS: tuple[str, ...] = ("feasible", "table", "volume", "hand_sweep", "grasp_ik", "motion")
 FEASIBLE = VERDICTS.index("feasible")
+# Per protocol, the verdicts whose grasps geometry alone fails (the open hand through the table, or
+# in the object's points): a dataset takes few of them, since a learner gains little from many.
+GEOMETRY_VERDICTS: dict[str, tuple[str, ...]] = {"tabletop": ("table", "volume"), "floating": ("volume",)}
 
 
 @dataclass
@@ -67,10 +70,13 @@ def _reason(verdict: str, planner, jaw_limit_m: float, clearance_m: float, too_w
     return "feasible: passes the table, volume, swept-hand, grasp-IK and whole-motion checks"
 
 
-def _verdict_quotas(available: dict[int, int], n_grasps: int, feasible_fraction: float) -> dict[int, int]:
+def _verdict_quotas(available: dict[int, int], n_grasps: int, feasible_fraction: float, caps: dict[int, int] | None = None) -> dict[int, int]:
     """How many grasps to take of each verdict: ``feasible_fraction`` of them feasible, the rest
     spread evenly over the rejection verdicts present; a verdict short of its share passes the
-    remainder on to the others."""
+    remainder on to the others. A verdict in ``caps`` takes at most that many, even where the others
+    run short (fewer grasps then)."""
+    caps = caps or {}
+    available = {v: min(count, caps.get(v, count)) for v, count in available.items()}
     quotas = dict.fromkeys(available, 0)
     wanted = {FEASIBLE: round(n_grasps * feasible_fraction)} if FEASIBLE in available else {}
     rejected = [v for v in available if v != FEASIBLE]
@@ -124,7 +130,7 @@ def classify_grasps(
     screened = screen_candidates([cloud], config, [seed])
     poses = _covering_poses(screened, cloud, planner.n_approaches, dataset, taken_object)
     verdict, clearance, joint_path, s_reach = _planner_verdicts(screened, config, poses)
-    picked = _pick_across_verdicts(verdict, seed, n_grasps, dataset.feasible_fraction)
+    picked = _pick(verdict, seed, n_grasps, dataset)
     chosen_rows = poses.rows[picked]
     jaw_limit_m = jaw_width_limit(screened.robot, planner)
     too_wide = screened.width_m[chosen_rows] > jaw_limit_m
@@ -205,13 +211,26 @@ def _planner_verdicts(screened: ScreenedCandidates, config: Config, poses: _Pose
     return verdict, clearance, joint_path, s_reach
 
 
-def _pick_across_verdicts(verdict: torch.Tensor, seed: int, n_grasps: int, feasible_fraction: float) -> torch.Tensor:
-    """Indices of the picked grasps, in S_geom order: each verdict's quota (``_verdict_quotas``) drawn
-    at random (``seed``) among its grasps."""
+def _pick(verdict: torch.Tensor, seed: int, n_grasps: int, dataset: DatasetConfig) -> torch.Tensor:
+    """The grasps a dataset takes: across the planner's verdicts (``tabletop``), or alike from every
+    direction (``floating``: the arm's reach and the table do not bear on a floating object); in both,
+    at most ``geometry_verdict_fraction`` of them from each verdict geometry alone fails."""
+    geometry = [VERDICTS.index(name) for name in GEOMETRY_VERDICTS[dataset.protocol]]
+    caps = dict.fromkeys(geometry, int(dataset.geometry_verdict_fraction * n_grasps))
+    if dataset.protocol == "tabletop":
+        return _pick_across_verdicts(verdict, seed, n_grasps, dataset.feasible_fraction, caps)
+    drawn_alike = torch.where(torch.isin(verdict, torch.tensor(geometry)), verdict, torch.full_like(verdict, FEASIBLE))
+    return _pick_across_verdicts(drawn_alike, seed, n_grasps, 1.0, caps)
+
+
+def _pick_across_verdicts(verdict: torch.Tensor, seed: int, n_grasps: int, feasible_fraction: float,
+                          caps: dict[int, int] | None = None) -> torch.Tensor:
+    """Indices of the picked grasps, in S_geom order: each verdict's quota (``_verdict_quotas``, at
+    most ``caps``) drawn at random (``seed``) among its grasps."""
     n = verdict.numel()
     generator = torch.Generator().manual_seed(int(seed))
     order = torch.randperm(n, generator=generator)
     available = {v: count for v, count in enumerate(torch.bincount(verdict, minlength=len(VERDICTS)).tolist()) if count}
-    quotas = _verdict_quotas(available, n_grasps, feasible_fraction)
+    quotas = _verdict_quotas(available, n_grasps, feasible_fraction, caps)
     picked = torch.cat([order[verdict[order] == v][:quota] for v, quota in quotas.items()] or [torch.zeros(0, dtype=torch.int64)])
     return picked.sort().values  # back in S_geom order

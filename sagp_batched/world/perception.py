@@ -47,7 +47,7 @@ def padded_box(mask: np.ndarray, padding_fraction: float) -> tuple[int, int, int
     return (int(max(0, left - pad_u)), int(max(0, top - pad_v)), int(min(width, right + pad_u)), int(min(height, bottom + pad_v)))
 
 
-def _voxel_downsample(points: np.ndarray, labels: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
+def voxel_downsample(points: np.ndarray, labels: np.ndarray, voxel_size_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Voxel-grid downsampling (Open3D) that keeps, per voxel, the label of one of its source points."""
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     down, _, traced = cloud.voxel_down_sample_and_trace(voxel_size_m, cloud.get_min_bound(), cloud.get_max_bound())
@@ -109,7 +109,7 @@ def capture(scene: Scene, config: Config) -> PerceivedCloud:
     points_all = backproject_views(cameras, np.stack([r[1] for r in renders])).numpy()
     view_of_pixel = np.broadcast_to(np.arange(len(cameras)).reshape(-1, 1, 1), target_masks.shape)
     voxel = config.perception.voxel_size_m
-    points_world, view_index = _voxel_downsample(points_all[target_masks], view_of_pixel[target_masks], voxel)
+    points_world, view_index = voxel_downsample(points_all[target_masks], view_of_pixel[target_masks], voxel)
     if points_world.shape[0] < config.perception.min_points:
         raise PerceptionFailure(
             "too_few_points",
@@ -126,7 +126,7 @@ def capture(scene: Scene, config: Config) -> PerceivedCloud:
     obstacle_masks = ~np.isin(body_ids, list(non_obstacles))
     obstacles_world = np.zeros((0, 3))
     if obstacle_masks.any():
-        obstacles_world, _ = _voxel_downsample(points_all[obstacle_masks], np.zeros(int(obstacle_masks.sum()), dtype=np.int64), voxel)
+        obstacles_world, _ = voxel_downsample(points_all[obstacle_masks], np.zeros(int(obstacle_masks.sum()), dtype=np.int64), voxel)
 
     best_view = int(np.argmax(pixels_per_view))
     u0, v0, u1, v1 = padded_box(target_masks[best_view], config.perception.crop_padding_fraction)
