@@ -10,6 +10,7 @@ import pybullet
 import pytest
 from scipy.spatial.transform import Rotation
 
+from recorded import assert_close_to_recorded
 from sagp_batched import Config, Grasp, GraspPoses, capture, plan
 from sagp_batched.config import ConfigError, ShakeConfig, load_config
 from sagp_batched.datasets.collision_urdf import floating_hand_urdf
@@ -154,7 +155,8 @@ def test_a_grasp_the_arm_cannot_reach_gets_no_label(box_scene, config):
     assert label_grasps_arm(box_scene, [out_of_reach], config) == [None]
 
 
-# The study's attempts for top-down grasps on the soup can (trial 0): on it, beside it, off its axis.
+# The study's attempts for top-down grasps on the soup can (trial 0): on it, beside it, off its axis,
+# as ``_summary`` gives them (fields named by ATTEMPT_FIELDS).
 STUDY_ATTEMPTS = [
     ((0.0, 0.0), (True, None, 0.2496683862260639, 0.09611683665888938, 0.0032631377235251557, 0.06973353007784003, 0.0004247167232773741)),
     ((0.05, 0.0), (False, "not_lifted", 0.051147546996956006, 0.5497450857794912, 0.006737998998502803, 2.656186391374765e-07, 0.0004053831139321229)),
@@ -170,6 +172,17 @@ def _on_can(scene: Scene, offset_xy: tuple[float, float]) -> Grasp:
     return Grasp.from_pose(position, quat, 0.068, DOWN)
 
 
+ATTEMPT_FIELDS = ("success", "failure_reason", "object_height_above_table_m", "orientation_change_deg",
+                  "descent_tracking_error_rad", "finger_width_after_close_m", "lift_tracking_error_rad")
+# m, deg and rad alike: the recorded floats are the study's PyBullet attempts, whose float path differs
+# between processors (OpenBLAS picks its kernels by processor for the orientation change's dot product
+# and norms: 1.5e-11 deg apart on another machine). A real change in the motion moves them by
+# far more: the same attempts run in another order (PyBullet's contact caches) move some field by >1e-5.
+# success and failure_reason stay exact.
+RECORDED_ATTEMPT_ATOL = 1e-6
+RECORDED_ATTEMPT_RTOL = 1e-6  # the tumbled can's 97.7 deg: 1e-4 deg, still far below a real change
+
+
 def _summary(attempt) -> tuple:
     diagnostics = attempt.diagnostics
     return (attempt.success, attempt.failure_reason, diagnostics.object_height_above_table_m, attempt.orientation_change_deg,
@@ -182,12 +195,14 @@ LABELLING_KEYS = {
 }
 
 
-def test_without_a_shake_execute_grasp_gives_the_study_s_attempts_exactly():
+@pytest.mark.recorded
+def test_without_a_shake_execute_grasp_gives_the_study_s_recorded_attempts():
     with _scene("005_tomato_soup_can") as scene:
         for offset, study in STUDY_ATTEMPTS:  # in this order, each from the restored scene, as recorded
             scene.restore_state()
             attempt = execute_grasp(scene, Config(), _on_can(scene, offset))
-            assert _summary(attempt) == study
+            assert_close_to_recorded(_summary(attempt), study, names=ATTEMPT_FIELDS, atol=RECORDED_ATTEMPT_ATOL,
+                                     rtol=RECORDED_ATTEMPT_RTOL, label=f"attempt {offset}")
             assert not LABELLING_KEYS & set(attempt.diagnostics.record())
 
 
