@@ -41,9 +41,8 @@ from typing import Any
 import numpy as np
 
 from ..world.objects import ObjectSpec, objects_root
-from .export import object_mesh_reference, panda_hand_transforms_object
+from .export import object_mesh_reference
 
-GRIPPER_TYPE = "franka_panda"
 OBJECTS_PROGRESS_FILE = "objects.jsonl"
 
 
@@ -110,75 +109,6 @@ class UntestedGrasps:
 
     transforms: np.ndarray  # (U, 4, 4)
     reason: list[str]
-
-
-def _string_dataset(group, name: str, values: list[str]) -> None:
-    import h5py
-
-    group.create_dataset(name, data=np.array(values, dtype=object), dtype=h5py.string_dtype())
-
-
-def write_object_file(
-    path: Path,
-    object_id: str,
-    mesh_file: str,
-    mesh_scale: float,
-    mesh_to_link: np.ndarray,
-    physics: ObjectPhysics,
-    grasps: LabelledGrasps,
-    untested: UntestedGrasps,
-    mode: str,
-    rater: str,
-) -> None:
-    """One object's grasps as an ACRONYM-layout HDF5 file, replaced atomically."""
-    import h5py
-
-    tmp = path.with_name(path.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
-        f["grasps/transforms"] = grasps.transforms.astype(np.float64)
-        f["grasps/panda_hand_transforms"] = panda_hand_transforms_object(grasps.transforms.astype(np.float64))
-        flex = "grasps/qualities/flex"
-        f[f"{flex}/object_in_gripper"] = grasps.held.astype(np.int64)
-        f[f"{flex}/object_motion_during_closing_linear"] = grasps.motion_closing_linear_m.astype(np.float64)
-        f[f"{flex}/object_motion_during_closing_angular"] = grasps.motion_closing_angular_rad.astype(np.float64)
-        f[f"{flex}/object_motion_during_shaking_linear"] = grasps.motion_shaking_linear_m.astype(np.float64)
-        f[f"{flex}/object_motion_during_shaking_angular"] = grasps.motion_shaking_angular_rad.astype(np.float64)
-        f["grasps/qualities/terms/geom"] = grasps.s_geom.astype(np.float64)
-        f["grasps/qualities/terms/reach"] = grasps.s_reach.astype(np.float64)
-        f["grasps/width"] = grasps.width_m.astype(np.float64)
-        f["grasps/contacts"] = grasps.contacts.astype(np.float64)
-        f["grasps/resting_pose"] = grasps.resting_pose.astype(np.int64)
-        for name in ("verdict", "verdict_reason", "failure_reason", "zone"):
-            _string_dataset(f, f"grasps/{name}", getattr(grasps, name))
-        for task, levels in grasps.zone_rating.items():
-            _string_dataset(f, f"grasps/zone_rating/{task}", levels)
-        f["untested/transforms"] = untested.transforms.astype(np.float64).reshape(-1, 4, 4)
-        _string_dataset(f, "untested/reason", untested.reason)
-        f["object/file"] = mesh_file
-        f["object/scale"] = float(mesh_scale)
-        f["object/mesh_to_link"] = np.asarray(mesh_to_link, dtype=np.float64)
-        f["object/id"] = object_id
-        f["object/mass"] = float(physics.mass_kg)
-        f["object/density"] = float(physics.density_kg_m3)
-        f["object/friction"] = float(physics.friction)
-        f["object/com"] = np.asarray(physics.com_m, dtype=np.float64)
-        f["object/inertia"] = np.asarray(physics.inertia_kg_m2, dtype=np.float64)
-        f["object/volume"] = float(physics.volume_m3)
-        f["gripper/type"] = GRIPPER_TYPE
-        f["mode"] = mode
-        f["rater"] = rater
-    os.replace(tmp, path)
-
-
-def write_graspgen_file(path: Path, mesh_file: str, mesh_scale: float, grasps: LabelledGrasps) -> None:
-    """The same grasps in GraspGen's JSON layout, replaced atomically."""
-    document = {
-        "object": {"file": mesh_file, "scale": float(mesh_scale)},
-        "grasps": {"transforms": grasps.transforms.tolist(), "object_in_gripper": [bool(h) for h in grasps.held]},
-    }
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(document), encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def copy_object_mesh(spec: ObjectSpec, meshes_dir: Path) -> tuple[str, float, np.ndarray]:

@@ -244,7 +244,8 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str) -> dict:
     """Write one object's files and return its progress line (what the report and a resume read)."""
     from sagp_batched_kernels.pose_nms import distinct_grasp_count
 
-    from .dataset import append_progress, copy_object_mesh, write_graspgen_file, write_object_file
+    from .dataset import append_progress, copy_object_mesh
+    from .grasp_files import write_graspgen_file, write_object_file
 
     clock = time.perf_counter()
     for sub in ("grasps", "graspgen", "meshes"):
