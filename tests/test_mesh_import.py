@@ -164,6 +164,24 @@ def test_a_concave_mugs_mass_principal_inertia_and_com_are_the_source_meshs_unde
     assert hulls == metadata["collision_hulls"]
 
 
+def test_each_spec_carries_its_source_map_centre_of_mass_and_hull_figures_from_its_metadata(imported):
+    for object_id in imported.ids:
+        spec = imported.get(object_id)
+        metadata, record = _metadata(spec), spec.import_record
+        assert record.scale == metadata["scale"] == 1.0
+        assert np.allclose(record.link_from_source, np.array(metadata["source_to_link"]), atol=1e-15)
+        assert record.com_m == tuple(metadata["com_m"])
+        assert (record.decomposer, record.collision_hulls) == (metadata["decomposer"], metadata["collision_hulls"])
+        assert (record.hull_volume_ratio, record.hull_max_distance_m) == (metadata["hull_volume_ratio"], metadata["hull_max_distance_m"])
+    # One call moves the mesh file's points into the link frame: the source mug lands on the visual mesh.
+    mug = imported.get("mug")
+    moved = trimesh.transform_points(_mug().vertices, mug.import_record.link_from_source)
+    visual = trimesh.load(mug.urdf_path.parent / "visual.obj", force="mesh")
+    assert np.allclose(moved.min(axis=0), visual.bounds[0], atol=1e-6) and np.allclose(moved.max(axis=0), visual.bounds[1], atol=1e-6)
+    box = imported.get("box").import_record
+    assert box.decomposer == "convex hull" and box.fidelity_ok and box.hull_volume_ratio == pytest.approx(1.0, abs=0.01)
+
+
 def test_a_glb_scene_is_read_as_all_its_parts_and_a_given_mass_and_friction_are_written(imported):
     spec = imported.get("parts")
     parts_volume = sum(part.volume for part in _parts())
@@ -270,6 +288,18 @@ def test_a_mesh_that_stays_open_serves_with_its_convex_hulls_volume_and_a_small_
     assert box_metadata["watertight"] and box_metadata["volume_m3"] == pytest.approx(0.04 ** 3, rel=1e-6)
 
 
+def test_a_stray_triangle_hanging_off_a_closed_scan_is_dropped_so_the_mesh_is_its_solid(tmp_path):
+    root = tmp_path / "scan"
+    root.mkdir()
+    scan = trimesh.creation.box(BOX_EXTENTS_M).subdivide().subdivide().subdivide().subdivide()  # 3,072 triangles
+    a, b = scan.edges_unique[0]
+    fin = len(scan.vertices)
+    vertices = np.vstack([scan.vertices, (scan.vertices[a] + scan.vertices[b]) / 2 + [0.0, 0.0, 0.01]])
+    trimesh.Trimesh(vertices, np.vstack([scan.faces, [[a, b, fin]]]), process=False).export(root / "scan.ply")
+    metadata = _metadata(load_object_set(root, import_settings=MeshImportSettings(cache_dir=tmp_path / "cache", **QUICK)).get("scan"))
+    assert metadata["watertight"] and metadata["volume_m3"] == pytest.approx(np.prod(BOX_EXTENTS_M), rel=1e-6)
+
+
 def test_a_folder_with_nothing_usable_is_an_error_naming_it_and_each_reason(tmp_path):
     root = tmp_path / "unusable"
     root.mkdir()
@@ -310,6 +340,10 @@ def test_an_objects_json_scale_is_the_objects_own_unit_and_the_cache_key_follows
     in_metres = load_object_set(root, import_settings=settings).get("box")
     assert np.allclose(in_metres.extents_m, BOX_EXTENTS_M, atol=1e-6)
     (root / "objects.json").write_text(json.dumps({"box": {"scale": 0.001, "name": "renamed"}}))
+    # The record's map is rigid (poses on the mesh scaled to metres move with it); the metadata's takes the file's units.
+    record, metadata = in_metres.import_record, _metadata(in_metres)
+    assert record.scale == 0.001 and np.allclose(np.linalg.det(record.link_from_source[:3, :3]), 1.0)
+    assert np.allclose(record.link_from_source @ np.diag([0.001] * 3 + [1.0]), metadata["source_to_link"])
     renamed = load_object_set(root, import_settings=settings).get("box")
     assert renamed.name == "renamed" and renamed.urdf_path == in_metres.urdf_path
     (root / "objects.json").write_text(json.dumps({"box": {"scale": 0.001, "density_kg_m3": 300.0}}))
@@ -350,6 +384,21 @@ def test_without_coacd_the_automatic_decomposer_is_vhacd(tmp_path, monkeypatch):
     assert _metadata(spec)["decomposer"] == "vhacd" and _metadata(spec)["collision_hulls"] >= 2
     with pytest.raises(ObjectSetError, match="decomposer 'coacd' is not installed"):
         load_object_set(tmp_path / "l", import_settings=MeshImportSettings(cache_dir=tmp_path / "cache", decomposer="coacd"))
+
+
+def test_where_coacd_fails_the_automatic_choice_falls_back_to_vhacd_and_an_explicit_one_skips_the_object(tmp_path, monkeypatch):
+    def failing(*args, **kwargs):
+        raise RuntimeError("Wrong clip proposal!")
+
+    monkeypatch.setattr(mesh_decompose, "_coacd_hulls", failing)
+    root = _l_block(tmp_path / "l")
+    spec = load_object_set(root, import_settings=MeshImportSettings(cache_dir=tmp_path / "cache", vhacd_resolution=20_000)).get("l_block")
+    metadata = _metadata(spec)
+    assert metadata["decomposer"] == "vhacd" and spec.import_record.decomposer == "vhacd"
+    assert "coacd" in metadata["decomposer_fallback_reason"] and "Wrong clip proposal" in metadata["decomposer_fallback_reason"]
+    trimesh.creation.box(BOX_EXTENTS_M).export(root / "box.stl")
+    explicit = load_object_set(root, import_settings=MeshImportSettings(cache_dir=tmp_path / "cache", decomposer="coacd"))
+    assert explicit.ids == ("box",) and "collision decomposition (coacd) failed" in explicit.skipped[0][1]
 
 
 def test_coacd_decomposes_a_concave_object_where_it_is_installed(tmp_path):

@@ -4,13 +4,17 @@
 mesh(es), their scale and origins; the meshes a URDF references are not imported again on their own) and turns each
 into an object like the YCB set's: a link frame at the bottom centre of the axis-aligned bounding box of its most
 probable resting pose, z up, x along the footprint's long side; a visual mesh (the scaled mesh as OBJ, flat colour);
-a collision mesh of convex hulls (CoACD where it imports, else PyBullet's V-HACD; the hull itself for a convex
-mesh); mass, centre of mass and inertia from the mesh and a density or a given mass; lateral friction.
+a collision mesh of convex hulls (CoACD; PyBullet's V-HACD where CoACD does not import or fails; the hull itself for
+a convex mesh); mass, centre of mass and inertia from the mesh and a density or a given mass; lateral friction.
+How well the hulls stand for the mesh (their union's volume over the mesh's, the furthest their surface strays
+outside it) is recorded, and an object past ``MeshImportSettings``' bounds is flagged in its ``ObjectSpec``'s
+``import_record`` (kept, not skipped).
 
 A mesh is repaired (vertices merged, degenerate and duplicate faces dropped, normals made consistent, small holes
-filled). One that still does not enclose a volume (not watertight) serves with its convex hull's volume, centre of
-mass and inertia: the hull is the solid that a closed version of the surface can at most be, so its mass errs on
-the heavy side for concave objects; the metadata says which solid was used (``mass_properties_from``).
+filled, a few stray triangles hanging off an otherwise closed surface dropped). One that still does not enclose a
+volume (not watertight) serves with its convex hull's volume, centre of mass and inertia: the hull is the solid that
+a closed version of the surface can at most be, so its mass errs on the heavy side for concave objects; the metadata
+says which solid was used (``mass_properties_from``).
 
 Everything generated goes to ``<cache>/objects/<key>/`` (``model.urdf``, ``visual.obj``, ``collision.obj``,
 ``metadata.json``), where the key hashes the source files' bytes and every setting that changes the result; the
@@ -22,8 +26,9 @@ file's stem (``mug.obj`` -> ``mug``; a URDF's own stem), or, where two files sha
 folder with ``/`` and ``.`` as ``_``.
 
 The stages live apart: the settings in ``mesh_settings``, the folder's files and their surfaces in ``mesh_sources``,
-repair, solid and resting poses in ``mesh_physics``, the convex decomposition in ``mesh_decompose``, the OBJ and
-URDF files written in ``mesh_files``; this module imports the folder and keeps the content-hashed cache.
+repair, solid and resting poses in ``mesh_physics``, the convex decomposition in ``mesh_decompose``, how well it fits
+in ``hull_fidelity``, the OBJ and URDF files written in ``mesh_files``; this module imports the folder and keeps the
+content-hashed cache.
 """
 from __future__ import annotations
 
@@ -42,18 +47,19 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from .hull_fidelity import hull_fidelity
 from .mesh_decompose import _decompose, _decomposer_version, _narrowest_width, _resolve_decomposer
 from .mesh_files import _urdf_text, _write_obj
 from .mesh_physics import _resting_poses, _repaired, _solid_of
-from .mesh_settings import MeshImportSettings
+from .mesh_settings import NOT_IN_CACHE_KEY, MeshImportSettings
 from .mesh_sources import _discover, _Source, _source_mesh, _Unusable
 from .objects import CACHE_DIR_ENV  # noqa: F401 (callers name the variable through this module)
-from .objects import INDEX_METADATA_KEYS, ObjectSet, ObjectSetError, ObjectSpec, RestingPose
+from .objects import INDEX_METADATA_KEYS, ObjectImport, ObjectSet, ObjectSetError, ObjectSpec, RestingPose
 
 log = logging.getLogger(__name__)
 
 # Bumped whenever the generated files change for the same inputs, so older cache entries are not reused.
-IMPORT_FORMAT = 2
+IMPORT_FORMAT = 3
 METADATA_FILE = "metadata.json"
 # The keys an ``objects.json`` entry of an imported folder may hold.
 OVERRIDE_KEYS = frozenset({"name", "category", "asymmetric", "scale", "density_kg_m3", "mass_kg", "friction"})
@@ -92,25 +98,54 @@ def import_object_folder(directory: Path, index: dict[str, Any], settings: MeshI
             log.info("skipping %s: %s", source.path, reason)  # the set lists it in ``skipped``; runners report it
             skipped.append((source.path, str(reason)))
             continue
-        specs.append(
-            ObjectSpec(
-                id=source.object_id,
-                name=str(entry.get("name", source.object_id.replace("_", " "))),
-                urdf_path=urdf_path,
-                category=str(entry.get("category", DEFAULT_CATEGORY)),
-                asymmetric=bool(entry.get("asymmetric", False)),
-                mass_kg=float(metadata["mass_kg"]),
-                extents_m=tuple(float(e) for e in metadata["extents_m"]),  # type: ignore[arg-type]
-                resting_poses=tuple(
-                    RestingPose(float(pose["probability"]), tuple(tuple(float(v) for v in row) for row in pose["link_to_rest"]))
-                    for pose in metadata["resting_poses"]
-                ),
-            )
-        )
+        specs.append(_spec(source.object_id, entry, metadata, urdf_path, settings))
     if not specs:
         reasons = "; ".join(f"{path.relative_to(directory)}: {reason}" for path, reason in skipped)
         raise ObjectSetError(f"objects directory {directory} holds no usable object ({reasons})")
     return ObjectSet(f"mesh:{directory.resolve()}", specs, skipped)
+
+
+def _spec(object_id: str, entry: dict[str, Any], metadata: dict[str, Any], urdf_path: Path, settings: MeshImportSettings) -> ObjectSpec:
+    return ObjectSpec(
+        id=object_id,
+        name=str(entry.get("name", object_id.replace("_", " "))),
+        urdf_path=urdf_path,
+        category=str(entry.get("category", DEFAULT_CATEGORY)),
+        asymmetric=bool(entry.get("asymmetric", False)),
+        mass_kg=float(metadata["mass_kg"]),
+        extents_m=tuple(float(e) for e in metadata["extents_m"]),  # type: ignore[arg-type]
+        resting_poses=tuple(
+            RestingPose(float(pose["probability"]), tuple(tuple(float(v) for v in row) for row in pose["link_to_rest"]))
+            for pose in metadata["resting_poses"]
+        ),
+        import_record=_import_record(metadata, settings),
+    )
+
+
+def _import_record(metadata: dict[str, Any], settings: MeshImportSettings) -> ObjectImport:
+    """The object's import figures, judged against the settings' bounds (which are not in the cache key: a stricter
+    bound flags cached objects without rebuilding them)."""
+    ratio, distance = float(metadata["hull_volume_ratio"]), float(metadata["hull_max_distance_m"])
+    issues = []
+    if ratio > settings.max_hull_volume_ratio:
+        issues.append(f"its collision hulls hold {ratio:.2f}x its mesh's volume ({metadata['hull_ratio_volume_from']}), "
+                      f"over {settings.max_hull_volume_ratio:.2f}x")
+    if distance > settings.max_hull_distance_m:
+        issues.append(f"its collision hulls stray {distance * 1000:.1f} mm outside its mesh, over {settings.max_hull_distance_m * 1000:.1f} mm")
+    # The metadata's map takes the file's raw coordinates (the scale inside it); the record's is rigid.
+    rigid = np.array(metadata["source_to_link"], dtype=float)
+    rigid[:3, :3] /= float(metadata["scale"])
+    return ObjectImport(
+        source_to_link=tuple(tuple(float(v) for v in row) for row in rigid),
+        scale=float(metadata["scale"]),
+        com_m=tuple(float(v) for v in metadata["com_m"]),  # type: ignore[arg-type]
+        hull_volume_ratio=ratio,
+        hull_max_distance_m=distance,
+        decomposer=str(metadata["decomposer"]),
+        collision_hulls=int(metadata["collision_hulls"]),
+        fidelity_ok=not issues,
+        fidelity_issues=tuple(issues),
+    )
 
 
 def _overrides(index: dict[str, Any], known_ids: set[str], index_path: Path) -> dict[str, dict[str, Any]]:
@@ -154,7 +189,7 @@ def _cache_key(source: _Source, parameters: _ObjectParameters, settings: MeshImp
         "format": IMPORT_FORMAT,
         "kind": "mesh" if source.urdf_parts is None else "urdf",
         "parameters": dataclasses.asdict(parameters),
-        "settings": {name: value for name, value in dataclasses.asdict(settings).items() if name != "cache_dir"},
+        "settings": {name: value for name, value in dataclasses.asdict(settings).items() if name not in NOT_IN_CACHE_KEY},
         "decomposer": decomposer,
         "versions": {"trimesh": trimesh.__version__, decomposer: _decomposer_version(decomposer)},
         # A URDF names its meshes by path relative to itself; a mesh file's suffix chooses its reader.
@@ -216,6 +251,21 @@ def _read_entry(entry: Path, key: str) -> dict[str, Any] | None:
     return metadata if complete else None
 
 
+def _collision_metadata(mesh: trimesh.Trimesh, hulls: list[trimesh.Trimesh], method: str, fallback_reason: str | None) -> dict[str, Any]:
+    """How the collision hulls were made and how well they stand for ``mesh`` (see ``hull_fidelity``)."""
+    fidelity = hull_fidelity(mesh, hulls)
+    return {
+        "decomposer": method,
+        "decomposer_fallback_reason": fallback_reason,
+        "collision_hulls": len(hulls),
+        "hull_volume_ratio": fidelity.volume_ratio,
+        "hull_max_distance_m": fidelity.max_hull_to_mesh_distance_m,
+        "hull_mean_distance_m": fidelity.mean_hull_to_mesh_distance_m,
+        # The ratio's denominator: a closed mesh's volume, or an open one's convex hull's (which understates the excess).
+        "hull_ratio_volume_from": fidelity.mesh_volume_from,
+    }
+
+
 def _build(source: _Source, parameters: _ObjectParameters, settings: MeshImportSettings, decomposer: str, key: str,
            work_dir: Path) -> dict[str, Any]:
     """Write the object's files into ``work_dir`` and return its metadata (also written there)."""
@@ -231,7 +281,7 @@ def _build(source: _Source, parameters: _ObjectParameters, settings: MeshImportS
     density = parameters.mass_kg / solid.volume if parameters.mass_kg is not None else parameters.density_kg_m3
     solid.density = density
     properties = solid.mass_properties
-    hulls, method = _decompose(mesh, settings, decomposer, work_dir)
+    hulls, method, fallback_reason = _decompose(mesh, settings, decomposer, work_dir)
     # A hand can close on a part narrower than the whole (a mug's handle or rim, a bowl's wall), so the
     # width test asks of each convex part, not of the object's hull.
     narrowest = min(_narrowest_width(part.vertices, part.face_normals) for part in hulls)
@@ -254,8 +304,7 @@ def _build(source: _Source, parameters: _ObjectParameters, settings: MeshImportS
         "friction": parameters.friction,
         "extents_m": [float(v) for v in mesh.extents],
         "narrowest_width_m": narrowest,
-        "decomposer": method,
-        "collision_hulls": len(hulls),
+        **_collision_metadata(mesh, hulls, method, fallback_reason),
         # Source coordinates (a mesh file's own units, or a URDF's link frame) -> this object's link frame.
         "source_to_link": (source_to_link @ np.diag([parameters.scale] * 3 + [1.0])).tolist(),
         "resting_poses": [

@@ -12,6 +12,9 @@ from .mesh_sources import _Unusable
 
 # A solid smaller than this (1 mm^3) has no volume worth simulating.
 MIN_VOLUME_M3 = 1e-9
+# At most this share of a surface's faces may be dropped as stray scraps to leave a closed surface (scans such as
+# YCB's carry a few triangles hanging off an edge, which make an otherwise closed surface non-manifold).
+MAX_STRAY_FACE_SHARE = 0.001
 
 
 def _repaired(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -29,7 +32,20 @@ def _repaired(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     trimesh.repair.fill_holes(mesh)
     if len(mesh.faces) != face_count:
         trimesh.repair.fix_normals(mesh)
-    return mesh
+    return mesh if mesh.is_watertight else _without_stray_faces(mesh)
+
+
+def _without_stray_faces(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` less the few faces that keep it from being closed, where what remains is closed; else ``mesh``."""
+    parts = trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces)), min_len=1)
+    closed = [part for part in parts if len(part) >= 4 and trimesh.Trimesh(mesh.vertices, mesh.faces[part]).is_watertight]
+    kept = np.concatenate(closed) if closed else np.zeros(0, dtype=np.int64)
+    if len(kept) == 0 or len(mesh.faces) - len(kept) > MAX_STRAY_FACE_SHARE * len(mesh.faces):
+        return mesh
+    cleaned = mesh.copy()
+    cleaned.update_faces(np.sort(kept))
+    cleaned.remove_unreferenced_vertices()
+    return cleaned if cleaned.is_watertight else mesh
 
 
 def _solid_of(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, bool]:

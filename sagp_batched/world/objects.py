@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable
 
+import numpy as np
 import pybullet
 import pybullet_data
 
@@ -92,6 +93,33 @@ class RestingPose:
 
 
 @dataclass(frozen=True)
+class ObjectImport:
+    """How an object imported from a mesh file (``mesh_import``) was made, and how well its collision hulls fit it."""
+
+    # (4, 4) rows, rigid: the mesh file's frame at the import scale (its coordinates times ``scale``, in metres; a
+    # URDF's link frame) -> this object's link frame. Grasp poses given on the scaled mesh (ACRONYM's) move with it.
+    source_to_link: tuple[tuple[float, ...], ...]
+    # Metres per unit of the mesh file (a URDF's geometry is in metres already: 1).
+    scale: float
+    com_m: tuple[float, float, float]  # centre of mass in the link frame
+    # The hulls' union volume over the mesh's, and the furthest the union's surface strays outside the mesh (m).
+    hull_volume_ratio: float
+    hull_max_distance_m: float
+    decomposer: str
+    collision_hulls: int
+    # Within ``MeshImportSettings``' bounds: where not, grasps simulated on the hulls may disagree with the mesh.
+    fidelity_ok: bool
+    # Each bound passed, in words (empty when ``fidelity_ok``).
+    fidelity_issues: tuple[str, ...] = ()
+
+    @property
+    def link_from_source(self) -> np.ndarray:
+        """(4, 4) map of poses and points from the mesh file's frame at the import scale into the link frame:
+        ``link_from_source @ pose``; a point read from the file in its own units is multiplied by ``scale`` first."""
+        return np.array(self.source_to_link, dtype=float)
+
+
+@dataclass(frozen=True)
 class ObjectSpec:
     id: str
     name: str
@@ -102,6 +130,8 @@ class ObjectSpec:
     extents_m: tuple[float, float, float]  # resting-pose extents in the object's link frame (x, y, z)
     # Imported objects: their resting poses, most probable first; the first is the link frame's own (identity).
     resting_poses: tuple[RestingPose, ...] = ()
+    # Imported objects: where their link frame and collision hulls came from (None for the YCB and built-in sets).
+    import_record: ObjectImport | None = None
 
 
 class ObjectSet:
