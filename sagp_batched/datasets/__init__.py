@@ -1,8 +1,14 @@
 """Labelled grasp datasets: which grasps an object's dataset holds (``verdicts``), their labels from
 simulation (``labelling``, in its own worlds built by ``collision_urdf``), one object's plan and
 labels (``datagen``), the run over objects (``run``), the files (``dataset``: GraspGen's layout;
-``export``: ACRONYM's) and the report (``report``)."""
+``export``: ACRONYM's), the report (``report``) and another simulator's grasp file relabelled by ours
+(``relabel``: ``check_relabel_inputs``, then ``relabel_grasp_file``)."""
 from .labelling import GraspLabel, ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
+from .relabel import InputError as RelabelInputError
+from .relabel import Inputs as RelabelInputs
+from .relabel import check_inputs as check_relabel_inputs
+from .relabel import relabel as relabel_grasp_file
 from .run import DatasetResult, generate_dataset
 
-__all__ = ["DatasetResult", "GraspLabel", "ObjectPlacement", "generate_dataset", "grasps_from_poses", "label_grasps_arm", "label_grasps_hand"]
+__all__ = ["DatasetResult", "GraspLabel", "ObjectPlacement", "RelabelInputError", "RelabelInputs", "check_relabel_inputs", "generate_dataset",
+           "grasps_from_poses", "label_grasps_arm", "label_grasps_hand", "relabel_grasp_file"]

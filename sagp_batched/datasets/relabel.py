@@ -1,0 +1,299 @@
+"""Another simulator's grasps relabelled by ours (``runners.relabel`` is its command line).
+
+A grasp file (``grasp_files.read_grasp_file``) is checked with its mesh (``check_inputs``), the mesh imported as our
+object at the file's scale, mass and friction (``import_object``), the file's grasps moved into that object's link
+frame (``link_from_scaled_mesh``) and labelled in chunks kept as each finishes (``label_pending``), so that a second
+``relabel`` into the same directory resumes; the agreement of the file's labels and ours is written with them.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import hashlib
+import json
+import multiprocessing
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import Config
+from ..world.objects import ObjectSpec, load_object_set
+from .grasp_files import GraspFile, read_grasp_file
+
+ENGINES = ("pybullet",)
+RELABEL_FILE = "relabel.h5"
+AGREEMENT_FILE = "agreement.json"
+REPORT_FILE = "report.md"
+# What was relabelled (the file's bytes, the protocol, the grasps chosen): a resume must be of the same.
+INPUT_FILE = "relabel.json"
+CHUNKS_DIR = "chunks"
+# How far the imported object's mesh-to-link scale may stray from the file's (or from 1, where it was already taken out).
+SCALE_TOLERANCE = 1e-6
+
+
+class InputError(ValueError):
+    """A named input that cannot serve; the message is one line."""
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """The checked inputs of a relabel: the grasp file, its mesh, the grasps chosen, the object's id."""
+
+    grasp_file: GraspFile
+    mesh_path: Path
+    selection: np.ndarray  # (M,) rows of the file relabelled, ascending
+    object_id: str
+    protocol: str
+    engine: str
+
+
+# -- inputs --------------------------------------------------------------------------------------------------------
+def check_inputs(grasp_file: str | Path, mesh_root: str | Path, config: Config, engine: str = "pybullet",
+                 max_grasps: int | None = None) -> Inputs:
+    """Every named input checked before any work: ``InputError`` / ``GraspFileError`` name the first that cannot serve.
+
+    The output directory, protocol and seed (that draws ``max_grasps`` of the file's grasps) come from ``config``;
+    the messages name the command's flags, so a library caller and the command see the same one-line errors.
+    """
+    from ..world.mesh_sources import MESH_SUFFIXES
+
+    if engine not in ENGINES:
+        raise InputError(f"--engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    grasps = read_grasp_file(grasp_file)
+    if len(grasps) == 0:
+        raise InputError(f"{grasps.path}: holds no grasps")
+    mesh_root = Path(mesh_root).expanduser()
+    if not mesh_root.is_dir():
+        raise InputError(f"--mesh-root {mesh_root} is not a directory")
+    mesh_path = mesh_file_path(mesh_root, grasps.mesh_file)
+    if mesh_path.suffix.lower() not in MESH_SUFFIXES:
+        raise InputError(f"mesh {mesh_path} is a {mesh_path.suffix or 'suffix-less'} file; meshes are imported from "
+                         f"{', '.join(sorted(s.lstrip('.').upper() for s in MESH_SUFFIXES))}")
+    if max_grasps is not None and max_grasps < 1:
+        raise InputError(f"--max-grasps must be at least 1, got {max_grasps}")
+    _check_writable(Path(config.run.out).expanduser())
+    n = len(grasps)
+    count = n if max_grasps is None else min(max_grasps, n)
+    selection = np.arange(n) if count == n else np.sort(np.random.default_rng(config.dataset.seed).choice(n, count, replace=False))
+    return Inputs(grasps, mesh_path, selection, _object_id(grasps.path), config.dataset.protocol, engine)
+
+
+def mesh_file_path(mesh_root: Path, mesh_file: str) -> Path:
+    """The mesh a file names, below ``mesh_root``; GraspGen's Objaverse files name a uuid that the root's
+    ``map_uuid_to_path[_simplified].json`` maps to a path, so that map is read where the name is no file."""
+    direct = mesh_root / mesh_file
+    if direct.is_file():
+        return direct
+    for name in ("map_uuid_to_path_simplified.json", "map_uuid_to_path.json"):
+        try:
+            mapped = json.loads((mesh_root / name).read_text(encoding="utf-8")).get(mesh_file)
+        except (OSError, ValueError, AttributeError):
+            continue
+        if isinstance(mapped, str) and (mesh_root / mapped).is_file():
+            return mesh_root / mapped
+    raise InputError(f"mesh {mesh_file} not found under --mesh-root {mesh_root}")
+
+
+def _check_writable(out_dir: Path) -> None:
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"--out {out_dir} cannot be made: {exc.strerror or exc}") from None
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out_dir} is not writable")
+
+
+def _object_id(path: Path) -> str:
+    # ACRONYM names a file <category>_<mesh>_<scale>.h5: one object per mesh and scale, as an id our files can carry.
+    cleaned = "".join(c if c.isalnum() or c in "-_" else "_" for c in path.stem)
+    return cleaned or "object"
+
+
+def input_record(inputs: Inputs) -> dict[str, Any]:
+    """What a resume must find unchanged: the file's bytes, its mesh's, the protocol, the engine, the grasps chosen."""
+    def sha256(path: Path) -> str:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+
+    return {
+        "file": str(inputs.grasp_file.path.resolve()), "file_sha256": sha256(inputs.grasp_file.path),
+        "format": inputs.grasp_file.format, "mesh": str(inputs.mesh_path.resolve()), "mesh_sha256": sha256(inputs.mesh_path),
+        "object_id": inputs.object_id, "protocol": inputs.protocol, "engine": inputs.engine,
+        "selection_sha256": hashlib.sha256(inputs.selection.astype(np.int64).tobytes()).hexdigest(), "grasps": len(inputs.selection),
+    }
+
+
+def _check_same_input(out_dir: Path, record: dict[str, Any]) -> None:
+    try:
+        previous = json.loads((out_dir / INPUT_FILE).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return
+    except (OSError, ValueError):
+        previous = {}
+    keys = ("file_sha256", "mesh_sha256", "protocol", "engine", "selection_sha256")
+    differing = [key.removesuffix("_sha256") for key in keys if not isinstance(previous, dict) or previous.get(key) != record[key]]
+    if differing:
+        raise InputError(f"{out_dir} holds a relabel of other inputs ({', '.join(differing)} differ); choose another --out or delete that directory")
+
+
+# -- the object ----------------------------------------------------------------------------------------------------
+def import_object(inputs: Inputs, out_dir: Path) -> tuple[Any, ObjectSpec]:
+    """The file's mesh imported as our object (``mesh_import``) from ``out_dir/objects/<id>/``: a link to the mesh
+    and an ``objects.json`` giving the file's scale and, where the file has them, its mass and friction."""
+    from ..run_directory import write_json
+
+    folder = out_dir / "objects" / inputs.object_id
+    folder.mkdir(parents=True, exist_ok=True)
+    link = folder / f"{inputs.object_id}{inputs.mesh_path.suffix.lower()}"
+    for stale in folder.iterdir():
+        if stale != link and stale.name != "objects.json" and (stale.is_symlink() or stale.is_file()):
+            stale.unlink()  # an earlier mesh of another suffix: the folder must hold one mesh only
+    if link.is_symlink() or link.exists():
+        link.unlink()
+    link.symlink_to(inputs.mesh_path.resolve())
+    grasp_file = inputs.grasp_file
+    entry: dict[str, Any] = {"scale": grasp_file.scale}
+    if grasp_file.mass_kg is not None:
+        entry["mass_kg"] = grasp_file.mass_kg
+    elif grasp_file.density_kg_m3 is not None:
+        entry["density_kg_m3"] = grasp_file.density_kg_m3
+    if grasp_file.friction is not None:
+        entry["friction"] = grasp_file.friction
+    write_json(folder / "objects.json", {inputs.object_id: entry})
+    objects = load_object_set(folder)
+    return objects, objects.get(inputs.object_id)
+
+
+def link_from_scaled_mesh(spec: ObjectSpec, scale: float) -> np.ndarray:
+    """(4, 4) rigid map from the file's frame (its mesh scaled by ``scale``) into the object's link frame.
+
+    The import's ``source_to_link`` maps the mesh file's raw coordinates, so it carries the scale: taking
+    out its own uniform factor leaves the rigid part (the translation is the same either way, the scale
+    acting first). Its factor must be the file's scale, or 1 if a later import already took it out.
+    """
+    record = getattr(spec, "import_record", None)
+    if record is None:
+        raise InputError(f"object '{spec.id}' was not imported from a mesh, so its mesh frame is unknown")
+    matrix = np.array(record.source_to_link, dtype=np.float64)
+    factor = float(np.cbrt(np.linalg.det(matrix[:3, :3])))
+    if not (np.isclose(factor, scale, rtol=SCALE_TOLERANCE) or np.isclose(factor, 1.0, rtol=SCALE_TOLERANCE)):
+        raise InputError(f"object '{spec.id}' was imported at scale {factor:g}, the file's is {scale:g}")
+    rigid = matrix.copy()
+    rigid[:3, :3] /= factor
+    return rigid
+
+
+def object_bounds(spec: ObjectSpec) -> np.ndarray:
+    """(2, 3) the object's axis-aligned box in its link frame, from its visual mesh."""
+    from .grasp_geometry import object_mesh_link
+
+    return np.asarray(object_mesh_link(spec).bounds, dtype=np.float64)
+
+
+# -- labelling in chunks -------------------------------------------------------------------------------------------
+def chunk_bounds(n: int, size: int) -> list[tuple[int, int]]:
+    return [(start, min(start + size, n)) for start in range(0, n, size)]
+
+
+def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, protocol: str, config: Config | dict) -> list[dict[str, Any]]:
+    """Our labels of (C, 4, 4) ACRONYM grasp poses in the object's link frame, as plain values."""
+    from ..config import load_config
+    from .export import grasp_poses_from_acronym
+    from .labelling import label_object_grasps
+
+    if isinstance(config, dict):  # in a worker process: the config travels as its dict
+        config = load_config(overrides=config)
+    labels = label_object_grasps(spec, grasp_poses_from_acronym(transforms_link), widths, protocol, config)
+    if len(labels) != len(transforms_link):
+        raise RuntimeError(f"{len(labels)} labels for {len(transforms_link)} grasps")
+    return [{
+        "held": bool(label.held),
+        "failure_reason": label.failure_reason or "",
+        "failed_at": label.failed_at or ("" if label.held else "unknown"),
+        # One simulation's share held is its outcome.
+        "held_fraction": float(label.held if label.held_fraction is None else label.held_fraction),
+        "simulated": bool(getattr(label, "simulated", True)),
+    } for label in labels]
+
+
+def _read_chunk(path: Path, start: int, stop: int) -> list[dict[str, Any]] | None:
+    try:
+        chunk = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None  # a chunk a killed run never finished writing: it is labelled again
+    ok = isinstance(chunk, dict) and chunk.get("start") == start and chunk.get("stop") == stop and len(chunk.get("labels", ())) == stop - start
+    return chunk["labels"] if ok else None
+
+
+def label_pending(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, inputs: Inputs,
+                  config: Config, out_dir: Path, on_chunk: Any = None) -> list[dict[str, Any]]:
+    """Every grasp's label: chunks already in ``out_dir/chunks`` read back, the rest labelled and each written as it ends."""
+    from ..run_directory import write_json
+
+    (out_dir / CHUNKS_DIR).mkdir(exist_ok=True)
+    bounds = chunk_bounds(len(transforms_link), config.dataset.grasps_per_chunk)
+    done = {start: labels for start, stop in bounds if (labels := _read_chunk(out_dir / CHUNKS_DIR / f"{start:08d}.json", start, stop)) is not None}
+    pending = [(start, stop) for start, stop in bounds if start not in done]
+
+    def keep(start: int, stop: int, labels: list[dict[str, Any]]) -> None:
+        write_json(out_dir / CHUNKS_DIR / f"{start:08d}.json", {"start": start, "stop": stop, "labels": labels})
+        done[start] = labels
+        if on_chunk is not None:
+            on_chunk(len(done), len(bounds))
+
+    def piece(start: int, stop: int) -> tuple:
+        return spec, transforms_link[start:stop], None if widths is None else widths[start:stop], inputs.protocol
+
+    if config.run.workers <= 1:
+        for start, stop in pending:
+            keep(start, stop, label_chunk(*piece(start, stop), config))
+    else:
+        with concurrent.futures.ProcessPoolExecutor(config.run.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(label_chunk, *piece(start, stop), config.to_dict()): (start, stop) for start, stop in pending}
+            for future in concurrent.futures.as_completed(futures):
+                keep(*futures[future], future.result())
+    return [label for start, _ in bounds for label in done[start]]
+
+
+# -- results -------------------------------------------------------------------------------------------------------
+def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) -> dict[str, Any]:
+    """Relabel the inputs into ``out_dir`` (resuming what is there) and return the agreement.
+
+    ``note`` is handed each progress and import-fidelity line. Raises ``InputError`` for a directory holding a
+    relabel of other inputs or an object whose frame cannot take the file's grasps, and the object set's and run
+    directory's own errors."""
+    from .. import provenance
+    from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_file_atomically, write_json
+    from .agreement import agreement_markdown, grasp_regions, label_agreement
+    from .export import grasp_poses_from_acronym
+    from .grasp_files import relabel_bytes
+
+    record = input_record(inputs)
+    with RunLock(out_dir):
+        _check_same_input(out_dir, record)
+        objects, spec = import_object(inputs, out_dir)
+        for issue in spec.import_record.fidelity_issues if spec.import_record is not None else ():
+            note(f"note: object '{spec.id}': {issue}")
+        checksum = objects.checksum()
+        check_same_run(out_dir, config, checksum, objects.source)
+        write_json(out_dir / CONFIG_FILE, config.to_dict())
+        write_json(out_dir / PROVENANCE_FILE, provenance.collect(
+            config.to_dict(), relabel=record, objects={"source": objects.source, "checksum": checksum, "ids": [spec.id]}))
+        write_json(out_dir / INPUT_FILE, record)
+        link_from_file = link_from_scaled_mesh(spec, inputs.grasp_file.scale)
+        transforms_link = link_from_file @ inputs.grasp_file.transforms[inputs.selection]
+        widths = None if inputs.grasp_file.width_m is None else inputs.grasp_file.width_m[inputs.selection]
+        labels = label_pending(spec, transforms_link, widths, inputs, config, out_dir,
+                               lambda done, total: note(f"chunk {done}/{total} labelled"))
+        regions = grasp_regions(grasp_poses_from_acronym(transforms_link).position.numpy(), object_bounds(spec))
+        phases = [label["failed_at"] for label in labels]
+        result = label_agreement(inputs.grasp_file.labels[inputs.selection], np.array([label["held"] for label in labels]), phases, regions)
+        result.update(file=record["file"], protocol=inputs.protocol, engine=inputs.engine, object_id=spec.id)
+        write_file_atomically(out_dir / RELABEL_FILE, relabel_bytes(
+            inputs.grasp_file, inputs.selection, link_from_file, labels, regions, object_id=spec.id, mass_kg=spec.mass_kg,
+            protocol=inputs.protocol, engine=inputs.engine))
+        write_json(out_dir / AGREEMENT_FILE, result)
+        title = f"Label agreement: {inputs.grasp_file.path.name} ({inputs.grasp_file.format}) vs ours ({inputs.protocol}, {inputs.engine})"
+        write_file_atomically(out_dir / REPORT_FILE, agreement_markdown(result, title).encode("utf-8"))
+    return result
