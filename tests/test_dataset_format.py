@@ -33,6 +33,7 @@ def _labels(n, rng):
     return LabelledGrasps(
         transforms=transforms, width_m=np.full(n, 0.05), contacts=rng.normal(size=(n, 2, 3)), resting_pose=np.zeros(n, dtype=np.int64),
         verdict=["feasible" if h else "volume" for h in held], verdict_reason=["because"] * n, held=held,
+        held_fraction=np.where(held, 0.8, 0.0), decided_by=["simulation" if h else "geometry" for h in held],
         failure_reason=["" if h else "slipped@shake" for h in held], motion_closing_linear_m=np.full(n, 0.001),
         motion_closing_angular_rad=np.full(n, 0.01), motion_shaking_linear_m=np.full(n, 0.002), motion_shaking_angular_rad=np.full(n, 0.02),
         s_geom=np.full(n, 0.9), s_reach=np.full(n, 0.5), zone=["middle"] * n, zone_rating={"t1": ["preferred"] * n, "t2": [""] * n},
@@ -48,7 +49,7 @@ def test_the_object_file_carries_acronyms_keys_shapes_and_dtypes_and_its_mesh_lo
     physics = ObjectPhysics(0.118, 300.0, 0.9, (0.0, 0.0, 0.03), ((1e-4, 0, 0), (0, 1e-4, 0), (0, 0, 1e-4)), 4e-4)
     path = tmp_path / "025_mug.h5"
     write_object_file(path, "025_mug", mesh_file, scale, mesh_to_link, physics, grasps,
-                      UntestedGrasps(np.tile(np.eye(4), (2, 1, 1)), ["unreachable", "unreachable"]), "hand", "prior:zone_priors.json")
+                      UntestedGrasps(np.tile(np.eye(4), (2, 1, 1)), ["unreachable", "unreachable"]), "hand", "tabletop", "prior:zone_priors.json")
     with h5py.File(path, "r") as f:
         for key, (shape, kind) in ACRONYM_KEYS.items():
             assert f[key].shape == (9, *shape) and f[key].dtype.kind == kind, key
@@ -58,6 +59,9 @@ def test_the_object_file_carries_acronyms_keys_shapes_and_dtypes_and_its_mesh_lo
         success = np.array(f["grasps/qualities/flex/object_in_gripper"])
         assert set(success.tolist()) <= {0, 1} and np.array_equal(success == 1, grasps.held)
         assert f["untested/transforms"].shape == (2, 4, 4), "untested grasps are kept apart, never as labels"
+        # Beside each label: the share of its simulations that held, and whether geometry decided it.
+        assert np.array_equal(f["grasps/qualities/flex/held_fraction"][()], grasps.held_fraction)
+        assert [d.decode() for d in f["grasps/decided_by"][()]] == grasps.decided_by and f["protocol"][()].decode() == "tabletop"
         assert f["grasps/zone_rating/t1"][0].decode() == "preferred" and f["gripper/type"][()].decode() == "franka_panda"
         mesh_name, mesh_scale = f["object/file"][()].decode(), f["object/scale"][()]
     # As acronym_tools.load_mesh reads it, from the dataset's meshes/ folder.

@@ -45,7 +45,8 @@ def _write_acronym(path, transforms, held, **extra):
 def _ours(n, transforms, held):
     return LabelledGrasps(
         transforms=transforms, width_m=np.linspace(0.01, 0.07, n), contacts=np.zeros((n, 2, 3)), resting_pose=np.zeros(n, dtype=np.int64),
-        verdict=["feasible"] * n, verdict_reason=[""] * n, held=held, failure_reason=["" if h else "slipped@shake" for h in held],
+        verdict=["feasible"] * n, verdict_reason=[""] * n, held=held, held_fraction=held.astype(float), decided_by=["simulation"] * n,
+        failure_reason=["" if h else "slipped@shake" for h in held],
         motion_closing_linear_m=np.zeros(n), motion_closing_angular_rad=np.zeros(n), motion_shaking_linear_m=np.zeros(n),
         motion_shaking_angular_rad=np.zeros(n), s_geom=np.zeros(n), s_reach=np.zeros(n), zone=[""] * n, zone_rating={},
     )
@@ -74,7 +75,7 @@ def test_our_file_reads_back_in_the_scaled_meshs_frame_with_its_widths(tmp_path)
     physics = ObjectPhysics(0.2, 150.0, 0.8, (0.0, 0.0, 0.04), ((1e-4, 0, 0), (0, 1e-4, 0), (0, 0, 1e-4)), 1e-4)
     path = tmp_path / "ours.h5"
     write_object_file(path, "box", "box/box.obj", scale, mesh_to_link, physics, _ours(5, link_transforms, held),
-                      UntestedGrasps(np.zeros((0, 4, 4)), []), "hand", "prior")
+                      UntestedGrasps(np.zeros((0, 4, 4)), []), "hand", "floating", "prior")
     grasps = read_grasp_file(path)
     assert np.allclose(rigid @ grasps.transforms, link_transforms), "the grasps, moved back by the rigid part, are the link-frame ones"
     assert np.allclose(rigid @ np.append(grasps.com_m, 1.0), [0.0, 0.0, 0.04, 1.0])

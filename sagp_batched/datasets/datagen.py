@@ -351,6 +351,8 @@ def _pose_labels(pose: PosePlan, outcomes: list) -> tuple[LabelledGrasps, Untest
         verdict=[verdicts[i] for i in tested],
         verdict_reason=[classified.reasons[i] for i in tested],
         held=np.array([o.held for o in simulated], dtype=bool),
+        held_fraction=np.array([float(o.held) if o.held_fraction is None else o.held_fraction for o in simulated]),
+        decided_by=["simulation" if o.simulated else "geometry" for o in simulated],
         failure_reason=[_failure(o) for o in simulated],
         motion_closing_linear_m=np.array([_motion(o.object_motion_during_closing_linear) for o in simulated]),
         motion_closing_angular_rad=np.array([_motion(o.object_motion_during_closing_angular) for o in simulated]),

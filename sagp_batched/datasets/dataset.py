@@ -19,13 +19,16 @@ HDF5 keys (ACRONYM's names and dtypes: float64 arrays, int64 outcomes, UTF-8 str
 - ``grasps/qualities/flex/object_in_gripper`` (N,): 1 held after the shake, 0 dropped. Every row of
   ``grasps/`` was simulated; a grasp whose simulation could not run is kept under ``untested/``
   with its reason, never here.
+- ``grasps/qualities/flex/held_fraction`` (N,): the share of the grasp's simulations (its pose and its
+  perturbed copies, ``labelling``) that held; ``grasps/decided_by``: "simulation", or "geometry" where the
+  open hand already intersects the object or the table at the grasp (labelled a collision, not simulated).
 - ``grasps/qualities/flex/object_motion_during_{closing,shaking}_{linear,angular}`` (N,): metres
   and radians, as ``labelling`` measures them.
 - ``object/{file, scale, mass, density, friction, com, inertia, volume}``, ``gripper/type``.
 - SAGP's fields: ``grasps/verdict`` (names of ``verdicts.VERDICTS``) and ``grasps/verdict_reason``,
   ``grasps/failure_reason``, ``grasps/width``, ``grasps/contacts``, ``grasps/resting_pose``,
   ``grasps/zone``, ``grasps/zone_rating/<task>`` (the zone's level for the task from the rater named
-  in ``rater``, "" where unrated), ``grasps/qualities/terms/{geom,reach}``, ``mode``.
+  in ``rater``, "" where unrated), ``grasps/qualities/terms/{geom,reach}``, ``mode``, ``protocol``.
 """
 from __future__ import annotations
 
@@ -69,6 +72,9 @@ class LabelledGrasps:
     verdict: list[str]  # planner verdict names
     verdict_reason: list[str]
     held: np.ndarray  # (N,) bool
+    # (N,) share of the grasp's simulations (its pose and its perturbed copies) that held; 0 where geometry decided
+    held_fraction: np.ndarray
+    decided_by: list[str]  # "simulation", or "geometry" where the open hand intersects the object or the table at the grasp
     failure_reason: list[str]  # "" where held
     motion_closing_linear_m: np.ndarray
     motion_closing_angular_rad: np.ndarray
@@ -86,7 +92,7 @@ class LabelledGrasps:
     def empty(cls, tasks: tuple[str, ...]) -> "LabelledGrasps":
         """No grasps (an object none of whose captures could be labelled), with every field's shape."""
         none = np.zeros(0)
-        return cls(np.zeros((0, 4, 4)), none, np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64), [], [], np.zeros(0, dtype=bool), [],
+        return cls(np.zeros((0, 4, 4)), none, np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64), [], [], np.zeros(0, dtype=bool), none, [], [],
                    none, none, none, none, none, none, [], {task: [] for task in tasks})
 
     @classmethod

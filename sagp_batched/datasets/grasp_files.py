@@ -254,6 +254,7 @@ def write_object_file(
     grasps: LabelledGrasps,
     untested: UntestedGrasps,
     mode: str,
+    protocol: str,
     rater: str,
 ) -> None:
     """One object's grasps as an ACRONYM-layout HDF5 file, replaced atomically."""
@@ -265,6 +266,7 @@ def write_object_file(
         f["grasps/panda_hand_transforms"] = panda_hand_transforms_object(grasps.transforms.astype(np.float64))
         flex = "grasps/qualities/flex"
         f[f"{flex}/object_in_gripper"] = grasps.held.astype(np.int64)
+        f[f"{flex}/held_fraction"] = grasps.held_fraction.astype(np.float64)
         f[f"{flex}/object_motion_during_closing_linear"] = grasps.motion_closing_linear_m.astype(np.float64)
         f[f"{flex}/object_motion_during_closing_angular"] = grasps.motion_closing_angular_rad.astype(np.float64)
         f[f"{flex}/object_motion_during_shaking_linear"] = grasps.motion_shaking_linear_m.astype(np.float64)
@@ -274,7 +276,7 @@ def write_object_file(
         f["grasps/width"] = grasps.width_m.astype(np.float64)
         f["grasps/contacts"] = grasps.contacts.astype(np.float64)
         f["grasps/resting_pose"] = grasps.resting_pose.astype(np.int64)
-        for name in ("verdict", "verdict_reason", "failure_reason", "zone"):
+        for name in ("verdict", "verdict_reason", "failure_reason", "decided_by", "zone"):
             string_dataset(f, f"grasps/{name}", getattr(grasps, name))
         for task, levels in grasps.zone_rating.items():
             string_dataset(f, f"grasps/zone_rating/{task}", levels)
@@ -292,6 +294,7 @@ def write_object_file(
         f["object/volume"] = float(physics.volume_m3)
         f["gripper/type"] = GRIPPER_TYPE
         f["mode"] = mode
+        f["protocol"] = protocol
         f["rater"] = rater
     os.replace(tmp, path)
 

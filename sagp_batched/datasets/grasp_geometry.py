@@ -59,16 +59,29 @@ class ObjectSurface:
 
 
 def object_mesh_link(spec: ObjectSpec):
-    """The object's visual mesh as a ``trimesh.Trimesh`` in its link frame, metres."""
+    """The object's visual mesh as a ``trimesh.Trimesh`` in its link frame, metres, as geometry alone
+    (``solid_surface``)."""
     import trimesh
 
     mesh_file, _, _, mesh_to_link = object_mesh_reference(spec)
     if not mesh_file:
         raise ValueError(f"object '{spec.id}' has no visual mesh to test grasps against")
     path = objects_root(Path(spec.urdf_path).resolve()) / mesh_file
-    mesh = trimesh.load(path, force="mesh", process=True)
+    mesh = solid_surface(trimesh.load(path, force="mesh", process=True))
     mesh.apply_transform(mesh_to_link)
     return mesh
+
+
+def solid_surface(mesh):
+    """A visual mesh as geometry alone: vertices merged across texture seams, which a scan's textured mesh
+    keeps apart (leaving it open, its volume and inside unknown), and bodies too small to enclose anything
+    (stray triangle pairs) dropped."""
+    import trimesh
+
+    merged = trimesh.Trimesh(mesh.vertices, mesh.faces, process=True)
+    merged.merge_vertices(merge_tex=True, merge_norm=True)
+    bodies = [body for body in merged.split(only_watertight=False) if len(body.faces) >= 4]
+    return trimesh.util.concatenate(bodies) if bodies else merged
 
 
 @functools.lru_cache(maxsize=16)

@@ -45,15 +45,25 @@ def _verdict_totals(entries: list[dict[str, Any]]) -> dict[str, list[int]]:
 
 
 def _object_rows(entries: list[dict[str, Any]]) -> list[str]:
-    lines = ["| object | labelled | held | distinct at 1 cm / 20 deg | untested | " + " | ".join(VERDICTS) + " | semantics |",
-             "|---|---|---|---|---|" + "---|" * len(VERDICTS) + "---|"]
+    lines = ["| object | labelled | held | distinct at 1 cm / 20 deg | untested | decided by geometry | unanimous | hulls / mesh volume | "
+             + " | ".join(VERDICTS) + " | semantics |",
+             "|---|---|---|---|---|---|---|---|" + "---|" * len(VERDICTS) + "---|"]
     for entry in entries:
         by_verdict = entry["by_verdict"]
         cells = [count_and_rate(*by_verdict[v]) if v in by_verdict else "-" for v in VERDICTS]
         semantics = "neutral: " + "; ".join(f"{t} {why}" for t, why in entry["neutral_tasks"].items()) if entry["neutral_tasks"] else entry["rater"]
         lines.append(f"| {entry['object']} | {entry['labelled']} | {count_and_rate(entry['held'], entry['labelled'])} | "
-                     f"{count_and_rate(entry['distinct_1cm_20deg'], entry['labelled'])} | {entry['untested']} | " + " | ".join(cells) + f" | {semantics} |")
+                     f"{count_and_rate(entry['distinct_1cm_20deg'], entry['labelled'])} | {entry['untested']} | "
+                     f"{count_and_rate(entry['decided_by_geometry'], entry['labelled'])} | {count_and_rate(entry['unanimous'], entry['labelled'])} | "
+                     f"{_hull_cell(entry['hull_fidelity'])} | " + " | ".join(cells) + f" | {semantics} |")
     return lines
+
+
+def _hull_cell(fidelity: dict | None) -> str:
+    if fidelity is None:
+        return "shipped hulls"
+    cell = f"{fidelity['volume_ratio']:.2f}x, {1000 * fidelity['max_distance_m']:.1f} mm"
+    return cell if fidelity["ok"] else f"**{cell}: past the bound**"
 
 
 def _agreement_lines(out_dir: Path) -> list[str]:
@@ -79,6 +89,9 @@ def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
             "negative_share": (labelled - held) / labelled if labelled else None,
             "distinct_share": distinct / labelled if labelled else None,
             "untested": sum(e["untested"] for e in entries), "by_verdict": _verdict_totals(entries),
+            "decided_by_geometry": sum(e["decided_by_geometry"] for e in entries),
+            "unanimous_share": sum(e["unanimous"] for e in entries) / labelled if labelled else None,
+            "hulls_past_bound": [e["object"] for e in entries if e["hull_fidelity"] and not e["hull_fidelity"]["ok"]],
             "seconds_per_object": float(np.median([sum(e["times_s"].values()) for e in entries])) if entries else None}
 
 
@@ -94,9 +107,14 @@ def write_dataset_report(out_dir: Path, config: Config, objects, object_ids: lis
                    "graspgen": "graspgen/<object>.json", "meshes": "meshes/", "splits": "splits/{train,valid}.txt"},
         "conventions": {
             "frame": "object link frame; ACRONYM Franka gripper: z approach, x closing axis, origin 0.105 m behind the contacts",
-            "object_in_gripper": "1 held after lift and shake, 0 dropped; every row of grasps/ was simulated, untested grasps are under untested/",
+            "object_in_gripper": "1 held after lift and shake in most of the grasp's simulations (held_fraction), 0 dropped; "
+                                 "decided_by 'geometry' rows are collisions of the open hand at the grasp, not simulated; "
+                                 "untested grasps are under untested/",
         },
-        "mode": config.dataset.mode, "grasps_per_object": config.dataset.grasps_per_object,
+        "mode": config.dataset.mode, "protocol": config.dataset.protocol, "grasps_per_object": config.dataset.grasps_per_object,
+        "robust_labels": {"simulations_per_label": config.labelling.perturbed_simulations,
+                          "perturbation_translation_m": config.labelling.perturbation_translation_m,
+                          "perturbation_rotation_deg": config.labelling.perturbation_rotation_deg},
         "rater": sorted({e["rater"] for e in entries}),
         "semantics": {e["object"]: ({"neutral": e["neutral_tasks"]} if e["neutral_tasks"] else {"rated": e["rater"]}) for e in entries},
         "objects": [{"id": e["object"], "grasps": f"grasps/{e['object']}.h5", "graspgen": f"graspgen/{e['object']}.json",
@@ -117,10 +135,15 @@ def _report_markdown(out_dir, manifest, summary, entries, pictures, plots) -> st
     by_verdict = summary["by_verdict"]
     lines = [
         "# Grasp dataset report", "",
-        f"Mode: `{manifest['mode']}`; {summary['objects']} objects, {summary['labelled']} labelled grasps "
+        f"Mode: `{manifest['mode']}`, protocol `{manifest['protocol']}`; {summary['objects']} objects, {summary['labelled']} labelled grasps "
         f"({summary['held']} held, {summary['negatives']} dropped: {100 * (summary['negative_share'] or 0):.1f} % negatives), "
         f"{100 * (summary['distinct_share'] or 0):.1f} % distinct at 1 cm / 20 deg, {summary['untested']} untested (not labels). "
         f"Median time per object: {summary['seconds_per_object'] or 0:.1f} s.", "",
+        f"Each label is the majority of {manifest['robust_labels']['simulations_per_label']} simulation(s), its pose and copies moved "
+        f"{1000 * manifest['robust_labels']['perturbation_translation_m']:.0f} mm / {manifest['robust_labels']['perturbation_rotation_deg']:g} deg; "
+        f"unanimous: {100 * (summary['unanimous_share'] or 0):.1f} %. Decided by geometry (the open hand in the object or the "
+        f"table at the grasp, not simulated): {count_and_rate(summary['decided_by_geometry'], summary['labelled'])}. "
+        f"Collision hulls past the fidelity bound: {', '.join(summary['hulls_past_bound']) or 'none'}.", "",
         "## Success by planner verdict (the planner's calibration)", "",
         "| verdict | held / labelled |", "|---|---|",
         *[f"| {verdict} | {count_and_rate(*counts)} |" for verdict, counts in by_verdict.items()], "",

@@ -240,7 +240,7 @@ def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], 
         workers.close()
 
 
-def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str) -> dict:
+def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol: str) -> dict:
     """Write one object's files and return its progress line (what the report and a resume read)."""
     from sagp_batched_kernels.pose_nms import distinct_grasp_count
 
@@ -253,7 +253,7 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str) -> dict:
     mesh_file, scale, mesh_to_link = copy_object_mesh(spec, out_dir / "meshes")
     grasps = labels.grasps
     write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, object_physics(spec),
-                      grasps, labels.untested, mode, labels.rater)
+                      grasps, labels.untested, mode, protocol, labels.rater)
     write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
     poses = grasp_poses_from_acronym(grasps.transforms)
     distinct = distinct_grasp_count(poses.position, poses.rotation, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
@@ -261,6 +261,9 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str) -> dict:
     entry = {
         "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
         "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
+        "decided_by_geometry": grasps.decided_by.count("geometry"),
+        "unanimous": int(((grasps.held_fraction == 0.0) | (grasps.held_fraction == 1.0)).sum()),
+        "hull_fidelity": _hull_fidelity(spec),
         "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
         "by_verdict": {v: [int(sum(h for h, w in zip(grasps.held, grasps.verdict) if w == v)), grasps.verdict.count(v)]
                        for v in sorted(set(grasps.verdict))},
@@ -268,6 +271,15 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str) -> dict:
     }
     append_progress(out_dir, entry)
     return entry
+
+
+def _hull_fidelity(spec) -> dict | None:
+    """How well an imported object's collision hulls fit its mesh (None for a set that ships its own hulls)."""
+    record = spec.import_record
+    if record is None:
+        return None
+    return {"volume_ratio": record.hull_volume_ratio, "max_distance_m": record.hull_max_distance_m,
+            "ok": record.fidelity_ok, "issues": list(record.fidelity_issues)}
 
 
 def measure_agreement(config: Config, objects: ObjectSet, object_ids: list[str], n_grasps: int) -> dict:
@@ -344,7 +356,7 @@ def _label_pending(config: Config, objects: ObjectSet, out_dir: Path, pending: l
                 append_json_line(out_dir / WORKERS_FILE, {**report.to_json(), "time": time.time()})
 
             for labels in labelled_objects(config, objects, pending, packed, on_report):
-                entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode)
+                entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, config.dataset.protocol)
                 new_objects.append(labels.object_id)
                 if on_object is not None:
                     on_object(entry)

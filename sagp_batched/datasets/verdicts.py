@@ -27,9 +27,10 @@ from ..types import PerceivedCloud
 # check it fails, or "feasible" when it passes them all.
 VERDICTS: tuple[str, ...] = ("feasible", "table", "volume", "hand_sweep", "grasp_ik", "motion")
 FEASIBLE = VERDICTS.index("feasible")
-# Per protocol, the verdicts whose grasps geometry alone fails (the open hand through the table, or
-# in the object's points): a dataset takes few of them, since a learner gains little from many.
-GEOMETRY_VERDICTS: dict[str, tuple[str, ...]] = {"tabletop": ("table", "volume"), "floating": ("volume",)}
+# Per protocol, the verdicts whose grasps geometry alone mostly fails (the open hand through the table,
+# in the object's points, or its hulls swept through them): a dataset takes few of them, since a learner
+# gains little from many. A floating hand has no descent, but the sweep ends in the hand at the grasp.
+GEOMETRY_VERDICTS: dict[str, tuple[str, ...]] = {"tabletop": ("table", "volume"), "floating": ("volume", "hand_sweep")}
 
 
 @dataclass
