@@ -8,6 +8,14 @@ grasps spread over the workers); medians over ``--repeats``, the cases interleav
 repeat. The per-core rate is labelled grasps / (wall time x workers); the busy rate is labelled grasps /
 the workers' summed stage seconds. The projection to ``--project-objects`` x ``--project-grasps``
 uses the hand-mode busy rate at the most workers measured: a long run keeps every core busy.
+
+    python -m runners.bench_dataset --fidelity --out DIR [--objects-dir DIR] [--objects a,b] [--grasps 60]
+        [--perturbed-simulations K]
+
+measures instead how far the labels can be trusted (``benchmarks.label_fidelity``): hull fidelity, label
+stability across resting poses and re-simulation, floating against tabletop, designed grasps on a box and
+labels/s per core, written to ``label_fidelity.json``, ``label_fidelity.md`` and ``provenance.json`` in --out.
+Objects: --objects, else a few of the embedded YCB set, else (with --objects-dir) every target object there.
 """
 from __future__ import annotations
 
@@ -17,12 +25,16 @@ import sys
 from pathlib import Path
 
 from sagp_batched.benchmarks.dataset_speed import STAGES, benchmark_dataset, projected_hours, shared_world_step_cost
+from sagp_batched.benchmarks.label_fidelity import DEFAULT_OBJECTS, fidelity_markdown, label_fidelity
 from sagp_batched.config import ConfigError, load_config
 from sagp_batched.provenance import collect
 from sagp_batched.runtime import configure_torch
+from sagp_batched.world.mesh_settings import MeshImportSettings
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 
 PROJECTION_CORES = (2, 64)
+FIDELITY_JSON = "label_fidelity.json"
+FIDELITY_MARKDOWN = "label_fidelity.md"
 
 
 def _counts(parser: argparse.ArgumentParser, flag: str, text: str, minimum: int) -> list[int]:
@@ -35,9 +47,9 @@ def _counts(parser: argparse.ArgumentParser, flag: str, text: str, minimum: int)
     return counts
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--json", required=True, type=Path, help="where to write the results")
+    parser.add_argument("--json", type=Path, help="where to write the results (required but with --fidelity)")
     parser.add_argument("--profile", default="dataset")
     parser.add_argument("--objects-dir", default=None, help="object set (default: the embedded compact YCB set)")
     parser.add_argument("--object", default="025_mug", help="the object every case labels")
@@ -49,7 +61,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shared-world-pairs", default="1,4,16", help="hand-object pairs per world for the step-cost measure ('' skips)")
     parser.add_argument("--project-objects", type=int, default=1000)
     parser.add_argument("--project-grasps", type=int, default=2000)
+    fidelity = parser.add_argument_group("label fidelity (--fidelity)")
+    fidelity.add_argument("--fidelity", action="store_true", help="measure label fidelity instead of speed")
+    fidelity.add_argument("--out", type=Path, help="folder the fidelity results are written to")
+    fidelity.add_argument("--objects", default=None, help="comma-separated object ids (default: see above)")
+    fidelity.add_argument("--grasps", type=int, default=60, help="grasps planned per object")
+    fidelity.add_argument("--perturbed-simulations", type=int, default=None, help="simulations per label (default: the profile's)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
     args = parser.parse_args(argv)
+    if args.fidelity:
+        return _fidelity_main(parser, args)
+    if args.json is None:
+        parser.error("--json is required (or --fidelity with --out)")
+    return _speed_main(parser, args)
+
+
+def _speed_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     worker_counts = _counts(parser, "--workers", args.workers, 1)
     pair_counts = _counts(parser, "--shared-world-pairs", args.shared_world_pairs, 1) if args.shared_world_pairs.strip() else []
     if args.repeats < 1 or args.hand_grasps < 0 or args.arm_grasps < 0:
@@ -88,6 +119,59 @@ def main(argv: list[str] | None = None) -> int:
               "provenance": collect(config.to_dict(), object=args.object, objects_source=objects.source, repeats=args.repeats)}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2, default=str))
+    return 0
+
+
+def _fidelity_inputs(parser: argparse.ArgumentParser, args: argparse.Namespace):
+    """The config, object set and object ids of a fidelity run, each checked before any work; None once an error is printed."""
+    if args.out is None:
+        parser.error("--fidelity needs --out DIR")
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out {args.out} is a file, not a folder")
+    if args.grasps < 1:
+        parser.error(f"--grasps must be >= 1, got {args.grasps}")
+    overrides = {"planner": {"n_pairs": args.pairs}, "labelling": {"perturbed_simulations": args.perturbed_simulations}}
+    overrides = {section: {k: v for k, v in values.items() if v is not None} for section, values in overrides.items()}
+    try:
+        config = load_config(args.profile, overrides={section: values for section, values in overrides.items() if values})
+        objects = load_object_set(args.objects_dir, MeshImportSettings())
+        if args.objects is not None:
+            object_ids = [part.strip() for part in args.objects.split(",") if part.strip()]
+        elif args.objects_dir is None:
+            object_ids = list(DEFAULT_OBJECTS)
+        else:
+            object_ids = [spec.id for spec in objects.targets()]
+        if not object_ids:
+            parser.error(f"--objects names no object, got {args.objects!r}")
+        for object_id in object_ids:
+            objects.get(object_id)
+    except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return None
+    return config, objects, object_ids
+
+
+def _fidelity_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    from sagp_batched.run_directory import PROVENANCE_FILE, RunDirectoryError, write_file_atomically, write_json
+
+    inputs = _fidelity_inputs(parser, args)
+    if inputs is None:
+        return 2
+    config, objects, object_ids = inputs
+    configure_torch()
+    settings = MeshImportSettings()
+    report = label_fidelity(config, objects, object_ids, args.grasps, settings, note=lambda line: print(line, file=sys.stderr))
+    markdown = fidelity_markdown(report)
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+        write_json(args.out / FIDELITY_JSON, report)
+        write_file_atomically(args.out / FIDELITY_MARKDOWN, markdown.encode("utf-8"))
+        write_json(args.out / PROVENANCE_FILE, collect(config.to_dict(), objects_source=objects.source, objects=object_ids,
+                                                       grasps_per_object=args.grasps, planning="dataset.protocol=floating, captures_per_object=1"))
+    except (OSError, RunDirectoryError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(markdown)
     return 0
 
 
