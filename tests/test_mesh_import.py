@@ -234,6 +234,11 @@ def test_resting_poses_start_with_the_link_frame_and_each_rests_its_aabb_bottom_
             assert np.allclose([(lower[0] + upper[0]) / 2, (lower[1] + upper[1]) / 2, lower[2]], 0.0, atol=1e-5)
     box_poses = imported.get("box").resting_poses
     assert len(box_poses) == 6  # a box rests on any of its faces
+    # One pose for each way up: no two kept poses turn the same side of the object up.
+    for spec in (imported.get("mug"), imported.get("parts")):
+        ups = np.array([np.array(pose.link_to_rest)[2, :3] for pose in spec.resting_poses])
+        cosines = ups @ ups.T - 2.0 * np.eye(len(ups))
+        assert (cosines < np.cos(np.radians(settings.resting_pose_merge_deg))).all(), spec.id
 
 
 def test_a_second_load_is_a_cache_hit_that_builds_and_writes_nothing(folder, imported, settings, monkeypatch):

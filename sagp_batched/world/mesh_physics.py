@@ -95,5 +95,24 @@ def _resting_poses(solid: trimesh.Trimesh, settings: MeshImportSettings) -> list
         transform = _rest_transform(hull.vertices, rotation[:3, :3], centre)
         poses.append((float(probability), transform, float((transform[:3, :3] @ centre + transform[:3, 3])[2])))
     poses.sort(key=lambda pose: (-round(pose[0], 9), pose[2]))
+    poses = _merged_by_up_direction(poses, settings.resting_pose_merge_deg)
     kept = [poses[0]] + [pose for pose in poses[1:] if pose[0] >= settings.min_resting_pose_probability]
     return [(probability, transform) for probability, transform, _ in kept[: settings.max_resting_poses]]
+
+
+def _merged_by_up_direction(poses: list[tuple[float, np.ndarray, float]], merge_deg: float) -> list[tuple[float, np.ndarray, float]]:
+    """One pose for each way up: a rounded body's faceted hull gives one pose per facet, a few degrees
+    apart, which a capture would take for different resting poses though the object rolls between them.
+    A pose whose up direction (in the source frame) lies within ``merge_deg`` of a more probable one's
+    adds its probability to that one; the order stays most probable first."""
+    kept: list[list] = []
+    cosine = np.cos(np.radians(merge_deg))
+    for probability, transform, height in poses:
+        up = transform[2, :3]  # the source-frame direction the rest frame's z takes
+        same = next((pose for pose in kept if float(up @ pose[1][2, :3]) >= cosine), None)
+        if same is None:
+            kept.append([probability, transform, height])
+        else:
+            same[0] += probability
+    kept.sort(key=lambda pose: (-round(pose[0], 9), pose[2]))
+    return [tuple(pose) for pose in kept]

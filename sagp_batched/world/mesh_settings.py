@@ -64,6 +64,8 @@ class MeshImportSettings:
     vhacd_resolution: int = 100_000
     #: At most this many resting poses are kept, the most probable first.
     max_resting_poses: int = 8
+    #: Resting poses whose up directions lie within this angle are one pose (the facets of a rounded body), deg.
+    resting_pose_merge_deg: float = 30.0
     #: Resting poses less probable than this are dropped (the most probable one is always kept).
     min_resting_pose_probability: float = 0.01
     #: An object each of whose convex parts is wider than this in every direction cannot be grasped: the Panda's open hand.
@@ -88,6 +90,8 @@ class MeshImportSettings:
         for name, value in positive.items():
             if not value > 0:
                 raise ValueError(f"MeshImportSettings.{name} must be positive, got {value}")
+        if not 0 <= self.resting_pose_merge_deg < 180:
+            raise ValueError(f"MeshImportSettings.resting_pose_merge_deg must be in [0, 180), got {self.resting_pose_merge_deg}")
         if self.mass_kg is not None and not self.mass_kg > 0:
             raise ValueError(f"MeshImportSettings.mass_kg must be positive or None, got {self.mass_kg}")
         if not self.friction >= 0:
