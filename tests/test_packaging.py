@@ -57,24 +57,55 @@ def test_distribution_provides_no_generic_top_level_names():
     assert {"sagp_batched", "sagp_batched_kernels"} <= provided
 
 
-def test_library_imports_from_outside_the_checkout_and_transformers_sees_no_kernels(tmp_path):
-    # Run in a directory without our `kernels/` on sys.path, as an embedding job would.
-    probe = (
-        "import sagp_batched, sagp_batched_kernels, transformers.utils.import_utils as iu;"
-        "print(iu.is_kernels_available())"
+# Whether Hugging Face's `kernels` distribution is installed here: transformers requires it from 5.25 on.
+HF_KERNELS_INSTALLED = any(name == "kernels" for name in importlib.metadata.packages_distributions().get("kernels", ()))
+# What `import kernels` gives, printed by a probe: Hugging Face's module file, or "none".
+KERNELS_PROBE = (
+    "import os\n"
+    "try:\n    import kernels\n    print(os.path.realpath(kernels.__file__))\n"
+    "except ModuleNotFoundError:\n    print('none')\n"
+)
+
+
+def _probe_kernels(cwd: Path, prelude: str = "") -> list[str]:
+    probe = prelude + KERNELS_PROBE + (
+        "import transformers.utils.import_utils as iu\nprint(iu.is_kernels_available())\n"
+        # The import that fails where the checkout's kernels/ shadows Hugging Face's.
+        "import transformers.integrations.hub_kernels\n"
     )
-    done = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, "-c", probe], cwd=cwd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip().splitlines()[-1] == "False"
+    return done.stdout.strip().splitlines()[-2:]
 
 
-def test_checkout_kernels_directory_does_not_pass_for_hugging_face_kernels():
-    # From the repository root `kernels/` is importable; transformers must still not treat it as
-    # the Hugging Face distribution (it has no distribution metadata and no version).
-    probe = "import transformers.utils.import_utils as iu; print(iu.is_kernels_available())"
-    done = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, timeout=300)
+def _hugging_faces_or_none(lines: list[str]) -> None:
+    found, available = lines
+    if HF_KERNELS_INSTALLED:
+        assert found != "none" and not Path(found).is_relative_to(REPO), f"`import kernels` gave {found}, not Hugging Face's"
+        assert available in ("True", "False")  # transformers judges the version range itself
+    else:
+        assert (found, available) == ("none", "False")
+
+
+def test_library_imports_from_outside_the_checkout_and_the_name_kernels_is_hugging_faces_or_none(tmp_path):
+    # Run in a directory without our `kernels/` on sys.path, as an embedding job would.
+    _hugging_faces_or_none(_probe_kernels(tmp_path, "import sagp_batched, sagp_batched_kernels\n"))
+
+
+def test_from_the_checkout_the_name_kernels_is_hugging_faces_or_none():
+    # From the repository root `kernels/` is importable by that name; it hands the name over.
+    _hugging_faces_or_none(_probe_kernels(REPO))
+
+
+def test_from_the_checkout_without_hugging_faces_distribution_kernels_is_no_module():
+    hidden = (
+        "import importlib.metadata as m\n_real = m.distribution\n"
+        "def _hide(name):\n    if name == 'kernels':\n        raise m.PackageNotFoundError(name)\n    return _real(name)\n"
+        "m.distribution = _hide\n"
+    )
+    done = subprocess.run([sys.executable, "-c", hidden + KERNELS_PROBE], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip().splitlines()[-1] == "False"
+    assert done.stdout.strip().splitlines()[-1] == "none"
 
 
 def test_every_profile_file_is_a_named_profile_that_load_config_reads_as_package_data():
