@@ -86,6 +86,7 @@ def test_the_floating_protocol_plans_grasps_all_around_the_object_and_labels_the
     approach = plan.poses[0].candidates.approach
     # The cameras see the can from above and the sides; the whole-surface cloud offers grasps from below too.
     assert (approach[:, 2] > 0.3).any() and (approach[:, 2] < -0.3).any()
-    assert labels.grasps.held.any() and not labels.grasps.held.all()
-    geometry_verdicts = sum(v in ("volume",) for v in labels.grasps.verdict)
-    assert geometry_verdicts <= int(config.dataset.geometry_verdict_fraction * 16)
+    # Picked among the open hands the mesh leaves clear (on every 4th surface point): geometry decides at most
+    # its capped share and a graze the sparser check missed.
+    assert labels.grasps.decided_by.count("geometry") <= int(config.dataset.geometry_verdict_fraction * 16) + 1
+    assert labels.grasps.held.mean() > 0.5

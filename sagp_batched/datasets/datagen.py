@@ -15,6 +15,7 @@ apart as untested, never written as a failure.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 import xml.etree.ElementTree as ElementTree
@@ -181,6 +182,14 @@ class ChunkOutcome:
     seconds: float
 
 
+def _open_hand_clear_world(spec: ObjectSpec, object_from_world: np.ndarray, config: Config, poses_world: GraspPoses) -> np.ndarray:
+    from ..robot.description import robot_of
+    from .grasp_geometry import object_surface, open_hand_clear
+
+    poses = poses_world.transform(object_from_world, "object")
+    return open_hand_clear(object_surface(spec), poses, robot_of(config), config.labelling.geometry_tolerance_m)
+
+
 def _failure(label) -> str:
     return "" if label.held else f"{label.failure_reason}@{label.failed_at}"
 
@@ -265,7 +274,10 @@ class ObjectLabeller:
             cloud = whole_object_cloud(cloud, object_surface(spec), config.perception.voxel_size_m)
         spent["capture"] = time.perf_counter() - clock
         clock = time.perf_counter()
-        classified = classify_grasps(cloud, config, labelling_seed(config, pose_index), n_grasps, taken_object=taken)
+        clear = None
+        if config.dataset.protocol == "floating":  # the mesh decides which open hands collide: few of those are taken
+            clear = functools.partial(_open_hand_clear_world, spec, cloud.object_from_world, config)
+        classified = classify_grasps(cloud, config, labelling_seed(config, pose_index), n_grasps, taken_object=taken, open_hand_clear=clear)
         if not len(classified):
             spent["plan"] = time.perf_counter() - clock
             planner = config.planner

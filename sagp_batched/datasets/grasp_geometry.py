@@ -35,6 +35,8 @@ from .export import object_mesh_reference
 # crossing a finger always leaves points inside it.
 SURFACE_SPACING_M = 0.0015
 MAX_SURFACE_POINTS = 200_000
+# Points in random order, so every 4th is an even subsample ~3 mm apart: still well under a finger's side.
+CLEARANCE_STRIDE = 4
 # Grasps tested together: (grasps x points x 13) projections stay within a few tens of MB.
 GRASPS_PER_BLOCK = 32
 
@@ -121,6 +123,20 @@ def _hand_hulls(robot: RobotDescription, links: tuple[str, ...]) -> _HandHulls:
     planes = tuple(torch.as_tensor(ConvexHull(hull.numpy()).equations, dtype=torch.float32) for hull in hulls)
     return _HandHulls(geometry.dop_low[keep], geometry.dop_high[keep], planes, torch.cat(hulls).float(),
                       torch.stack([hull.mean(dim=0) for hull in hulls]).float())
+
+
+def floating_hand_links(robot: RobotDescription) -> tuple[str, ...]:
+    """The links of the hand hand-mode labels simulate: the hand and its fingers, not the arm above them."""
+    return (robot.hand_link, *robot.finger_links)
+
+
+def open_hand_clear(surface: ObjectSurface, poses: GraspPoses, robot: RobotDescription, tolerance_m: float) -> np.ndarray:
+    """(N,) whether the open hand at each grasp pose (object frame) stays out of the object's mesh, on
+    every ``CLEARANCE_STRIDE``-th surface point: a dataset asks this of every pose it could pick (thousands),
+    the labels of the few it picks then test every point."""
+    sparse = dataclasses.replace(surface, points=surface.points[::CLEARANCE_STRIDE], normals=surface.normals[::CLEARANCE_STRIDE])
+    object_hit, _ = open_hand_collisions(sparse, poses, robot, floating_hand_links(robot), tolerance_m)
+    return ~object_hit
 
 
 def open_hand_collisions(

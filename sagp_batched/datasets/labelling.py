@@ -37,7 +37,7 @@ from ..robot.motion import grasp_waypoint_index
 from ..types import GraspAttempt
 from ..world.objects import ObjectSpec
 from ..world.scene import Scene
-from .grasp_geometry import contact_widths, object_surface, open_hand_collisions
+from .grasp_geometry import contact_widths, floating_hand_links, object_surface, open_hand_collisions
 from .protocols import PROTOCOLS, GraspLabel, ObjectPlacement, run_floating, run_tabletop
 from .pybullet_hand import PyBulletHand
 
@@ -278,8 +278,7 @@ def _geometry_verdicts(placements: Sequence[ObjectPlacement | FloatingPlacement]
     table at the grasp pose (tested on the object's mesh, in its frame), else None."""
     verdicts: list[list[GraspLabel | None]] = [[None] * len(s) for s in samples]
     robot = robot_of(config)
-    # The floating hand is the hand link and its fingers: the arm's links above it are not simulated.
-    links = (robot.hand_link, *robot.finger_links)
+    links = floating_hand_links(robot)
     by_placement: dict[int, list[tuple[int, int]]] = {}
     for i, placement in enumerate(placements):
         by_placement.setdefault(id(placement), []).extend((i, k) for k in range(len(samples[i])))

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
+import numpy as np
 import torch
 
 from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
@@ -115,6 +117,7 @@ def classify_grasps(
     n_grasps: int,
     dataset: DatasetConfig | None = None,
     taken_object: GraspPoses | None = None,
+    open_hand_clear: Callable[[GraspPoses], np.ndarray] | None = None,
 ) -> ClassifiedGrasps:
     """Up to ``n_grasps`` grasps of ``cloud`` covering the object, each with the planner's verdict.
 
@@ -125,13 +128,16 @@ def classify_grasps(
     from earlier captures of the object); the checks run on the rest; ``dataset.feasible_fraction`` of the
     picked grasps are feasible where the object offers them, the rest spread over the rejection
     verdicts, each drawn at random (``seed``) within its verdict so no region of the object is favoured.
+    ``open_hand_clear`` (world-frame poses -> (N,) bool), where given, says which open hands stay out of
+    the object's mesh: a floating dataset takes its grasps among those (``_pick``).
     """
     dataset = config.dataset if dataset is None else dataset
     planner = config.planner
     screened = screen_candidates([cloud], config, [seed])
     poses = _covering_poses(screened, cloud, planner.n_approaches, dataset, taken_object)
     verdict, clearance, joint_path, s_reach = _planner_verdicts(screened, config, poses)
-    picked = _pick(verdict, seed, n_grasps, dataset)
+    clear = None if open_hand_clear is None else torch.as_tensor(open_hand_clear(GraspPoses(poses.centre.double(), poses.rotation.double(), "world")))
+    picked = _pick(verdict, seed, n_grasps, dataset, clear)
     chosen_rows = poses.rows[picked]
     jaw_limit_m = jaw_width_limit(screened.robot, planner)
     too_wide = screened.width_m[chosen_rows] > jaw_limit_m
@@ -212,12 +218,18 @@ def _planner_verdicts(screened: ScreenedCandidates, config: Config, poses: _Pose
     return verdict, clearance, joint_path, s_reach
 
 
-def _pick(verdict: torch.Tensor, seed: int, n_grasps: int, dataset: DatasetConfig) -> torch.Tensor:
+def _pick(verdict: torch.Tensor, seed: int, n_grasps: int, dataset: DatasetConfig, clear: torch.Tensor | None) -> torch.Tensor:
     """The grasps a dataset takes: across the planner's verdicts (``tabletop``), or alike from every
     direction (``floating``: the arm's reach and the table do not bear on a floating object); in both,
-    at most ``geometry_verdict_fraction`` of them from each verdict geometry alone fails."""
+    at most ``geometry_verdict_fraction`` of them from each class geometry alone fails: the verdicts of
+    ``GEOMETRY_VERDICTS``, or, where ``clear`` says which open hands stay out of the object's mesh, the rest."""
+    cap = int(dataset.geometry_verdict_fraction * n_grasps)
+    if clear is not None and dataset.protocol == "floating":
+        colliding = VERDICTS.index("volume")  # a class to draw by, not the verdict recorded
+        classes = torch.where(clear, torch.full_like(verdict, FEASIBLE), torch.full_like(verdict, colliding))
+        return _pick_across_verdicts(classes, seed, n_grasps, 1.0, {colliding: cap})
     geometry = [VERDICTS.index(name) for name in GEOMETRY_VERDICTS[dataset.protocol]]
-    caps = dict.fromkeys(geometry, int(dataset.geometry_verdict_fraction * n_grasps))
+    caps = dict.fromkeys(geometry, cap)
     if dataset.protocol == "tabletop":
         return _pick_across_verdicts(verdict, seed, n_grasps, dataset.feasible_fraction, caps)
     drawn_alike = torch.where(torch.isin(verdict, torch.tensor(geometry)), verdict, torch.full_like(verdict, FEASIBLE))
