@@ -187,14 +187,17 @@ def test_a_graspgen_uuid_is_found_through_the_roots_map(tmp_path):
         relabelling.mesh_file_path(tmp_path, "5678")
 
 
-def test_the_link_frame_map_takes_the_import_scale_out_of_source_to_link():
+def test_the_link_frame_map_is_the_imports_own_at_the_files_scale():
+    from sagp_batched.world.objects import ObjectImport
+
     rigid = np.eye(4)
     rigid[:3, :3] = Rotation.from_euler("z", 0.4).as_matrix()
     rigid[:3, 3] = [0.01, 0.02, 0.03]
 
     class Spec:
         id = "box"
-        import_record = type("Record", (), {"source_to_link": (rigid @ np.diag([SCALE] * 3 + [1.0])).tolist()})()
+        import_record = ObjectImport(source_to_link=tuple(map(tuple, rigid)), scale=SCALE, com_m=(0.0, 0.0, 0.0), hull_volume_ratio=1.0,
+                                     hull_max_distance_m=0.0, decomposer="coacd", collision_hulls=1, fidelity_ok=True)
 
     assert np.allclose(relabelling.link_from_scaled_mesh(Spec(), SCALE), rigid)
     with pytest.raises(relabelling.InputError, match="imported at scale 0.01, the file's is 0.5"):

@@ -102,23 +102,17 @@ def object_hull_fidelity(spec: ObjectSpec, settings: MeshImportSettings) -> dict
     bounds: an imported object's own figures, else measured on its visual mesh and URDF collision hulls."""
     record = spec.import_record
     if record is not None:
-        return {"source": "import", "volume_ratio": record.hull_volume_ratio, "max_distance_m": record.hull_max_distance_m,
-                "hulls": record.collision_hulls, "ok": record.fidelity_ok, "issues": list(record.fidelity_issues)}
+        return {"source": "import", **record.fidelity_summary()}
     from ..datasets.grasp_geometry import object_mesh_link
-    from ..world.hull_fidelity import hull_fidelity
+    from ..world.hull_fidelity import fidelity_issues, hull_fidelity
 
     hulls = collision_hulls_link(spec)
     if not hulls:
         return {"source": "measured", "volume_ratio": None, "max_distance_m": None, "hulls": 0, "ok": False,
                 "issues": ["its URDF has no collision geometry with volume"]}
     fidelity = hull_fidelity(object_mesh_link(spec), hulls)
-    issues = []
-    if fidelity.volume_ratio > settings.max_hull_volume_ratio:
-        issues.append(f"hulls hold {fidelity.volume_ratio:.2f}x the mesh's volume ({fidelity.mesh_volume_from}), "
-                      f"over {settings.max_hull_volume_ratio:.2f}x")
-    if fidelity.max_hull_to_mesh_distance_m > settings.max_hull_distance_m:
-        issues.append(f"hulls stray {fidelity.max_hull_to_mesh_distance_m * 1000:.1f} mm outside the mesh, "
-                      f"over {settings.max_hull_distance_m * 1000:.1f} mm")
+    issues = fidelity_issues(fidelity.volume_ratio, fidelity.max_hull_to_mesh_distance_m, fidelity.mesh_volume_from,
+                             settings.max_hull_volume_ratio, settings.max_hull_distance_m)
     return {"source": "measured", "volume_ratio": fidelity.volume_ratio, "max_distance_m": fidelity.max_hull_to_mesh_distance_m,
             "hulls": len(hulls), "ok": not issues, "issues": issues}
 

@@ -21,6 +21,8 @@ agreed with the majority, else of the first perturbed pose that did.
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 import hashlib
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -150,6 +152,7 @@ def _link_pose_world(placement: ObjectPlacement | FloatingPlacement) -> np.ndarr
     return pose @ np.linalg.inv(com_in_link)
 
 
+@functools.lru_cache(maxsize=64)
 def _com_in_link(spec: ObjectSpec) -> np.ndarray:
     """(4, 4) the centre-of-mass (inertial) frame in the link frame, from the URDF's ``<inertial><origin>``."""
     import xml.etree.ElementTree as ElementTree
@@ -185,9 +188,12 @@ def label_grasps_hand(
     if protocol == "tabletop":
         return _label(placement_list, targets, config)
     floating: dict[ObjectSpec, FloatingPlacement] = {}
+    object_from_world_of: dict[int, np.ndarray] = {}  # one per placement: a batch usually shares one
     on_object = []
     for placement, target in zip(placement_list, targets):
-        object_from_world = np.linalg.inv(_link_pose_world(placement))
+        if id(placement) not in object_from_world_of:
+            object_from_world_of[id(placement)] = np.linalg.inv(_link_pose_world(placement))
+        object_from_world = object_from_world_of[id(placement)]
         grasp = object_from_world[:3, :3] @ target.grasp + object_from_world[:3, 3]
         quat = (Rotation.from_matrix(object_from_world[:3, :3]) * Rotation.from_quat(target.quat)).as_quat()
         on_object.append(_Target(grasp, grasp, quat))
@@ -249,13 +255,7 @@ def _majority(outcomes: list[GraspLabel]) -> GraspLabel:
     fraction = sum(outcome.held for outcome in outcomes) / len(outcomes)
     held = fraction > 0.5
     representative = next(outcome for outcome in outcomes if outcome.held == held)
-    return _replace(representative, held_fraction=fraction)
-
-
-def _replace(label: GraspLabel, **changes: Any) -> GraspLabel:
-    import dataclasses
-
-    return dataclasses.replace(label, **changes)
+    return dataclasses.replace(representative, held_fraction=fraction)
 
 
 def _perturbed(target: _Target, config: Config) -> list[_Target]:

@@ -29,7 +29,7 @@ REPORT_FILE = "report.md"
 # What was relabelled (the file's bytes, the protocol, the grasps chosen): a resume must be of the same.
 INPUT_FILE = "relabel.json"
 CHUNKS_DIR = "chunks"
-# How far the imported object's mesh-to-link scale may stray from the file's (or from 1, where it was already taken out).
+# How far the object's import scale may stray from the file's.
 SCALE_TOLERANCE = 1e-6
 
 
@@ -166,22 +166,14 @@ def import_object(inputs: Inputs, out_dir: Path) -> tuple[Any, ObjectSpec]:
 
 
 def link_from_scaled_mesh(spec: ObjectSpec, scale: float) -> np.ndarray:
-    """(4, 4) rigid map from the file's frame (its mesh scaled by ``scale``) into the object's link frame.
-
-    The import's ``source_to_link`` maps the mesh file's raw coordinates, so it carries the scale: taking
-    out its own uniform factor leaves the rigid part (the translation is the same either way, the scale
-    acting first). Its factor must be the file's scale, or 1 if a later import already took it out.
-    """
-    record = getattr(spec, "import_record", None)
+    """(4, 4) rigid map from the file's frame (its mesh scaled by ``scale``) into the object's link frame: the
+    import's own map from the mesh at its import scale, which must be the file's."""
+    record = spec.import_record
     if record is None:
         raise InputError(f"object '{spec.id}' was not imported from a mesh, so its mesh frame is unknown")
-    matrix = np.array(record.source_to_link, dtype=np.float64)
-    factor = float(np.cbrt(np.linalg.det(matrix[:3, :3])))
-    if not (np.isclose(factor, scale, rtol=SCALE_TOLERANCE) or np.isclose(factor, 1.0, rtol=SCALE_TOLERANCE)):
-        raise InputError(f"object '{spec.id}' was imported at scale {factor:g}, the file's is {scale:g}")
-    rigid = matrix.copy()
-    rigid[:3, :3] /= factor
-    return rigid
+    if not np.isclose(record.scale, scale, rtol=SCALE_TOLERANCE):
+        raise InputError(f"object '{spec.id}' was imported at scale {record.scale:g}, the file's is {scale:g}")
+    return record.link_from_source
 
 
 def object_bounds(spec: ObjectSpec) -> np.ndarray:

@@ -263,7 +263,7 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol
         "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
         "decided_by_geometry": grasps.decided_by.count("geometry"),
         "unanimous": int(((grasps.held_fraction == 0.0) | (grasps.held_fraction == 1.0)).sum()),
-        "hull_fidelity": _hull_fidelity(spec),
+        "hull_fidelity": spec.import_record.fidelity_summary() if spec.import_record is not None else None,
         "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
         "by_verdict": {v: [int(sum(h for h, w in zip(grasps.held, grasps.verdict) if w == v)), grasps.verdict.count(v)]
                        for v in sorted(set(grasps.verdict))},
@@ -271,15 +271,6 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol
     }
     append_progress(out_dir, entry)
     return entry
-
-
-def _hull_fidelity(spec) -> dict | None:
-    """How well an imported object's collision hulls fit its mesh (None for a set that ships its own hulls)."""
-    record = spec.import_record
-    if record is None:
-        return None
-    return {"volume_ratio": record.hull_volume_ratio, "max_distance_m": record.hull_max_distance_m,
-            "ok": record.fidelity_ok, "issues": list(record.fidelity_issues)}
 
 
 def measure_agreement(config: Config, objects: ObjectSet, object_ids: list[str], n_grasps: int) -> dict:

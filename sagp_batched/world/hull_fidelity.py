@@ -47,6 +47,17 @@ class HullFidelity:
     mesh_volume_from: str
 
 
+def fidelity_issues(volume_ratio: float, max_distance_m: float, volume_from: str, max_volume_ratio: float,
+                    max_distance_bound_m: float) -> list[str]:
+    """Each bound the hulls pass, in words (empty when they fit)."""
+    issues = []
+    if volume_ratio > max_volume_ratio:
+        issues.append(f"its collision hulls hold {volume_ratio:.2f}x its mesh's volume ({volume_from}), over {max_volume_ratio:.2f}x")
+    if max_distance_m > max_distance_bound_m:
+        issues.append(f"its collision hulls stray {max_distance_m * 1000:.1f} mm outside its mesh, over {max_distance_bound_m * 1000:.1f} mm")
+    return issues
+
+
 class _Solid:
     """A mesh as distances to its surface and, where it is closed, which points lie inside it (inside any of its
     bodies: ray parity alone would call a point inside two overlapping bodies outside)."""

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from .hull_fidelity import hull_fidelity
+from .hull_fidelity import fidelity_issues, hull_fidelity
 from .mesh_decompose import _decompose, _decomposer_version, _narrowest_width, _resolve_decomposer
 from .mesh_files import _urdf_text, _write_obj
 from .mesh_physics import _resting_poses, _repaired, _solid_of
@@ -126,12 +126,7 @@ def _import_record(metadata: dict[str, Any], settings: MeshImportSettings) -> Ob
     """The object's import figures, judged against the settings' bounds (which are not in the cache key: a stricter
     bound flags cached objects without rebuilding them)."""
     ratio, distance = float(metadata["hull_volume_ratio"]), float(metadata["hull_max_distance_m"])
-    issues = []
-    if ratio > settings.max_hull_volume_ratio:
-        issues.append(f"its collision hulls hold {ratio:.2f}x its mesh's volume ({metadata['hull_ratio_volume_from']}), "
-                      f"over {settings.max_hull_volume_ratio:.2f}x")
-    if distance > settings.max_hull_distance_m:
-        issues.append(f"its collision hulls stray {distance * 1000:.1f} mm outside its mesh, over {settings.max_hull_distance_m * 1000:.1f} mm")
+    issues = fidelity_issues(ratio, distance, metadata["hull_ratio_volume_from"], settings.max_hull_volume_ratio, settings.max_hull_distance_m)
     # The metadata's map takes the file's raw coordinates (the scale inside it); the record's is rigid.
     rigid = np.array(metadata["source_to_link"], dtype=float)
     rigid[:3, :3] /= float(metadata["scale"])

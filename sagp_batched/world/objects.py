@@ -112,6 +112,11 @@ class ObjectImport:
     # Each bound passed, in words (empty when ``fidelity_ok``).
     fidelity_issues: tuple[str, ...] = ()
 
+    def fidelity_summary(self) -> dict[str, Any]:
+        """The hulls' fit as the dataset report and the label-fidelity benchmark record it."""
+        return {"volume_ratio": self.hull_volume_ratio, "max_distance_m": self.hull_max_distance_m, "hulls": self.collision_hulls,
+                "ok": self.fidelity_ok, "issues": list(self.fidelity_issues)}
+
     @property
     def link_from_source(self) -> np.ndarray:
         """(4, 4) map of poses and points from the mesh file's frame at the import scale into the link frame:
