@@ -308,6 +308,14 @@ class GraspCandidates:
     def with_fields(self, **tensors: torch.Tensor) -> "GraspCandidates":
         return dataclasses.replace(self, **tensors)
 
+    def appended(self, more: "GraspCandidates") -> "GraspCandidates":
+        """This batch followed by ``more`` (same frame and zones; its tensors cast to this batch's dtypes)."""
+        if more.frame != self.frame or more.zone_names != self.zone_names:
+            raise ValueError(f"appending {more.frame}-frame candidates zoned {more.zone_names} to {self.frame}-frame ones zoned {self.zone_names}")
+        fields = [name for name in self._tensor_fields() if isinstance(getattr(more, name), torch.Tensor)]
+        return dataclasses.replace(self, **{name: torch.cat([getattr(self, name), getattr(more, name).to(getattr(self, name).dtype)])
+                                            for name in fields})
+
     def ranked_by(self, key: torch.Tensor) -> "GraspCandidates":
         """Sorted by ``key`` descending; ties keep their current order (stable)."""
         order = torch.sort(key, descending=True, stable=True).indices

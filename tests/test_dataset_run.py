@@ -90,3 +90,7 @@ def test_the_floating_protocol_plans_grasps_all_around_the_object_and_labels_the
     # its capped share and a graze the sparser check missed.
     assert labels.grasps.decided_by.count("geometry") <= int(config.dataset.geometry_verdict_fraction * 16) + 1
     assert labels.grasps.held.mean() > 0.5
+    # A share of them clear grasps moved toward failure, each measured on the mesh.
+    boundary = [i for i, verdict in enumerate(labels.grasps.verdict) if verdict == "boundary"]
+    assert 0 < len(boundary) <= round(config.dataset.boundary_fraction * 16)
+    assert (labels.grasps.width_m[boundary] > 0).all()

@@ -59,6 +59,16 @@ class DatasetConfig(_Section):
     # Share of each object's grasps, at most, taken from each verdict geometry alone fails
     # (``verdicts.GEOMETRY_VERDICTS``: the hand through the table, or in the object's points).
     geometry_verdict_fraction: float = setting(0.05, at_least=0, at_most=1)
+    # Share of a floating dataset's grasps that are clear grasps moved toward failure
+    # (``boundary_grasps``): the picked grasps alone hold 88-98 %, and a learner needs the
+    # negatives beside them.
+    boundary_fraction: float = setting(0.3, at_least=0, at_most=1)
+    # A boundary variant withdrawn along its approach by a depth in this range: the Panda's pads
+    # reach 7 mm past the grasp centre, so the object ends at the fingertips or past them.
+    boundary_withdrawal_m: tuple[float, float] = setting((0.006, 0.02), at_least=0, shape=(2,), ordered=True)
+    # Or turned by an angle in this range about an axis across the closing axis: from well inside
+    # a unit friction cone (45 deg) to past it.
+    boundary_turn_deg: tuple[float, float] = setting((15.0, 50.0), at_least=0, at_most=90, shape=(2,), ordered=True)
     # Each capture places the object at a fresh seeded position and yaw on the table (and, for an
     # object with several stable resting poses, in the next of them); its grasps share one plan.
     captures_per_object: int = setting(2, at_least=1, at_most=100)

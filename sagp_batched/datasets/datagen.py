@@ -190,6 +190,22 @@ def _open_hand_clear_world(spec: ObjectSpec, object_from_world: np.ndarray, conf
     return open_hand_clear(object_surface(spec), poses, robot_of(config), config.labelling.geometry_tolerance_m)
 
 
+def _classified(spec: ObjectSpec, cloud, config: Config, pose_index: int, n_grasps: int, taken: GraspPoses | None) -> ClassifiedGrasps:
+    """A capture's grasps with the planner's verdicts (``classify_grasps``); in the floating protocol
+    among the open hands the mesh leaves clear, ``dataset.boundary_fraction`` of them boundary variants."""
+    from ..robot.description import robot_of
+    from .boundary_grasps import add_boundary_grasps
+    from .grasp_geometry import object_surface
+
+    seed = labelling_seed(config, pose_index)
+    if config.dataset.protocol != "floating":
+        return classify_grasps(cloud, config, seed, n_grasps, taken_object=taken)
+    boundary = round(config.dataset.boundary_fraction * n_grasps)
+    clear = functools.partial(_open_hand_clear_world, spec, cloud.object_from_world, config)
+    classified = classify_grasps(cloud, config, seed, n_grasps - boundary, taken_object=taken, open_hand_clear=clear)
+    return add_boundary_grasps(classified, boundary, object_surface(spec), np.asarray(cloud.object_from_world), robot_of(config), config, seed)
+
+
 def _failure(label) -> str:
     return "" if label.held else f"{label.failure_reason}@{label.failed_at}"
 
@@ -274,10 +290,7 @@ class ObjectLabeller:
             cloud = whole_object_cloud(cloud, object_surface(spec), config.perception.voxel_size_m)
         spent["capture"] = time.perf_counter() - clock
         clock = time.perf_counter()
-        clear = None
-        if config.dataset.protocol == "floating":  # the mesh decides which open hands collide: few of those are taken
-            clear = functools.partial(_open_hand_clear_world, spec, cloud.object_from_world, config)
-        classified = classify_grasps(cloud, config, labelling_seed(config, pose_index), n_grasps, taken_object=taken, open_hand_clear=clear)
+        classified = _classified(spec, cloud, config, pose_index, n_grasps, taken)
         if not len(classified):
             spent["plan"] = time.perf_counter() - clock
             planner = config.planner

@@ -10,7 +10,7 @@ overfill a cavity cannot turn a free grasp into a collision.
 - ``open_hand_collisions``: for each grasp, whether the open hand's collision hulls (the ones the
   simulation collides) hold any of the object's surface points deeper than a tolerance, hold the
   object's interior (a hand wholly inside a solid crosses no surface), or reach below the table.
-- ``contact_widths``: the gap the closing fingers meet along the closing axis.
+- ``finger_contacts``, ``contact_widths``: where the closing fingers meet the mesh, and the gap between.
 """
 from __future__ import annotations
 
@@ -189,23 +189,48 @@ def _surface_in_hulls(points: torch.Tensor, rotation: torch.Tensor, position: to
     return hit.numpy()
 
 
-def contact_widths(surface: ObjectSurface, poses: GraspPoses, open_width_m: float) -> np.ndarray:
-    """(N,) the gap between the points where each grasp's closing fingers first meet the mesh, along
-    the closing axis through the grasp centre (0 where they meet nothing), capped at ``open_width_m``."""
+@dataclass(frozen=True)
+class FingerContacts:
+    """Where each grasp's closing fingers first meet the mesh along the closing axis through its centre
+    (object frame): ``points`` (N, 2, 3) and ``normals`` (N, 2, 3, outward), index 0 the finger on
+    the closing axis' negative side; ``travel_m`` (N, 2) how far each pad moves from the open
+    position before it meets the surface (the open width where it meets nothing)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    travel_m: np.ndarray
+
+    @property
+    def both_met(self) -> np.ndarray:
+        """(N,) whether both fingers meet the mesh before closing fully."""
+        return np.isfinite(self.points).all(axis=(1, 2))
+
+
+def finger_contacts(surface: ObjectSurface, poses: GraspPoses, open_width_m: float) -> FingerContacts:
+    """Each pose's ``FingerContacts``: one ray a finger, from its open pad toward the grasp centre."""
     from .._open3d import o3d
 
     if poses.frame != "object":
-        raise ValueError(f"contact widths are measured in the object frame, got poses in the {poses.frame} frame")
+        raise ValueError(f"finger contacts are measured in the object frame, got poses in the {poses.frame} frame")
     centre, closing = poses.position.numpy(), poses.rotation[:, :, 1].numpy()
     half = open_width_m / 2.0
-    rays = []
-    for side in (1.0, -1.0):  # each finger's pad moves from the open position toward the centre
-        origin = centre + side * half * closing
-        rays.append(np.concatenate([origin, -side * closing], axis=1))
-    hits = surface.scene.cast_rays(o3d.core.Tensor(np.concatenate(rays).astype(np.float32)))["t_hit"].numpy()
-    travel = np.minimum(hits.reshape(2, -1), open_width_m)  # inf where a finger meets nothing: it closes fully
-    pad_plus, pad_minus = half - travel[0], -(half - travel[1])
-    return np.clip(pad_plus - pad_minus, 0.0, open_width_m)
+    origins = np.stack([centre - half * closing, centre + half * closing])  # (2, N, 3): finger 0 at -y
+    directions = np.stack([closing, -closing])
+    rays = np.concatenate([origins, directions], axis=2).reshape(-1, 6).astype(np.float32)
+    cast = surface.scene.cast_rays(o3d.core.Tensor(rays))
+    hits = cast["t_hit"].numpy().reshape(2, -1)
+    met = hits <= open_width_m
+    points = np.where(met[..., None], origins + np.where(met, hits, 0.0)[..., None] * directions, np.nan)
+    normals = np.where(met[..., None], cast["primitive_normals"].numpy().reshape(2, -1, 3), np.nan)
+    travel = np.minimum(hits, open_width_m)
+    return FingerContacts(points.transpose(1, 0, 2), normals.transpose(1, 0, 2), travel.T)
+
+
+def contact_widths(surface: ObjectSurface, poses: GraspPoses, open_width_m: float) -> np.ndarray:
+    """(N,) the gap between the points where each grasp's closing fingers first meet the mesh, along
+    the closing axis through the grasp centre (0 where they meet nothing), capped at ``open_width_m``."""
+    travel = finger_contacts(surface, poses, open_width_m).travel_m
+    return np.clip(open_width_m - travel.sum(axis=1), 0.0, open_width_m)
 
 
 def whole_object_cloud(cloud: PerceivedCloud, surface: ObjectSurface, voxel_size_m: float) -> PerceivedCloud:

@@ -45,15 +45,15 @@ def _verdict_totals(entries: list[dict[str, Any]]) -> dict[str, list[int]]:
 
 
 def _object_rows(entries: list[dict[str, Any]]) -> list[str]:
-    lines = ["| object | labelled | held | distinct at 1 cm / 20 deg | untested | decided by geometry | unanimous | hulls / mesh volume | "
-             + " | ".join(VERDICTS) + " | semantics |",
-             "|---|---|---|---|---|---|---|---|" + "---|" * len(VERDICTS) + "---|"]
+    lines = ["| object | labelled | held | held on octants | distinct at 1 cm / 20 deg | untested | decided by geometry | unanimous | "
+             "hulls / mesh volume | " + " | ".join(VERDICTS) + " | semantics |",
+             "|---|---|---|---|---|---|---|---|---|" + "---|" * len(VERDICTS) + "---|"]
     for entry in entries:
         by_verdict = entry["by_verdict"]
         cells = [count_and_rate(*by_verdict[v]) if v in by_verdict else "-" for v in VERDICTS]
         semantics = "neutral: " + "; ".join(f"{t} {why}" for t, why in entry["neutral_tasks"].items()) if entry["neutral_tasks"] else entry["rater"]
         lines.append(f"| {entry['object']} | {entry['labelled']} | {count_and_rate(entry['held'], entry['labelled'])} | "
-                     f"{count_and_rate(entry['distinct_1cm_20deg'], entry['labelled'])} | {entry['untested']} | "
+                     f"{entry.get('held_octants', '-')}/8 | {count_and_rate(entry['distinct_1cm_20deg'], entry['labelled'])} | {entry['untested']} | "
                      f"{count_and_rate(entry['decided_by_geometry'], entry['labelled'])} | {count_and_rate(entry['unanimous'], entry['labelled'])} | "
                      f"{_hull_cell(entry['hull_fidelity'])} | " + " | ".join(cells) + f" | {semantics} |")
     return lines

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+import numpy as np
 
 from ..config import Config
 from ..run_directory import WorkerReport
@@ -262,6 +263,7 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol
         "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
         "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
         "decided_by_geometry": grasps.decided_by.count("geometry"),
+        "held_octants": held_octants(spec, grasps.contacts[grasps.held]),
         "unanimous": int(((grasps.held_fraction == 0.0) | (grasps.held_fraction == 1.0)).sum()),
         "hull_fidelity": spec.import_record.fidelity_summary() if spec.import_record is not None else None,
         "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
@@ -271,6 +273,17 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol
     }
     append_progress(out_dir, entry)
     return entry
+
+
+def held_octants(spec, contacts_object: np.ndarray) -> int:
+    """Of the eight octants of the object's bounding box (link frame), how many hold the contact
+    midpoint of a held grasp: whether positives spread over the object or gather on one part."""
+    from .grasp_geometry import object_surface
+
+    points = object_surface(spec).points.numpy()
+    centre = (points.min(axis=0) + points.max(axis=0)) / 2.0
+    sides = (contacts_object.reshape(-1, 2, 3).mean(axis=1) > centre).astype(int)
+    return len({tuple(side) for side in sides})
 
 
 def measure_agreement(config: Config, objects: ObjectSet, object_ids: list[str], n_grasps: int) -> dict:

@@ -26,8 +26,9 @@ from ..robot.motion import grasp_waypoint_index, waypoint_count
 from ..types import PerceivedCloud
 
 # The planner's verdicts on a grasp, in the order its checks run; a grasp's verdict is the first
-# check it fails, or "feasible" when it passes them all.
-VERDICTS: tuple[str, ...] = ("feasible", "table", "volume", "hand_sweep", "grasp_ik", "motion")
+# check it fails, or "feasible" when it passes them all. "boundary" is no check of the planner's: a
+# floating dataset's variant of a clear grasp moved toward failure (``boundary_grasps``).
+VERDICTS: tuple[str, ...] = ("feasible", "table", "volume", "hand_sweep", "grasp_ik", "motion", "boundary")
 FEASIBLE = VERDICTS.index("feasible")
 # Per protocol, the verdicts whose grasps geometry alone mostly fails (the open hand through the table,
 # in the object's points, or its hulls swept through them): a dataset takes few of them, since a learner

@@ -1,0 +1,110 @@
+"""Grasps beside the boundary between held and dropped, for floating datasets.
+
+A floating dataset picks antipodal candidates whose open hand the mesh leaves clear, and most of those
+hold: a learner shown only them never sees where a grasp stops holding. ``add_boundary_grasps`` makes
+variants of picked grasps that sit near that edge: the hand withdrawn along its approach, so the
+object lies at or past the fingertips, or turned off its contacts about an axis across the closing
+axis, so the fingers meet the surface obliquely. Each variant is measured on the mesh as the planner
+would measure a candidate (where its fingers meet the surface, the width, S_geom of those contacts),
+kept only where both fingers meet the mesh and its open hand stays clear, and recorded with the
+verdict "boundary". Simulation labels a variant like any other grasp; nothing here guesses its outcome.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from scipy.spatial.transform import Rotation
+
+from sagp_batched_kernels.antipodal import antipodal_pairs
+
+from ..config import Config
+from ..grasps import GraspCandidates, GraspPoses
+from ..robot.description import RobotDescription
+from .grasp_geometry import ObjectSurface, finger_contacts, open_hand_clear
+from .verdicts import VERDICTS, ClassifiedGrasps
+
+# Variants drawn per one wanted: a withdrawn hand may close on nothing and a turned one hit the mesh.
+DRAWS_PER_VARIANT = 3
+
+
+def add_boundary_grasps(classified: ClassifiedGrasps, count: int, surface: ObjectSurface, object_from_world: np.ndarray,
+                        robot: RobotDescription, config: Config, seed: int) -> ClassifiedGrasps:
+    """``classified`` followed by up to ``count`` boundary variants of its grasps (world frame), drawn
+    with ``seed``: half withdrawn by ``dataset.boundary_withdrawal_m``, half turned by
+    ``dataset.boundary_turn_deg`` (each a uniform range), both fingers meeting the mesh (object
+    frame ``object_from_world``), the open hand clear of it. Fewer where the draws run out."""
+    if count <= 0 or not len(classified):
+        return classified
+    rng = np.random.default_rng(seed)
+    world_from_object = np.linalg.inv(object_from_world)
+    source = classified.candidates.transform(object_from_world, "object")
+    drawn = _variant_frames(source, rng.integers(len(source), size=count * DRAWS_PER_VARIANT), rng, config)
+    contacts = finger_contacts(surface, GraspPoses(torch.as_tensor(drawn[0]), torch.as_tensor(drawn[1]), "object"), robot.open_width_m)
+    centre = np.nan_to_num(contacts.points.mean(axis=1))
+    width = np.linalg.norm(contacts.points[:, 1] - contacts.points[:, 0], axis=1)
+    usable = contacts.both_met & (np.nan_to_num(width) >= config.planner.min_width_m)
+    usable[usable] = open_hand_clear(surface, GraspPoses(torch.as_tensor(centre[usable]), torch.as_tensor(drawn[1][usable]), "object"),
+                                     robot, config.labelling.geometry_tolerance_m)
+    kept = np.flatnonzero(usable)[:count]
+    if not len(kept):
+        return classified
+    variants = _candidates(contacts.points[kept], contacts.normals[kept], drawn[1][kept], classified.candidates, config)
+    variants = variants.with_fields(candidate_id=torch.arange(len(classified), len(classified) + len(kept)))
+    reasons = tuple(_reason(kind, amount) for kind, amount in zip(drawn[2][kept], drawn[3][kept]))
+    return ClassifiedGrasps(
+        classified.candidates.appended(variants.transform(world_from_object, "world")),
+        torch.cat([classified.verdict, torch.full((len(kept),), VERDICTS.index("boundary"), dtype=classified.verdict.dtype)]),
+        classified.reasons + reasons, classified.pool_size, classified.covering_size,
+    )
+
+
+def _variant_frames(source: GraspCandidates, rows: np.ndarray, rng: np.random.Generator,
+                    config: Config) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(V, 3) centres, (V, 3, 3) grasp frames (object frame), (V,) kind ("withdrawn"/"turned") and
+    (V,) amount (m or deg) of the variants of ``source[rows]``: every other one withdrawn."""
+    dataset = config.dataset
+    centre = source.position[rows].numpy().copy()
+    rotation = source.rotation[rows].numpy().copy()
+    withdrawn = np.arange(len(rows)) % 2 == 0
+    depth = rng.uniform(*dataset.boundary_withdrawal_m, size=len(rows))
+    centre[withdrawn] -= depth[withdrawn, None] * rotation[withdrawn, :, 2]
+    # About an axis across the closing axis (between the frame's x and its approach), through the centre.
+    phase = rng.uniform(0.0, 2.0 * math.pi, size=len(rows))
+    axis_in_grasp = np.stack([np.cos(phase), np.zeros_like(phase), np.sin(phase)], axis=1)
+    angle = rng.uniform(*dataset.boundary_turn_deg, size=len(rows))
+    axis_in_object = np.einsum("nij,nj->ni", rotation, axis_in_grasp)
+    turn = Rotation.from_rotvec(axis_in_object * np.deg2rad(angle)[:, None]).as_matrix()
+    rotation[~withdrawn] = turn[~withdrawn] @ rotation[~withdrawn]
+    kind = np.where(withdrawn, "withdrawn", "turned")
+    return centre, rotation, kind, np.where(withdrawn, depth, angle)
+
+
+def _candidates(points: np.ndarray, normals: np.ndarray, rotation: np.ndarray, like: GraspCandidates,
+                config: Config) -> GraspCandidates:
+    """Candidates (object frame) of grasps whose fingers meet the mesh at ``points`` (V, 2, 3) with
+    outward ``normals``, the hand turned as ``rotation``: measured like the planner's candidates, not
+    planned for the arm (no reach, no joint path, no swept clearance)."""
+    planner = config.planner
+    count = len(points)
+    pairs = torch.arange(2 * count).reshape(count, 2)
+    measured = antipodal_pairs(torch.as_tensor(points.reshape(-1, 3)), torch.as_tensor(normals.reshape(-1, 3)), pairs,
+                               planner.min_width_m, planner.max_width_m, planner.max_contact_angle_deg)
+    zeros = torch.zeros(count, dtype=torch.float64)
+    rotation_t = torch.as_tensor(rotation)
+    joint_path = None if like.joint_path is None else torch.zeros((count, *like.joint_path.shape[1:]))
+    return GraspCandidates(
+        contacts=torch.as_tensor(points), closing_axis=measured["closing_axis"], width_m=measured["width_m"],
+        s_geom=measured["s_geom"], approach=rotation_t[:, :, 2], rotation=rotation_t, s_reach=zeros,
+        ik_solution=torch.zeros(count, like.ik_solution.shape[1]), zone=torch.full((count,), -1, dtype=torch.int64),
+        s_afford=zeros, s_avoid=zeros, s_task=zeros, score=measured["s_geom"].clone(), zone_names=like.zone_names,
+        joint_path=joint_path, hand_clearance_m=None if like.hand_clearance_m is None else torch.full((count,), math.inf),
+        frame="object",
+    )
+
+
+def _reason(kind: str, amount: float) -> str:
+    if kind == "withdrawn":
+        return f"boundary: a clear grasp withdrawn {amount * 1000:.0f} mm along its approach, the object toward the fingertips"
+    return f"boundary: a clear grasp turned {amount:.0f} deg off its contacts about an axis across the closing axis"
