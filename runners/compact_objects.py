@@ -5,8 +5,11 @@
 From a full-resolution YCB directory (``objects.json`` + ``<id>/model.urdf``, laid out like ``shared/ycb``):
 each visual mesh ``textured.obj`` is decimated with quadric edge collapse that keeps texture coordinates
 (pymeshlab) and written with limited decimals, in the SAME link frame (no recentring, no rescaling);
-each ``texture_map.jpg`` is downsized; ``collision_vhacd.obj``, ``model.urdf`` and ``textured.mtl`` are
-copied byte for byte; ``objects.json`` is copied with a ``compact`` section recording how the copy was made.
+each ``texture_map.jpg`` is downsized; the collision geometry is decomposed again from the full-resolution
+visual mesh with CoACD at the mesh import's settings (``collision_coacd.obj``: the set's ``collision_vhacd.obj``
+fills the mug's cavity and strays up to 13 mm from the pitcher's surface), and ``model.urdf`` names it; each
+object's hull fidelity is measured; ``textured.mtl`` is copied byte for byte; ``objects.json`` is copied with a
+``compact`` section recording how the copy was made and each object's hull fidelity.
 
 Needs the optional extra ``compact`` (``pip install -e '.[compact]'``); the package itself only reads the result.
 """
@@ -21,7 +24,14 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from PIL import Image
+
+from sagp_batched.datasets.grasp_geometry import solid_surface
+from sagp_batched.world.hull_fidelity import hull_fidelity
+from sagp_batched.world.mesh_decompose import coacd_hulls
+from sagp_batched.world.mesh_files import write_obj_parts
+from sagp_batched.world.mesh_settings import MeshImportSettings
 
 # Chosen so the whole compact set (21 objects) stays well under 12 MB with bounding boxes within 2 mm.
 DEFAULT_TARGET_FACES = 3000
@@ -30,7 +40,8 @@ DEFAULT_JPEG_QUALITY = 85
 COORDINATE_DECIMALS = 6  # metres: 1 micrometre
 UV_DECIMALS = 5
 NORMAL_DECIMALS = 4
-COPIED_AS_IS = ("model.urdf", "collision_vhacd.obj", "textured.mtl")
+COPIED_AS_IS = ("textured.mtl",)
+SOURCE_COLLISION, COLLISION = "collision_vhacd.obj", "collision_coacd.obj"
 
 
 def _source_header(obj_path: Path) -> list[str]:
@@ -97,10 +108,29 @@ def _write_obj(path: Path, header: list[str], material: str | None, vertices, no
     path.write_text(text)
 
 
-def compact_object(pymeshlab, source_dir: Path, out_dir: Path, target_faces: int, texture_size: int, jpeg_quality: int) -> None:
+def decompose_collision(source_dir: Path, out_dir: Path) -> dict[str, float | int]:
+    """``collision_coacd.obj`` from the full-resolution visual mesh (the mesh import's CoACD settings) and
+    ``model.urdf`` naming it; the hulls' count and fidelity to that mesh."""
+    mesh = solid_surface(trimesh.load(source_dir / "textured.obj", force="mesh", process=True))
+    hulls = coacd_hulls(mesh, MeshImportSettings())
+    write_obj_parts(out_dir / COLLISION, hulls, with_normals=False)
+    urdf = (source_dir / "model.urdf").read_text()
+    if urdf.count(f'filename="{SOURCE_COLLISION}"') != 1:
+        raise SystemExit(f"{source_dir / 'model.urdf'}: expected one collision mesh named {SOURCE_COLLISION}")
+    (out_dir / "model.urdf").write_text(urdf.replace(f'filename="{SOURCE_COLLISION}"', f'filename="{COLLISION}"'))
+    fidelity = hull_fidelity(mesh, hulls)
+    return {"hulls": len(hulls), "volume_ratio": round(fidelity.volume_ratio, 4),
+            "max_hull_to_mesh_distance_m": round(fidelity.max_hull_to_mesh_distance_m, 5)}
+
+
+def compact_object(pymeshlab, source_dir: Path, out_dir: Path, target_faces: int, texture_size: int,
+                   jpeg_quality: int) -> dict[str, float | int]:
+    """One object compacted into ``out_dir``; its hull fidelity (``decompose_collision``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for name in COPIED_AS_IS:
         shutil.copyfile(source_dir / name, out_dir / name)
+    (out_dir / SOURCE_COLLISION).unlink(missing_ok=True)  # a copy made before the hulls were decomposed again
+    collision = decompose_collision(source_dir, out_dir)
     source_obj = source_dir / "textured.obj"
     vertices, normals, faces, uvs = _decimate(pymeshlab, source_obj, target_faces)
     note = (f"# Compacted for sagp_batched: quadric edge collapse with texture (pymeshlab) to {len(faces)} faces; "
@@ -112,6 +142,7 @@ def compact_object(pymeshlab, source_dir: Path, out_dir: Path, target_faces: int
             image.convert("RGB").resize((texture_size, texture_size), Image.LANCZOS).save(
                 out_dir / "texture_map.jpg", "JPEG", quality=jpeg_quality, optimize=True
             )
+    return collision
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -130,10 +161,12 @@ def main(argv: list[str] | None = None) -> None:
     source, out = Path(args.source).expanduser(), Path(args.out)
     index = json.loads((source / "objects.json").read_text())
     out.mkdir(parents=True, exist_ok=True)
+    collision = {}
     for object_id, entry in index.items():
         object_dir = Path(entry["urdf"]).parent
-        compact_object(pymeshlab, source / object_dir, out / object_dir, args.target_faces, args.texture_size, args.jpeg_quality)
-        print(f"{object_id}: done", file=sys.stderr)
+        collision[object_id] = compact_object(pymeshlab, source / object_dir, out / object_dir, args.target_faces,
+                                              args.texture_size, args.jpeg_quality)
+        print(f"{object_id}: done, hulls {collision[object_id]}", file=sys.stderr)
     compacted = {
         "compact": {
             "source": str(source.resolve()),
@@ -145,12 +178,22 @@ def main(argv: list[str] | None = None) -> None:
             "jpeg_quality": args.jpeg_quality,
             "decimals": {"coordinates": COORDINATE_DECIMALS, "uv": UV_DECIMALS, "normals": NORMAL_DECIMALS},
             "copied_unchanged": list(COPIED_AS_IS),
+            "collision": f"CoACD {importlib.metadata.version('coacd')} of the full-resolution visual mesh at the mesh "
+                         f"import's settings ({COLLISION}); the source's {SOURCE_COLLISION} is not copied",
+            "hull_fidelity": collision,
             "pymeshlab_version": importlib.metadata.version("pymeshlab"),
         }
     }
     # Object entries keep their keys (the registry reads every top-level entry as an object),
     # so the provenance goes under a key the registry skips.
-    (out / "objects.json").write_text(json.dumps({**index, **compacted}, indent=2) + "\n")
+    (out / "objects.json").write_text(json.dumps({**_with_collision(index, collision), **compacted}, indent=2) + "\n")
+
+
+def _with_collision(index: dict, collision: dict[str, dict]) -> dict:
+    """The source index, each entry naming the decomposed collision mesh and its hull count instead of the source's."""
+    return {object_id: {**entry, "collision_mesh": entry["collision_mesh"].replace(SOURCE_COLLISION, COLLISION),
+                        "collision_hulls": collision[object_id]["hulls"]}
+            if "collision_mesh" in entry else entry for object_id, entry in index.items()}
 
 
 if __name__ == "__main__":

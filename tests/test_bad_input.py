@@ -85,7 +85,7 @@ class BadInput:
 
 
 def _mesh_gone(objects_dir: Path) -> None:
-    (objects_dir / OBJECT_ID / "collision_vhacd.obj").unlink()
+    (objects_dir / OBJECT_ID / "collision_coacd.obj").unlink()
 
 
 def _urdf_gone(objects_dir: Path) -> None:
@@ -159,7 +159,7 @@ CASES = [
     BadInput("a URDF that is not XML is refused", named=(OBJECT_ID, "model.urdf", "not valid XML"),
              setup=_broken_object(_urdf_not_xml)),
     BadInput("an XML file that is not a URDF is refused", named=(OBJECT_ID, "<html>"), setup=_broken_object(_urdf_not_a_robot)),
-    BadInput("a URDF whose mesh is missing is refused", named=(OBJECT_ID, "collision_vhacd.obj", "does not exist"),
+    BadInput("a URDF whose mesh is missing is refused", named=(OBJECT_ID, "collision_coacd.obj", "does not exist"),
              setup=_broken_object(_mesh_gone)),
     BadInput("a negative object mass is refused", named=(OBJECT_ID, "mass_kg", "-1"), setup=_broken_object(_negative_mass)),
     BadInput("--gui without a display is refused", named=("--gui", "$DISPLAY"), setup=_no_display),

@@ -11,7 +11,7 @@ from scipy.spatial import ConvexHull
 
 from sagp_batched.world import mesh_import
 from sagp_batched.world.hull_fidelity import hull_fidelity
-from sagp_batched.world.mesh_decompose import _coacd_hulls
+from sagp_batched.world.mesh_decompose import coacd_hulls
 from sagp_batched.world.mesh_files import _read_obj_parts
 from sagp_batched.world.mesh_settings import MeshImportSettings
 from sagp_batched.world.objects import load_object_set
@@ -153,7 +153,7 @@ def test_vhacds_hulls_fill_a_cup_and_the_cup_is_flagged_not_skipped(tmp_path):
 def test_coacd_gives_the_same_hulls_every_time(tmp_path):
     cup = _cup()
     settings = MeshImportSettings(cache_dir=tmp_path)
-    first, second = _coacd_hulls(cup, settings), _coacd_hulls(cup, settings)
+    first, second = coacd_hulls(cup, settings), coacd_hulls(cup, settings)
     assert len(first) == len(second) and all(np.array_equal(a.vertices, b.vertices) for a, b in zip(first, second))
 
 

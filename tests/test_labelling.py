@@ -96,11 +96,12 @@ def test_a_firm_grasp_across_the_box_survives_the_shake_and_the_box_stays_put_in
     firm = label_grasps_hand(box_scene, [_across_the_box(box_scene)], config)[0]
     pinched = label_grasps_hand(bottle_scene, [_cap_pinch(bottle_scene)], config)[0]
     assert firm.held and firm.failure_reason is None and firm.failed_at is None
-    # Closing on a box that fits the jaws barely moves it; the shake shifts it under a centimetre in
-    # the hand, while the pinched bottle leaves the fingers.
-    assert firm.object_motion_during_closing_linear < 0.001 and firm.object_motion_during_closing_angular < 0.01
+    # Closing on a box that fits the jaws barely moves it (the pads square it up on its decomposed faces:
+    # 4 mm and 1.7 deg); the shake shifts it under a centimetre in the hand, while the pinched bottle
+    # leaves the fingers.
+    assert firm.object_motion_during_closing_linear < 0.005 and firm.object_motion_during_closing_angular < 0.05
     assert firm.object_motion_during_shaking_linear < 0.01 and firm.object_motion_during_shaking_angular < 0.01
-    assert pinched.object_motion_during_shaking_linear > 0.1 and pinched.object_motion_during_shaking_angular > 0.5
+    assert not pinched.held and pinched.failed_at == "shake" and pinched.object_motion_during_shaking_linear > 0.1
 
 
 def test_the_hand_reaches_the_shake_s_peak_accelerations(box_scene, config):
@@ -158,9 +159,9 @@ def test_a_grasp_the_arm_cannot_reach_gets_no_label(box_scene, config):
 # The study's attempts for top-down grasps on the soup can (trial 0): on it, beside it, off its axis,
 # as ``_summary`` gives them (fields named by ATTEMPT_FIELDS).
 STUDY_ATTEMPTS = [
-    ((0.0, 0.0), (True, None, 0.2496683862260639, 0.09611683665888938, 0.0032631377235251557, 0.06973353007784003, 0.0004247167232773741)),
-    ((0.05, 0.0), (False, "not_lifted", 0.051147546996956006, 0.5497450857794912, 0.006737998998502803, 2.656186391374765e-07, 0.0004053831139321229)),
-    ((0.0, 0.03), (False, "not_lifted", 0.03462916594081333, 97.67153212984218, 0.05531351001437268, 4.078733398343393e-05, 0.09220144280430231)),
+    ((0.0, 0.0), (True, None, 0.24954546267639777, 0.11103612312939096, 0.0038322139116154785, 0.06878294343809965, 0.0004203188565174987)),
+    ((0.05, 0.0), (False, "not_lifted", 0.0508565100170133, 0.0201470696997326, 0.00779555599254389, 2.6445522999465764e-07, 0.0004056578480918782)),
+    ((0.0, 0.03), (False, "not_lifted", 0.03413946137170121, 89.76689506442244, 0.05345348020572227, 2.6889094086132582e-06, 0.21744632621634086)),
 ]
 
 
@@ -180,7 +181,7 @@ ATTEMPT_FIELDS = ("success", "failure_reason", "object_height_above_table_m", "o
 # far more: the same attempts run in another order (PyBullet's contact caches) move some field by >1e-5.
 # success and failure_reason stay exact.
 RECORDED_ATTEMPT_ATOL = 1e-6
-RECORDED_ATTEMPT_RTOL = 1e-6  # the tumbled can's 97.7 deg: 1e-4 deg, still far below a real change
+RECORDED_ATTEMPT_RTOL = 1e-6  # the tumbled can's 89.8 deg: 9e-5 deg, still far below a real change
 
 
 def _summary(attempt) -> tuple:

@@ -395,7 +395,7 @@ def test_where_coacd_fails_the_automatic_choice_falls_back_to_vhacd_and_an_expli
     def failing(*args, **kwargs):
         raise RuntimeError("Wrong clip proposal!")
 
-    monkeypatch.setattr(mesh_decompose, "_coacd_hulls", failing)
+    monkeypatch.setattr(mesh_decompose, "coacd_hulls", failing)
     root = _l_block(tmp_path / "l")
     spec = load_object_set(root, import_settings=MeshImportSettings(cache_dir=tmp_path / "cache", vhacd_resolution=20_000)).get("l_block")
     metadata = _metadata(spec)

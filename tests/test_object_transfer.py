@@ -47,7 +47,7 @@ def test_the_embedded_ycb_set_travels_with_its_meshes_textures_and_checksum(tmp_
     _same_specs(materialised, driver.subset(YCB_IDS))
     _assert_files_travelled(materialised, driver.subset(YCB_IDS), destination)
     landed = {path.name for path in referenced_files(materialised.get("003_cracker_box"))}
-    assert {"model.urdf", "textured.obj", "textured.mtl", "texture_map.jpg", "collision_vhacd.obj"} <= landed
+    assert {"model.urdf", "textured.obj", "textured.mtl", "texture_map.jpg", "collision_coacd.obj"} <= landed
     assert not any(embedded_ycb_dir().resolve() in path.parents for path in referenced_files(materialised.get("025_mug")))
     # The grasp export names each mesh relative to the set's root, so a worker's file names it as the driver's does.
     for object_id in YCB_IDS:
@@ -119,11 +119,11 @@ def test_packing_an_object_whose_mesh_is_missing_names_the_file_in_one_line(tmp_
     copy = tmp_path / "ycb"
     shutil.copytree(embedded_ycb_dir(), copy)
     objects = load_object_set(copy)
-    (copy / "025_mug" / "collision_vhacd.obj").unlink()
+    (copy / "025_mug" / "collision_coacd.obj").unlink()
     with pytest.raises(ObjectTransferError) as error:
         pack_objects(objects, ["025_mug"])
     message = str(error.value)
-    assert "\n" not in message and "025_mug" in message and "collision_vhacd.obj" in message and "does not exist" in message
+    assert "\n" not in message and "025_mug" in message and "collision_coacd.obj" in message and "does not exist" in message
 
 
 def test_a_ray_study_whose_object_names_a_missing_texture_stops_in_one_line_before_ray_starts(tmp_path):

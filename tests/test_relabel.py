@@ -9,6 +9,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from runners import relabel
+from sagp_batched.config import Config
 from sagp_batched.datasets import labelling
 from sagp_batched.datasets import relabel as relabelling
 from sagp_batched.datasets.agreement import grasp_regions, label_agreement
@@ -81,8 +82,10 @@ def test_the_labels_and_the_agreement_come_from_the_grasps_in_the_link_frame(acr
     assert len(fake.centres) == 3, "10 grasps in chunks of 4"
     centres = np.concatenate(fake.centres)
     spec = load_object_set(out / "objects" / "Box_abc_0_01").get("Box_abc_0_01")
+    # The file's 0.7 is its contacts' coefficient: PyBullet multiplies our finger's into the object's.
+    finger = Config().execution.finger_lateral_friction
     assert json.loads((out / "objects" / "Box_abc_0_01" / "objects.json").read_text()) == {
-        "Box_abc_0_01": {"scale": SCALE, "mass_kg": 0.25, "friction": 0.7}}
+        "Box_abc_0_01": {"scale": SCALE, "mass_kg": 0.25, "friction": pytest.approx(0.7 / finger)}}
     assert spec.mass_kg == pytest.approx(0.25) and max(spec.extents_m) == pytest.approx(0.10, abs=1e-6), "imported at the file's scale"
     # The link frame sits at the bottom centre of the resting box: every grasp centre is on the box there.
     half = np.array(spec.extents_m) / 2

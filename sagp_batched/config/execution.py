@@ -23,8 +23,10 @@ class ExecutionConfig(_Section):
     gripper_force_n: float = setting(70.0, above=0)
     # Rubber-like finger pads; PyBullet multiplies this with the object's friction (YCB URDFs: 0.9).
     finger_lateral_friction: float = setting(1.5, at_least=0)
-    # Torsional friction of the pads resists tall objects swinging about the closing axis during the lift.
-    finger_spinning_friction: float = setting(0.05, at_least=0)
+    # Torsional friction (m). Bullet bounds the torque a contact resists about its normal by this
+    # times the object's friction times the normal force; a pad pressed on a patch of radius a
+    # resists (2/3) mu a N, so 0.003 stands for a ~4.5 mm patch (0.05 stood for one of 7.5 cm).
+    finger_spinning_friction: float = setting(0.003, at_least=0)
     arm_position_gain: float = setting(0.3, above=0, at_most=1)
     # PyBullet IK restarts from seeded random joints inside the limits when the given seeds fail.
     ik_random_restarts: int = setting(8, at_least=0)

@@ -138,9 +138,13 @@ def _check_same_input(out_dir: Path, record: dict[str, Any]) -> None:
 
 
 # -- the object ----------------------------------------------------------------------------------------------------
-def import_object(inputs: Inputs, out_dir: Path) -> tuple[Any, ObjectSpec]:
+def import_object(inputs: Inputs, out_dir: Path, finger_lateral_friction: float) -> tuple[Any, ObjectSpec]:
     """The file's mesh imported as our object (``mesh_import``) from ``out_dir/objects/<id>/``: a link to the mesh
-    and an ``objects.json`` giving the file's scale and, where the file has them, its mass and friction."""
+    and an ``objects.json`` giving the file's scale and, where the file has them, its mass and friction.
+
+    A file's friction is its contacts' coefficient (its simulator takes one for a contact), where PyBullet
+    multiplies the finger's by the object's: the object gets the file's over ``finger_lateral_friction``, so
+    its contacts with our fingers have the file's coefficient."""
     from ..run_directory import write_json
 
     folder = out_dir / "objects" / inputs.object_id
@@ -159,7 +163,7 @@ def import_object(inputs: Inputs, out_dir: Path) -> tuple[Any, ObjectSpec]:
     elif grasp_file.density_kg_m3 is not None:
         entry["density_kg_m3"] = grasp_file.density_kg_m3
     if grasp_file.friction is not None:
-        entry["friction"] = grasp_file.friction
+        entry["friction"] = grasp_file.friction / finger_lateral_friction
     write_json(folder / "objects.json", {inputs.object_id: entry})
     objects = load_object_set(folder)
     return objects, objects.get(inputs.object_id)
@@ -264,7 +268,7 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
     record = input_record(inputs)
     with RunLock(out_dir):
         _check_same_input(out_dir, record)
-        objects, spec = import_object(inputs, out_dir)
+        objects, spec = import_object(inputs, out_dir, config.execution.finger_lateral_friction)
         for issue in spec.import_record.fidelity_issues if spec.import_record is not None else ():
             note(f"note: object '{spec.id}': {issue}")
         checksum = objects.checksum()

@@ -16,7 +16,7 @@ import pybullet
 import trimesh
 
 from .._open3d import o3d
-from .mesh_files import _read_obj_parts, _write_obj
+from .mesh_files import _read_obj_parts, write_obj_parts
 from .mesh_settings import MeshImportSettings
 from .mesh_sources import _Unusable
 from .objects import ObjectSetError
@@ -60,7 +60,7 @@ def _decomposer_version(decomposer: str) -> str:
     return importlib.metadata.version("coacd" if decomposer == "coacd" else "pybullet")
 
 
-def _coacd_hulls(mesh: trimesh.Trimesh, settings: MeshImportSettings) -> list[trimesh.Trimesh]:
+def coacd_hulls(mesh: trimesh.Trimesh, settings: MeshImportSettings) -> list[trimesh.Trimesh]:
     # A shape made of several closed bodies (overlapping primitives, a scene's parts) is cut body by body: a cut of
     # the whole can leave pieces of two bodies on one side, and their hull would bridge the gap between them.
     bodies = list(mesh.split(only_watertight=False)) if mesh.is_watertight else [mesh]
@@ -116,7 +116,7 @@ def _fewer_faces(mesh: trimesh.Trimesh, faces: int | None) -> trimesh.Trimesh:
 
 def _vhacd_hulls(mesh: trimesh.Trimesh, settings: MeshImportSettings, work_dir: Path) -> list[trimesh.Trimesh]:
     source, output = work_dir / "vhacd_in.obj", work_dir / "vhacd_out.obj"
-    _write_obj(source, [mesh], with_normals=False)
+    write_obj_parts(source, [mesh], with_normals=False)
     # pybullet.vhacd prints its progress on file descriptor 1 itself, past Python's sys.stdout.
     sys.stdout.flush()
     saved_stdout = os.dup(1)
@@ -149,7 +149,7 @@ def _decompose(mesh: trimesh.Trimesh, settings: MeshImportSettings, decomposer: 
 
 def _hulls_by(mesh: trimesh.Trimesh, settings: MeshImportSettings, decomposer: str, work_dir: Path) -> list[trimesh.Trimesh]:
     try:
-        hulls = _coacd_hulls(mesh, settings) if decomposer == "coacd" else _vhacd_hulls(mesh, settings, work_dir)
+        hulls = coacd_hulls(mesh, settings) if decomposer == "coacd" else _vhacd_hulls(mesh, settings, work_dir)
     except Exception as exc:  # both decomposers are native code that reports failures as generic errors
         raise _Unusable(f"collision decomposition ({decomposer}) failed: {type(exc).__name__}: {exc}") from exc
     hulls = [hull for hull in hulls if len(hull.faces) >= 4]

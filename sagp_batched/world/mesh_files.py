@@ -12,7 +12,7 @@ SPINNING_FRICTION = 0.001
 ROLLING_FRICTION = 0.001
 
 
-def _write_obj(path: Path, parts: list[trimesh.Trimesh], with_normals: bool) -> None:
+def write_obj_parts(path: Path, parts: list[trimesh.Trimesh], with_normals: bool) -> None:
     """Wavefront OBJ, one ``o`` per part (PyBullet makes each part of a collision OBJ a convex hull of its own)."""
     lines, offset = [], 1
     for number, part in enumerate(parts):

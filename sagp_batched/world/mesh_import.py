@@ -49,7 +49,7 @@ import trimesh
 
 from .hull_fidelity import fidelity_issues, hull_fidelity
 from .mesh_decompose import _decompose, _decomposer_version, _narrowest_width, _resolve_decomposer
-from .mesh_files import _urdf_text, _write_obj
+from .mesh_files import _urdf_text, write_obj_parts
 from .mesh_physics import _resting_poses, _repaired, _solid_of
 from .mesh_settings import NOT_IN_CACHE_KEY, MeshImportSettings
 from .mesh_sources import _discover, _Source, _source_mesh, _Unusable
@@ -306,8 +306,8 @@ def _build(source: _Source, parameters: _ObjectParameters, settings: MeshImportS
             {"probability": probability, "link_to_rest": (transform @ link_to_source).tolist()} for probability, transform in poses
         ],
     }
-    _write_obj(work_dir / "visual.obj", [mesh], with_normals=True)
-    _write_obj(work_dir / "collision.obj", hulls, with_normals=False)
+    write_obj_parts(work_dir / "visual.obj", [mesh], with_normals=True)
+    write_obj_parts(work_dir / "collision.obj", hulls, with_normals=False)
     rgba = source.urdf_rgba if source.urdf_rgba is not None else settings.rgba
     (work_dir / "model.urdf").write_text(_urdf_text(key, metadata, rgba))
     metadata["build_seconds"] = round(time.perf_counter() - started, 3)
