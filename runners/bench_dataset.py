@@ -16,6 +16,14 @@ measures instead how far the labels can be trusted (``benchmarks.label_fidelity`
 stability across resting poses and re-simulation, floating against tabletop, designed grasps on a box and
 labels/s per core, written to ``label_fidelity.json``, ``label_fidelity.md`` and ``provenance.json`` in --out.
 Objects: --objects, else a few of the embedded YCB set, else (with --objects-dir) every target object there.
+
+    python -m runners.bench_dataset --engines --out DIR [--objects-dir DIR] [--objects a,b] [--grasps 60]
+        [--perturbed-simulations K] [--mujoco-variants '[{}, {"substeps": 2}]']
+
+compares the engines instead (``benchmarks.engine_agreement``): the same planned grasps labelled by PyBullet and by
+MuJoCo under each variant of ``[labelling.mujoco]`` (a JSON list of override tables; default: the profile's),
+their agreement and kappa, the designed grasps in both and sims/s and labels/s per core of each, written to
+``engine_agreement.json``, ``engine_agreement.md`` and ``provenance.json`` in --out.
 """
 from __future__ import annotations
 
@@ -24,9 +32,10 @@ import json
 import sys
 from pathlib import Path
 
+from sagp_batched.benchmarks import engine_agreement as engines
 from sagp_batched.benchmarks.dataset_speed import STAGES, benchmark_dataset, projected_hours, shared_world_step_cost
 from sagp_batched.benchmarks.label_fidelity import DEFAULT_OBJECTS, fidelity_markdown, label_fidelity
-from sagp_batched.config import ConfigError, load_config
+from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.provenance import collect
 from sagp_batched.runtime import configure_torch
 from sagp_batched.world.mesh_settings import MeshImportSettings
@@ -35,6 +44,8 @@ from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownO
 PROJECTION_CORES = (2, 64)
 FIDELITY_JSON = "label_fidelity.json"
 FIDELITY_MARKDOWN = "label_fidelity.md"
+ENGINES_JSON = "engine_agreement.json"
+ENGINES_MARKDOWN = "engine_agreement.md"
 
 
 def _counts(parser: argparse.ArgumentParser, flag: str, text: str, minimum: int) -> list[int]:
@@ -67,6 +78,9 @@ def _parser() -> argparse.ArgumentParser:
     fidelity.add_argument("--objects", default=None, help="comma-separated object ids (default: see above)")
     fidelity.add_argument("--grasps", type=int, default=60, help="grasps planned per object")
     fidelity.add_argument("--perturbed-simulations", type=int, default=None, help="simulations per label (default: the profile's)")
+    agreement = parser.add_argument_group("engine agreement (--engines; --out, --objects, --grasps and --perturbed-simulations as above)")
+    agreement.add_argument("--engines", action="store_true", help="compare MuJoCo's labels with PyBullet's instead of speed")
+    agreement.add_argument("--mujoco-variants", default="[{}]", help="JSON list of [labelling.mujoco] override tables, one a variant")
     return parser
 
 
@@ -75,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.fidelity:
         return _fidelity_main(parser, args)
+    if args.engines:
+        return _engines_main(parser, args)
     if args.json is None:
         parser.error("--json is required (or --fidelity with --out)")
     return _speed_main(parser, args)
@@ -122,10 +138,11 @@ def _speed_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
     return 0
 
 
-def _fidelity_inputs(parser: argparse.ArgumentParser, args: argparse.Namespace):
-    """The config, object set and object ids of a fidelity run, each checked before any work; None once an error is printed."""
+def _fidelity_inputs(parser: argparse.ArgumentParser, args: argparse.Namespace, flag: str = "--fidelity",
+                     default_objects: tuple[str, ...] = DEFAULT_OBJECTS):
+    """The config, object set and object ids of a fidelity or engine run, each checked before any work; None once an error is printed."""
     if args.out is None:
-        parser.error("--fidelity needs --out DIR")
+        parser.error(f"{flag} needs --out DIR")
     if args.out.exists() and not args.out.is_dir():
         parser.error(f"--out {args.out} is a file, not a folder")
     if args.grasps < 1:
@@ -138,7 +155,7 @@ def _fidelity_inputs(parser: argparse.ArgumentParser, args: argparse.Namespace):
         if args.objects is not None:
             object_ids = [part.strip() for part in args.objects.split(",") if part.strip()]
         elif args.objects_dir is None:
-            object_ids = list(DEFAULT_OBJECTS)
+            object_ids = list(default_objects)
         else:
             object_ids = [spec.id for spec in objects.targets()]
         if not object_ids:
@@ -151,9 +168,23 @@ def _fidelity_inputs(parser: argparse.ArgumentParser, args: argparse.Namespace):
     return config, objects, object_ids
 
 
-def _fidelity_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+def _write_results(out: Path, names: tuple[str, str], report: dict, markdown: str, provenance: dict) -> int:
+    """The report's JSON and markdown (``names``) and the provenance written into ``out``, the markdown printed; the exit code."""
     from sagp_batched.run_directory import PROVENANCE_FILE, RunDirectoryError, write_file_atomically, write_json
 
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / names[0], report)
+        write_file_atomically(out / names[1], markdown.encode("utf-8"))
+        write_json(out / PROVENANCE_FILE, provenance)
+    except (OSError, RunDirectoryError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(markdown)
+    return 0
+
+
+def _fidelity_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     inputs = _fidelity_inputs(parser, args)
     if inputs is None:
         return 2
@@ -161,18 +192,37 @@ def _fidelity_main(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     configure_torch()
     settings = MeshImportSettings()
     report = label_fidelity(config, objects, object_ids, args.grasps, settings, note=lambda line: print(line, file=sys.stderr))
-    markdown = fidelity_markdown(report)
+    return _write_results(args.out, (FIDELITY_JSON, FIDELITY_MARKDOWN), report, fidelity_markdown(report), collect(
+        config.to_dict(), objects_source=objects.source, objects=object_ids, grasps_per_object=args.grasps,
+        planning="dataset.protocol=floating, captures_per_object=1"))
+
+
+def _mujoco_variants(parser: argparse.ArgumentParser, text: str, config: Config) -> list[dict]:
+    """The --mujoco-variants list, each variant checked as a profile's [labelling.mujoco] would be."""
     try:
-        args.out.mkdir(parents=True, exist_ok=True)
-        write_json(args.out / FIDELITY_JSON, report)
-        write_file_atomically(args.out / FIDELITY_MARKDOWN, markdown.encode("utf-8"))
-        write_json(args.out / PROVENANCE_FILE, collect(config.to_dict(), objects_source=objects.source, objects=object_ids,
-                                                       grasps_per_object=args.grasps, planning="dataset.protocol=floating, captures_per_object=1"))
-    except (OSError, RunDirectoryError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        variants = json.loads(text)
+    except ValueError as exc:
+        parser.error(f"--mujoco-variants is not JSON: {exc}")
+    if not isinstance(variants, list) or not variants or not all(isinstance(v, dict) for v in variants):
+        parser.error(f"--mujoco-variants takes a JSON list of tables, got {text!r}")
+    for variant in variants:
+        try:
+            engines.mujoco_variant(config, variant)
+        except ConfigError as exc:
+            parser.error(f"--mujoco-variants: {exc}")
+    return variants
+
+
+def _engines_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    inputs = _fidelity_inputs(parser, args, "--engines", engines.DEFAULT_OBJECTS)
+    if inputs is None:
         return 2
-    print(markdown)
-    return 0
+    config, objects, object_ids = inputs
+    variants = _mujoco_variants(parser, args.mujoco_variants, config)
+    configure_torch()
+    report = engines.engine_agreement(config, objects, object_ids, args.grasps, variants, note=lambda line: print(line, file=sys.stderr))
+    return _write_results(args.out, (ENGINES_JSON, ENGINES_MARKDOWN), report, engines.agreement_markdown(report), collect(
+        config.to_dict(), objects_source=objects.source, objects=object_ids, grasps_per_object=args.grasps, mujoco_variants=variants))
 
 
 if __name__ == "__main__":

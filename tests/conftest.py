@@ -17,3 +17,18 @@ def ycb_dir() -> Path:
     if not HAVE_YCB:
         pytest.skip(f"no YCB directory at {YCB_DIR}: $SAGP_YCB_DIR is set but holds no objects.json")
     return YCB_DIR
+
+
+@pytest.fixture(scope="session")
+def designed_box(tmp_path_factory):
+    """The box the designed grasps are made for (``label_fidelity.designed_box_grasps``: held across it, dropped
+    beside it, a collision in it), imported as an object lying on its 5 x 8 cm face, 4 cm tall."""
+    import trimesh
+
+    from sagp_batched.benchmarks.label_fidelity import DESIGNED_BOX_M
+    from sagp_batched.world.mesh_settings import MeshImportSettings
+    from sagp_batched.world.objects import load_object_set
+
+    folder = tmp_path_factory.mktemp("box")
+    trimesh.creation.box(DESIGNED_BOX_M).export(folder / "box.obj")
+    return load_object_set(folder, MeshImportSettings(cache_dir=tmp_path_factory.mktemp("cache"))).get("box")

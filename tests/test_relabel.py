@@ -60,8 +60,8 @@ class _Labeller:
     def __init__(self):
         self.centres = []
 
-    def __call__(self, spec, poses, widths_m, protocol, config):
-        assert poses.frame == "object" and protocol == "floating" and widths_m is None
+    def __call__(self, spec, poses, widths_m, protocol, config, engine="pybullet"):
+        assert poses.frame == "object" and protocol == "floating" and widths_m is None and engine == "pybullet"
         centres = poses.position.numpy()
         self.centres.append(centres.copy())
         return [GraspLabel("hand", held=bool(x > 0), failure_reason=None if x > 0 else "slipped", failed_at=None if x > 0 else "shake",
@@ -179,6 +179,25 @@ def test_the_library_entry_relabels_as_the_command_does(acronym_file, tmp_path, 
     result = relabel_grasp_file(check_relabel_inputs(path, mesh_root, config), config, out, notes.append)
     assert result == json.loads((tmp_path / "command" / "agreement.json").read_text())
     assert notes[-1] == "chunk 3/3 labelled"
+
+
+def test_a_relabel_by_the_mujoco_engine_runs_and_records_its_engine(acronym_file, tmp_path):
+    pytest.importorskip("mujoco")
+    path, mesh_root = acronym_file
+    out = tmp_path / "out"
+    assert _run(path, mesh_root, out, "--engine", "mujoco", "--max-grasps", "3") == 0
+    result = json.loads((out / "agreement.json").read_text())
+    assert result["engine"] == "mujoco" and result["n"] == 3
+    assert json.loads((out / "provenance.json").read_text())["relabel"]["engine"] == "mujoco"
+    with h5py.File(out / "relabel.h5", "r") as f:
+        assert len(f["grasps/held_fraction"][()]) == 3
+
+
+def test_an_unknown_engine_is_refused_by_the_command(acronym_file, tmp_path, capsys):
+    path, mesh_root = acronym_file
+    with pytest.raises(SystemExit):
+        _run(path, mesh_root, tmp_path / "out", "--engine", "bullet")
+    assert "--engine: invalid choice: 'bullet'" in capsys.readouterr().err
 
 
 def test_a_graspgen_uuid_is_found_through_the_roots_map(tmp_path):

@@ -28,9 +28,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
 from ..config import Config
+from ..datasets.collision_urdf import urdf_origin
 from ..grasps import GraspPoses
 from ..seeds import capture_trial
 from ..world.mesh_settings import MeshImportSettings
@@ -48,15 +48,6 @@ DESIGNED_OUTCOMES = ((True, True), (False, True), (False, False))
 
 
 # -- hull fidelity ---------------------------------------------------------------------------------------
-def _origin(element: ElementTree.Element | None) -> np.ndarray:
-    """(4, 4) a URDF ``<origin>``: fixed-axis roll, pitch, yaw, then the translation."""
-    frame = np.eye(4)
-    if element is not None:
-        frame[:3, :3] = Rotation.from_euler("xyz", [float(v) for v in (element.get("rpy") or "0 0 0").split()]).as_matrix()
-        frame[:3, 3] = [float(v) for v in (element.get("xyz") or "0 0 0").split()]
-    return frame
-
-
 def _geometry_parts(geometry: ElementTree.Element, urdf_dir: Path) -> list:
     import trimesh
 
@@ -87,7 +78,7 @@ def collision_hulls_link(spec: ObjectSpec) -> list:
     for collision in ElementTree.parse(urdf_path).getroot().iter("collision"):
         geometry = collision.find("geometry")
         for part in _geometry_parts(geometry, urdf_path.parent) if geometry is not None else []:
-            part.apply_transform(_origin(collision.find("origin")))
+            part.apply_transform(urdf_origin(collision.find("origin")))
             try:
                 hull = part.convex_hull
             except QhullError:
@@ -160,7 +151,7 @@ def _second_capture(spec: ObjectSpec, config: Config) -> tuple[int, int, str]:
     return trial, 0, f"trials {capture_trial(config, 0)} and {trial} (one resting pose)"
 
 
-def _agreement(first: Sequence, second: Sequence) -> dict[str, Any]:
+def held_agreement(first: Sequence, second: Sequence) -> dict[str, Any]:
     """How often two labellings of the same grasps agree on held, over the grasps both simulated."""
     from ..datasets.agreement import cohen_kappa
 
@@ -205,11 +196,11 @@ def object_label_fidelity(spec: ObjectSpec, poses: GraspPoses, config: Config) -
     floating, floating_s = _timed_labels(spec, poses, widths, "floating", config, FloatingPlacement(spec))
     return {
         "grasps": len(poses),
-        "resting_stability": {"placements": placements, **_agreement(tabletop, moved)},
+        "resting_stability": {"placements": placements, **held_agreement(tabletop, moved)},
         "resimulation": {"grasps": len(poses), "differing": sum(a != b for a, b in zip(tabletop, again)),
                          "held_differing": sum(a.held != b.held for a, b in zip(tabletop, again)),
                          "unanimous": {"tabletop": _unanimous(tabletop), "floating": _unanimous(floating)}},
-        "protocol_agreement": _agreement(tabletop, floating),
+        "protocol_agreement": held_agreement(tabletop, floating),
         "speed": {"tabletop": _speed(tabletop, tabletop_s), "floating": _speed(floating, floating_s)},
     }
 
@@ -225,8 +216,8 @@ def designed_box_grasps(box: ObjectSpec) -> GraspPoses:
     return GraspPoses(torch.tensor(positions, dtype=torch.float64), torch.tensor(np.stack([rotation] * 3)), "object")
 
 
-def designed_grasps(config: Config, cache_dir: Path | None = None) -> dict[str, dict[str, Any]]:
-    """Per protocol, how many of the designed grasps on a trimesh box get the outcome they were designed for."""
+def designed_grasps(config: Config, cache_dir: Path | None = None, engine: str = "pybullet") -> dict[str, dict[str, Any]]:
+    """Per protocol, how many of the designed grasps on a trimesh box ``engine`` labels with the outcome they were designed for."""
     import trimesh
 
     from ..datasets.labelling import label_object_grasps
@@ -237,7 +228,7 @@ def designed_grasps(config: Config, cache_dir: Path | None = None) -> dict[str, 
         box = load_object_set(folder, MeshImportSettings(cache_dir=cache_dir)).get("box")
         results = {}
         for protocol in PROTOCOLS:
-            labels = label_object_grasps(box, designed_box_grasps(box), None, protocol, config)
+            labels = label_object_grasps(box, designed_box_grasps(box), None, protocol, config, engine=engine)
             got = [(label.held, label.simulated) for label in labels]
             results[protocol] = {"correct": sum(g == e for g, e in zip(got, DESIGNED_OUTCOMES)), "of": len(DESIGNED_OUTCOMES),
                                  "labels": [{"held": l.held, "simulated": l.simulated, "failure": l.failure_reason} for l in labels]}

@@ -12,7 +12,7 @@ The machinery is in ``settings``; the sections by concept in ``world`` (scene, c
 (planner, its memory bounds, IK, weights), ``motion`` (the motion planning checks and execution runs), ``semantics`` (zones, rating), ``execution`` (execution, labelling, tasks) and ``run``
 (run, dataset); ``Config`` and the profile loading in ``profiles``.
 """
-from .execution import ExecutionConfig, LabellingConfig, ShakeConfig, TaskConfig
+from .execution import ExecutionConfig, LabellingConfig, MuJoCoConfig, ShakeConfig, TaskConfig
 from .motion import MotionConfig
 from .planning import GEOMETRY_ONLY_WEIGHTS, MAX_PAIRS, PAIR_SAMPLING_MODES, IKConfig, MemoryConfig, PlannerConfig, ScoreWeights
 from .profiles import PROFILES_PACKAGE, Config, load_config, named_profiles, resolve_profile_path
@@ -25,6 +25,6 @@ __all__ = [
     "GEOMETRY_ONLY_WEIGHTS", "MAX_IMAGE_SIDE_PX", "MAX_PAIRS", "MAX_TRIALS", "MAX_WORKERS", "NORMAL_ORIENTATIONS",
     "PAIR_SAMPLING_MODES", "PROFILES_PACKAGE", "PROTRUSION_RULES", "RATING_BACKENDS", "RUN_BACKENDS", "Allowed",
     "CameraConfig", "Config", "ConfigError", "DatasetConfig", "ExecutionConfig", "IKConfig", "LabellingConfig",
-    "MemoryConfig", "MotionConfig", "PerceptionConfig", "PlannerConfig", "RatingConfig", "RunConfig", "SceneConfig", "ScoreWeights", "ShakeConfig",
+    "MemoryConfig", "MotionConfig", "MuJoCoConfig", "PerceptionConfig", "PlannerConfig", "RatingConfig", "RunConfig", "SceneConfig", "ScoreWeights", "ShakeConfig",
     "TaskConfig", "ZonesConfig", "load_config", "named_profiles", "resolve_profile_path", "setting",
 ]

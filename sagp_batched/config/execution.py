@@ -79,16 +79,85 @@ class ShakeConfig(_Section):
 
 
 @dataclass
+class MuJoCoConfig(_Section):
+    """The MuJoCo engine of hand-mode labels (``datasets.mujoco_hand``): how its world is stepped and how
+    soft its contacts and the hand's carrier are. The protocol, the grip force, the friction and the
+    hulls are the study's, as the PyBullet engine has them. The values were chosen by labelling the same
+    240 planned grasps (4 YCB objects, both protocols) in both engines (``benchmarks.engine_agreement``);
+    the figures below are that sweep's agreement with PyBullet, one setting changed at a time from these."""
+
+    SECTION = "labelling.mujoco"
+
+    #: MuJoCo steps per 240 Hz protocol step (1 ms each): on longer steps the close knocks a free object
+    #: out of the fingers more often (agreement 92 % at 4, 84 % at 2, 51 % at 1; sims/s 14, 20, 35).
+    substeps: int = setting(4, at_least=1, at_most=100)
+    #: Semi-implicit Euler integrates the finger servo's damping as a force within its clamp; the
+    #: implicit integrators add it to the finger's mass, which then strikes a free object (implicitfast: 85 %).
+    integrator: str = setting("euler", choices=("euler", "implicit", "implicitfast", "rk4"))
+    #: Newton converges on these few contacts in one to a few iterations a step.
+    solver: str = setting("newton", choices=("newton", "cg", "pgs"))
+    #: Friction as a true cone; a pyramid's facets leave the grip weaker between them (pyramidal: 69 %).
+    cone: str = setting("elliptic", choices=("elliptic", "pyramidal"))
+    #: Friction ten times stiffer than the normal force: MuJoCo's soft friction otherwise lets a held
+    #: object creep out of the grip (1: 82 %; 30 labels alike, 92 %).
+    impratio: float = setting(10.0, at_least=1)
+    #: The solver's cap, far above the iterations these worlds take.
+    iterations: int = setting(50, at_least=1, at_most=10_000)
+    #: The cap of each Newton iteration's line search, likewise never reached.
+    ls_iterations: int = setting(20, at_least=1, at_most=10_000)
+    #: A no-slip pass stops what creep is left: 5 passes label alike (92 %) at 1.3 times the time.
+    noslip_iterations: int = setting(0, at_least=0, at_most=10_000)
+    #: The finger pads' contacts resist turning (torsional friction); 6 adds rolling friction, which the
+    #: grip does not need (6: labels alike, 15 % slower).
+    finger_condim: int = setting(4, choices=(3, 4, 6))
+    #: PyBullet resists a turn in the grip with its manifold's several points across a pad; MuJoCo's
+    #: convex collision gives one point a hull pair, so the pad's torsional friction is its lateral
+    #: friction times this radius, a quarter of the pad's width (0: 79 %, objects turn out of the grip;
+    #: 0.01: 93 %, within the sweep's noise of 4 grasps in 344).
+    finger_patch_radius_m: float = setting(0.005, at_least=0)
+    #: Several points a hull pair: labels alike (92 %), 1.8 times the time.
+    multiccd: bool = False
+    #: PyBullet wraps every convex hull it loads from a URDF in a 1 mm collision margin (the table's box
+    #: has none): contacts form this far out, twice it between hand and object (MuJoCo adds two geoms'
+    #: margins), and the hand meets and knocks what PyBullet's does on the way down (0: as many labels
+    #: alike, 92 %, but it holds every tabletop grasp PyBullet drops: kappa 0.12 there, against 0.37).
+    hull_margin_m: float = setting(0.001, at_least=0)
+    #: (time constant s, damping ratio) of the finger pads' contacts. PyBullet's are the finger URDF's
+    #: ``<contact>`` spring and damper (30000 N/m, 1000 N s/m): soft and damped far beyond critical, they
+    #: catch a free object rather than bounce it. MuJoCo damps most at the shortest time constant it
+    #: integrates (two substeps); a ratio of 4 softens the spring to near PyBullet's damping-to-stiffness
+    #: ratio ((0.004, 1), as the other contacts: 84 %).
+    finger_contact_solref: tuple[float, float] = setting((0.0021, 4.0), shape=(2,))
+    #: Every other contact (palm, table) stiff and critically damped, as PyBullet's rigid contacts are.
+    contact_solref: tuple[float, float] = setting((0.004, 1.0), shape=(2,))
+    #: Impedance near 1: the 70 N squeeze presses a pad 0.25 mm into the object's hulls (2.25 mm into
+    #: the margins, as PyBullet's 30000 N/m pads sink 2.3 mm).
+    contact_solimp: tuple[float, float, float, float, float] = setting((0.95, 0.99, 0.001, 0.5, 2.0), shape=(5,))
+    #: The weld that carries the hand, as stiff as the substeps integrate: the hand reaches 98 % of the
+    #: shake's peaks, PyBullet's constraint (erp 0.8) 99.7 %.
+    hand_weld_solref: tuple[float, float] = setting((0.004, 1.0), shape=(2,))
+    #: Impedance close to 1, so the weld holds the hand as hard as its time constant allows.
+    hand_weld_solimp: tuple[float, float, float, float, float] = setting((0.99, 0.999, 0.001, 0.5, 2.0), shape=(5,))
+    #: PyBullet's motor pushes the full grip force on a blocked finger; here the servo's spring reaches
+    #: it once the finger lags its set point by this much.
+    finger_servo_saturation_m: float = setting(0.001, above=0)
+    #: The servo critically damped, so a free finger follows its set point without overshoot.
+    finger_servo_damping_ratio: float = setting(1.0, above=0)
+
+
+@dataclass
 class LabellingConfig(_Section):
     """Grasp labels from simulation: the shake both modes end with, and the floating hand's motion.
 
     Hand mode (``sagp_batched.datasets.labelling``) follows the study's motion (``[motion]``: pre-grasp
     offset, lift height) and uses its grip force, finger friction, collision thresholds and success
-    test from ``[execution]``; how long the floating hand takes for each phase is set here."""
+    test from ``[execution]``; how long the floating hand takes for each phase is set here, and the MuJoCo
+    engine's own settings in ``[labelling.mujoco]``."""
 
     SECTION = "labelling"
 
     shake: ShakeConfig = field(default_factory=ShakeConfig)
+    mujoco: MuJoCoConfig = field(default_factory=MuJoCoConfig)
     #: The object is put down at its settled pose in a fresh world: a few steps let its contacts
     #: with the table form before the hand moves.
     hand_settle_steps: int = setting(12, at_least=0, at_most=10_000)

@@ -1,5 +1,5 @@
 """Grasp labels: what to label and how robustly; the protocols (``protocols``) say what is simulated
-and the engine (``pybullet_hand``) simulates it.
+and an engine (``engines``: PyBullet by default, or MuJoCo) simulates it.
 
 ``arm`` mode: the study's execution (``execution.execute_grasp``) with its opt-in shake: the Panda
 runs the planned joint path, closes, lifts, holds, then the arm shakes the hand (tabletop only).
@@ -40,8 +40,9 @@ from ..types import GraspAttempt
 from ..world.objects import ObjectSpec
 from ..world.scene import Scene
 from .grasp_geometry import contact_widths, floating_hand_links, object_surface, open_hand_collisions
-from .protocols import PROTOCOLS, GraspLabel, ObjectPlacement, run_floating, run_tabletop
-from .pybullet_hand import PyBulletHand
+from .collision_urdf import urdf_origin
+from .engines import check_engine, hand_engine
+from .protocols import PROTOCOLS, GraspLabel, HandEngine, ObjectPlacement, run_floating, run_tabletop
 
 __all__ = ["FloatingPlacement", "GraspLabel", "ObjectPlacement", "grasps_from_poses", "label_grasps_arm", "label_grasps_hand",
            "label_object_grasps", "tabletop_placement"]
@@ -157,12 +158,7 @@ def _com_in_link(spec: ObjectSpec) -> np.ndarray:
     """(4, 4) the centre-of-mass (inertial) frame in the link frame, from the URDF's ``<inertial><origin>``."""
     import xml.etree.ElementTree as ElementTree
 
-    origin = ElementTree.parse(spec.urdf_path).getroot().find("link/inertial/origin")
-    frame = np.eye(4)
-    if origin is not None:
-        frame[:3, :3] = Rotation.from_euler("xyz", [float(v) for v in (origin.get("rpy") or "0 0 0").split()]).as_matrix()
-        frame[:3, 3] = [float(v) for v in (origin.get("xyz") or "0 0 0").split()]
-    return frame
+    return urdf_origin(ElementTree.parse(spec.urdf_path).getroot().find("link/inertial/origin"))
 
 
 # -- labelling -----------------------------------------------------------------------------------------
@@ -171,6 +167,7 @@ def label_grasps_hand(
     grasps: GraspCandidates | Sequence[Grasp],
     config: Config,
     protocol: str = "tabletop",
+    engine: str = "pybullet",
 ) -> list[GraspLabel]:
     """Hand-mode labels of world-frame ``grasps``, in order (robust as the module says).
 
@@ -179,14 +176,16 @@ def label_grasps_hand(
     ``GraspCandidates`` batch or ``Grasp`` values (``grasps_from_poses`` makes them from ``GraspPoses``);
     a malformed one raises ``InvalidGraspError`` before anything is simulated. In the ``floating``
     protocol each grasp keeps its pose on the object, which floats alone at the world's origin.
+    ``engine``: the simulator (``engines.ENGINES``).
     """
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+    check_engine(engine)
     grasp_list = _as_grasps(grasps)
     placement_list = _as_placements(placements, len(grasp_list))
     targets = _tabletop_targets(grasp_list, config)
     if protocol == "tabletop":
-        return _label(placement_list, targets, config)
+        return _label(placement_list, targets, config, engine)
     floating: dict[ObjectSpec, FloatingPlacement] = {}
     object_from_world_of: dict[int, np.ndarray] = {}  # one per placement: a batch usually shares one
     on_object = []
@@ -197,20 +196,21 @@ def label_grasps_hand(
         grasp = object_from_world[:3, :3] @ target.grasp + object_from_world[:3, 3]
         quat = (Rotation.from_matrix(object_from_world[:3, :3]) * Rotation.from_quat(target.quat)).as_quat()
         on_object.append(_Target(grasp, grasp, quat))
-    return _label([floating.setdefault(p.spec, FloatingPlacement(p.spec)) for p in placement_list], on_object, config)
+    return _label([floating.setdefault(p.spec, FloatingPlacement(p.spec)) for p in placement_list], on_object, config, engine)
 
 
 def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, protocol: str, config: Config,
-                        placement: ObjectPlacement | FloatingPlacement | None = None) -> list[GraspLabel]:
+                        placement: ObjectPlacement | FloatingPlacement | None = None, engine: str = "pybullet") -> list[GraspLabel]:
     """Hand-mode labels of grasps given in the object's link frame, in ``protocol``.
 
     ``placement``: where the object is; by default floating at the world's origin, or settled on the
     table in its first resting pose (``tabletop_placement``). ``widths_m`` (N,) or None, measured on
     the mesh then (``grasp_geometry.contact_widths``): the hand closes fully either way, the width
-    only checks the grasp.
+    only checks the grasp. ``engine``: the simulator (``engines.ENGINES``).
     """
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+    check_engine(engine)
     if poses.frame != "object":
         raise InvalidGraspError(f"object grasps are given in the object frame, got poses in the {poses.frame} frame")
     if placement is None:
@@ -222,17 +222,18 @@ def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, prot
     world = poses.transform(_link_pose_world(placement), "world")
     grasps = grasps_from_poses(world, widths)
     if protocol == "tabletop":
-        return _label([placement] * len(grasps), _tabletop_targets(grasps, config), config)
+        return _label([placement] * len(grasps), _tabletop_targets(grasps, config), config, engine)
     targets = [_Target(g, g, q) for g, q in zip(world.position.numpy(), world.quat_xyzw().numpy())]
-    return _label([placement] * len(grasps), targets, config)
+    return _label([placement] * len(grasps), targets, config, engine)
 
 
-def _label(placements: Sequence[ObjectPlacement | FloatingPlacement], targets: Sequence[_Target], config: Config) -> list[GraspLabel]:
+def _label(placements: Sequence[ObjectPlacement | FloatingPlacement], targets: Sequence[_Target], config: Config,
+           engine_name: str) -> list[GraspLabel]:
     """Each grasp's label: every simulation of it (its pose and its perturbations) tested by geometry, the clear ones simulated."""
     samples = [[target] + _perturbed(target, config) for target in targets]
     decided = _geometry_verdicts(placements, samples, config)
     labels = []
-    with PyBulletHand(config) as engine:
+    with hand_engine(engine_name, config) as engine:
         for placement, poses, verdicts in zip(placements, samples, decided):
             if verdicts[0] is not None:  # the grasp itself intersects: no simulation tests it
                 labels.append(verdicts[0])
@@ -242,7 +243,7 @@ def _label(placements: Sequence[ObjectPlacement | FloatingPlacement], targets: S
     return labels
 
 
-def _simulate(engine: PyBulletHand, placement: ObjectPlacement | FloatingPlacement, target: _Target, config: Config) -> GraspLabel:
+def _simulate(engine: HandEngine, placement: ObjectPlacement | FloatingPlacement, target: _Target, config: Config) -> GraspLabel:
     if isinstance(placement, FloatingPlacement):
         pose = (placement.link_position_world, placement.link_quat_xyzw)
         return run_floating(engine, placement.spec, pose, target.grasp, target.quat, config)

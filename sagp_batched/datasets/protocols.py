@@ -1,7 +1,7 @@
 """Labelling protocols: what is placed where, how the hand moves, and what counts as held.
 
-Two protocols, each run on any hand engine (``pybullet_hand.PyBulletHand``; an engine builds the
-world and steps it, the protocol decides everything else):
+Two protocols, each run on any hand engine (``engines``: ``pybullet_hand.PyBulletHand``,
+``mujoco_hand.MuJoCoHand``; an engine builds the world and steps it, the protocol decides everything else):
 
 ``tabletop``: the object rests on the study's table where the capture left it; the open hand starts
 at the pre-grasp (``pregrasp_offset_m`` back along the approach), moves along the approach to the
@@ -87,7 +87,7 @@ class ObjectPlacement:
 
 
 class HandEngine(Protocol):
-    """What a protocol asks of an engine (``pybullet_hand.PyBulletHand`` is one)."""
+    """What a protocol asks of an engine (``pybullet_hand.PyBulletHand`` and ``mujoco_hand.MuJoCoHand`` are two)."""
 
     def build(self, spec: ObjectSpec, object_pose: Pose, pose_of: str, hand_position: np.ndarray, quat: np.ndarray,
               table: bool, gravity: bool) -> None: ...

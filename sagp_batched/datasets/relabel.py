@@ -20,9 +20,9 @@ import numpy as np
 
 from ..config import Config
 from ..world.objects import ObjectSpec, load_object_set
+from .engines import ENGINES
 from .grasp_files import GraspFile, read_grasp_file
 
-ENGINES = ("pybullet",)
 RELABEL_FILE = "relabel.h5"
 AGREEMENT_FILE = "agreement.json"
 REPORT_FILE = "report.md"
@@ -192,15 +192,16 @@ def chunk_bounds(n: int, size: int) -> list[tuple[int, int]]:
     return [(start, min(start + size, n)) for start in range(0, n, size)]
 
 
-def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, protocol: str, config: Config | dict) -> list[dict[str, Any]]:
-    """Our labels of (C, 4, 4) ACRONYM grasp poses in the object's link frame, as plain values."""
+def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, protocol: str, engine: str,
+                config: Config | dict) -> list[dict[str, Any]]:
+    """Our labels of (C, 4, 4) ACRONYM grasp poses in the object's link frame, by ``engine``, as plain values."""
     from ..config import load_config
     from .export import grasp_poses_from_acronym
     from .labelling import label_object_grasps
 
     if isinstance(config, dict):  # in a worker process: the config travels as its dict
         config = load_config(overrides=config)
-    labels = label_object_grasps(spec, grasp_poses_from_acronym(transforms_link), widths, protocol, config)
+    labels = label_object_grasps(spec, grasp_poses_from_acronym(transforms_link), widths, protocol, config, engine=engine)
     if len(labels) != len(transforms_link):
         raise RuntimeError(f"{len(labels)} labels for {len(transforms_link)} grasps")
     return [{
@@ -239,7 +240,7 @@ def label_pending(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndar
             on_chunk(len(done), len(bounds))
 
     def piece(start: int, stop: int) -> tuple:
-        return spec, transforms_link[start:stop], None if widths is None else widths[start:stop], inputs.protocol
+        return spec, transforms_link[start:stop], None if widths is None else widths[start:stop], inputs.protocol, inputs.engine
 
     if config.run.workers <= 1:
         for start, stop in pending:

@@ -1,0 +1,181 @@
+"""The MuJoCo engine of hand-mode labels: the same methods as ``pybullet_hand.PyBulletHand``, so the
+protocols (``protocols``) run on it unchanged.
+
+Its world (``mujoco_world``) is compiled once per object and table and every simulation starts from
+``mj_resetData``: MuJoCo steps a world deterministically from its state, and the reset clears all of it
+(the solver's warm start included), so a label depends on its own grasp alone. Each protocol step of
+``scene.time_step_s`` is ``labelling.mujoco.substeps`` MuJoCo steps, the hand's mocap target held still
+over them.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import mujoco
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..config import Config
+from ..execution.poses import pose_change, relative_pose
+from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets
+from ..robot.description import robot_of
+from ..world.objects import ObjectLoadError, ObjectSpec
+from .collision_urdf import floating_hand_urdf
+from .mujoco_world import HandWorld, compile_world
+
+Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
+# MuJoCo writes quaternions w first, the protocols x first.
+XYZW_FROM_WXYZ = [1, 2, 3, 0]
+WXYZ_FROM_XYZW = [3, 0, 1, 2]
+
+
+def _pose_matrix(position: Sequence[float], quat_xyzw: Sequence[float]) -> np.ndarray:
+    matrix = np.eye(4)
+    matrix[:3, :3] = Rotation.from_quat(quat_xyzw).as_matrix()
+    matrix[:3, 3] = position
+    return matrix
+
+
+class MuJoCoHand:
+    """A ``protocols.HandEngine``: one compiled MuJoCo world per object and table, in which one floating
+    hand at a time labels one grasp."""
+
+    name = "mujoco"
+
+    def __init__(self, config: Config):
+        self.config = config
+        self.robot = robot_of(config)
+        self.hand_urdf = floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir)
+        self.substeps = config.labelling.mujoco.substeps
+        self._worlds: dict[tuple[str, bool], tuple[HandWorld, mujoco.MjData]] = {}
+
+    def close(self) -> None:
+        self._worlds.clear()
+
+    def __enter__(self) -> "MuJoCoHand":
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # -- building ------------------------------------------------------------------------------------
+    def _world(self, spec: ObjectSpec, table: bool) -> tuple[HandWorld, mujoco.MjData]:
+        key = (str(spec.urdf_path), table)
+        if key not in self._worlds:
+            try:
+                world = compile_world(self.hand_urdf, self.robot, Path(spec.urdf_path), table, self.config)
+            except (ValueError, OSError) as exc:
+                raise ObjectLoadError(f"object '{spec.id}': MuJoCo cannot build {spec.urdf_path}: {exc}") from exc
+            self._worlds[key] = (world, mujoco.MjData(world.model))
+        return self._worlds[key]
+
+    def build(self, spec: ObjectSpec, object_pose: Pose, pose_of: str, hand_position: np.ndarray, quat: np.ndarray,
+              table: bool, gravity: bool) -> None:
+        """The object's world reset: the object with its centre-of-mass frame (``pose_of`` "com") or its
+        link frame ("link") at ``object_pose``, the open hand's grasp target at ``hand_position`` /
+        ``quat``, gravity on or off."""
+        self.world, self.data = world, data = self._world(spec, table)
+        model = world.model
+        mujoco.mj_resetData(model, data)
+        self.set_gravity(gravity)
+        link = _pose_matrix(*object_pose)
+        if pose_of == "com":
+            link = link @ np.linalg.inv(_pose_matrix(world.com_in_link[0], world.com_in_link[1][XYZW_FROM_WXYZ]))
+        self._set_free_joint(world.object_qpos, link)
+        self._set_free_joint(world.hand_qpos, _pose_matrix(hand_position, quat) @ world.hand_in_target)
+        # The fingers open, and their servos' set points with them.
+        data.qpos[list(world.finger_qpos)] = data.act[:] = self.robot.open_width_m / 2.0
+        self.command_fingers(self.robot.open_width_m)
+        self.quat = np.asarray(quat, dtype=float)
+        self.move(hand_position)
+        mujoco.mj_forward(model, data)
+
+    def _set_free_joint(self, address: int, pose: np.ndarray) -> None:
+        self.data.qpos[address : address + 3] = pose[:3, 3]
+        self.data.qpos[address + 3 : address + 7] = Rotation.from_matrix(pose[:3, :3]).as_quat()[WXYZ_FROM_XYZW]
+
+    # -- motion --------------------------------------------------------------------------------------
+    def set_gravity(self, on: bool) -> None:
+        self.world.model.opt.gravity[:] = (0.0, 0.0, self.config.scene.gravity_m_s2 if on else 0.0)
+
+    def command_fingers(self, width_m: float) -> None:
+        self.data.ctrl[:] = width_m / 2.0
+
+    def step(self, steps: int) -> None:
+        if steps > 0:
+            mujoco.mj_step(self.world.model, self.data, nstep=steps * self.substeps)
+
+    def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None:
+        """Send the hand's grasp target toward a pose; the weld pulls it there over the next steps."""
+        self.data.mocap_pos[0] = position
+        self.data.mocap_quat[0] = np.asarray(self.quat if quat is None else quat)[WXYZ_FROM_XYZW]
+
+    def shake(self, profile: ShakeProfile) -> dict[str, Any]:
+        """Follow ``profile`` around the hand's pose (rotations about the grasp target): the object's motion
+        relative to the hand over the shake and the peaks the hand reached (``achieved_shake_peaks``)."""
+        start = self.hand_pose()
+        object_start = relative_pose(start, self.object_pose())
+        turn = Rotation.from_quat(start[1])
+        positions = np.asarray(start[0]) + turn.apply(profile.offsets[:, :3])
+        quats = (turn * Rotation.from_rotvec(profile.offsets[:, 3:])).as_quat()
+        hand_poses = []
+        for position, quat in zip(positions, quats):
+            self.move(position, quat)
+            self.step(1)
+            hand_poses.append(self.hand_pose())
+        linear, angular = pose_change(object_start, relative_pose(self.hand_pose(), self.object_pose()))
+        return {
+            "object_motion_during_shaking_linear": linear,
+            "object_motion_during_shaking_angular": angular,
+            "shake_achieved_peak_accelerations": achieved_shake_peaks(profile, frame_offsets(start, hand_poses)),
+        }
+
+    # -- state ---------------------------------------------------------------------------------------
+    def object_pose(self) -> Pose:
+        """World pose of the object's centre-of-mass frame."""
+        body, (com_position, com_quat) = self.world.object_body, self.world.com_in_link
+        position, quat = np.empty(3), np.empty(4)
+        mujoco.mju_rotVecQuat(position, com_position, self.data.xquat[body])
+        mujoco.mju_mulQuat(quat, self.data.xquat[body], com_quat)
+        return tuple(self.data.xpos[body] + position), tuple(quat[XYZW_FROM_WXYZ])
+
+    def hand_pose(self) -> Pose:
+        """World pose of the hand's grasp target."""
+        body = self.world.grasp_target_body
+        return self.data.xpos[body].copy(), self.data.xquat[body][XYZW_FROM_WXYZ]
+
+    def _contact_bodies(self) -> np.ndarray:
+        """(n, 2) the bodies of the last step's contacts."""
+        return self.world.model.geom_bodyid[self.data.contact.geom[: self.data.ncon]]
+
+    def _hand_contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per contact of the last step, whether it is between the hand and the object, and between the
+        hand and the table (never, without a table: no geom has its id -1)."""
+        bodies, geoms = self._contact_bodies(), self.data.contact.geom[: self.data.ncon]
+        hand = self.world.hand_body_mask[bodies].any(axis=1)
+        return hand & (bodies == self.world.object_body).any(axis=1), hand & (geoms == self.world.table_geom).any(axis=1)
+
+    def hand_in_contact(self) -> tuple[bool, bool]:
+        """Whether the hand touches the object, and the table, before anything has moved."""
+        with_object, with_table = self._hand_contacts()
+        return bool(with_object.any()), bool(with_table.any())
+
+    def table_push_n(self) -> float:
+        """The normal force the hand pushes the table with (0 without a table)."""
+        force, total = np.zeros(6), 0.0
+        for index in np.flatnonzero(self._hand_contacts()[1]):
+            mujoco.mj_contactForce(self.world.model, self.data, int(index), force)
+            total += force[0]
+        return total
+
+    def fingers_touching(self) -> bool:
+        """Whether every finger touches the object (the last step's contacts, the hulls' margin included, as PyBullet's)."""
+        bodies = self._contact_bodies()
+        on_object = bodies[(bodies == self.world.object_body).any(axis=1)].ravel()
+        return all(finger in on_object for finger in self.world.finger_bodies)
+
+    def held_above_table(self) -> bool:
+        """Execution's success test: the object's centre of mass high enough above the table and both fingers on it."""
+        height = self.object_pose()[0][2] - self.config.scene.table_top_z_m
+        return height >= self.config.execution.success_height_above_table_m and self.fingers_touching()

@@ -1,0 +1,237 @@
+"""The MuJoCo world of hand-mode labels, built from the same URDFs the PyBullet engine loads: the robot's
+floating hand (``collision_urdf.floating_hand_urdf``), one object (its URDF's collision hulls, inertia and
+friction) and, for the ``tabletop`` protocol, the study's table. Compiled once per object and table and
+reused by every simulation (``mujoco_hand.MuJoCoHand`` resets it).
+
+The hand is the URDF's link tree on a free joint, its prismatic fingers slide joints driven toward their
+commanded opening as PyBullet's position motor drives them (``_add_finger_servos``), and it is carried by
+a weld of its grasp target to a mocap body the engine moves (PyBullet caps its constraint at
+``hand_constraint_max_force_n``; a weld has no cap, and none of these worlds comes near it). Contacts have
+PyBullet's friction, the product of the two surfaces' (``_product``), and its geometry: every convex hull
+a URDF gives PyBullet is wrapped in ``hull_margin_m``. How soft each contact is, and how the world is
+stepped, is ``[labelling.mujoco]``'s.
+"""
+from __future__ import annotations
+
+import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..config import Config
+from ..robot.description import RobotDescription
+from .collision_urdf import DEFAULT_FRICTION, LinkInertial, link_collision_hulls, link_friction, link_inertial, urdf_origin
+
+OBJECT_BODY = "object"
+# Collision bits: the hand touches the object, the object the table; the hand touches the table through explicit pairs.
+HAND_BIT, OBJECT_BIT, TABLE_BIT = 1, 2, 4
+HAND_TARGET_BODY = "hand_target"  # the mocap body the hand's grasp target is welded to
+TABLE_GEOM = "table"
+# PyBullet's default positionGain: its position motor asks for a tenth of the remaining travel each step.
+PYBULLET_POSITION_GAIN = 0.1
+
+
+@dataclass(frozen=True)
+class HandWorld:
+    """A compiled world and where its parts are: qpos addresses of the object's and the hand's free joints
+    and of the finger joints, body ids, and the object's centre-of-mass frame in its link frame
+    (position, wxyz quaternion) that poses are reported in."""
+
+    model: mujoco.MjModel
+    object_body: int
+    object_qpos: int
+    hand_qpos: int
+    finger_qpos: tuple[int, ...]
+    finger_bodies: tuple[int, ...]
+    grasp_target_body: int
+    hand_body_mask: np.ndarray  # (nbody,) True for the hand's bodies
+    table_geom: int  # -1 without a table
+    com_in_link: tuple[np.ndarray, np.ndarray]
+    hand_in_target: np.ndarray  # (4, 4) the hand link's pose in the grasp target's frame
+
+
+def _wxyz(rotation: np.ndarray) -> np.ndarray:
+    return np.roll(Rotation.from_matrix(rotation).as_quat(), 1)
+
+
+def _set_inertial(body: mujoco.MjsBody, inertial: LinkInertial | None) -> None:
+    """The URDF's mass and tensor, the tensor turned into the link frame (MuJoCo finds its principal axes)."""
+    if inertial is None:
+        return
+    rotation = inertial.frame_in_link[:3, :3]
+    tensor = rotation @ inertial.tensor_kg_m2 @ rotation.T
+    body.explicitinertial = True
+    body.mass = inertial.mass_kg
+    body.ipos = inertial.frame_in_link[:3, 3]
+    body.fullinertia = [tensor[0, 0], tensor[1, 1], tensor[2, 2], tensor[0, 1], tensor[0, 2], tensor[1, 2]]
+
+
+def _product(first: tuple[float, float, float], second: tuple[float, float, float]) -> tuple[float, float, float]:
+    """(lateral, spinning, rolling) friction of two surfaces in contact as PyBullet combines them: the
+    products. MuJoCo would take the larger of two geoms' frictions; where one geom has the higher
+    ``priority`` its own friction is the contact's, so each geom carries the product with what it touches."""
+    return first[0] * second[0], first[1] * second[1], first[2] * second[2]
+
+
+def _mujoco_friction(surface: tuple[float, float, float], patch_radius_m: float = 0.0) -> list[float]:
+    """MuJoCo's (sliding, torsional, rolling) friction of ``surface``; a finger pad's torsional friction
+    adds the patch's resistance to turning (``finger_patch_radius_m``)."""
+    lateral, spinning, rolling = surface
+    return [lateral, spinning + lateral * patch_radius_m, rolling]
+
+
+def _add_hulls(spec: mujoco.MjSpec, body: mujoco.MjsBody, hulls: list[np.ndarray], prefix: str, **geom: Any) -> list[str]:
+    """The hulls as mesh geoms of ``body`` with the attributes ``geom`` (MuJoCo collides a mesh as its
+    convex hull); their names."""
+    names = []
+    for index, vertices in enumerate(hulls):
+        name = f"{prefix}_{index}"
+        # The bodies' inertia is the URDF's: a mesh's volume only matters to MuJoCo's checks, and a flat hull has none.
+        spec.add_mesh(name=name, uservert=np.asarray(vertices, dtype=np.float64).ravel(), inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL)
+        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, **geom)
+        names.append(name)
+    return names
+
+
+def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, object_surface: tuple[float, float, float],
+              config: Config) -> dict[str, tuple[list[str], tuple[float, float, float]]]:
+    """The hand's links as bodies below a free-floating hand link, their geoms touching the object with
+    the product of the two surfaces' friction (the fingers' the study's pads); per link, its geoms and surface."""
+    execution, options = config.execution, config.labelling.mujoco
+    root = ElementTree.parse(hand_urdf).getroot()
+    links = {link.get("name"): link for link in root.findall("link")}
+    joints_below: dict[str, list[ElementTree.Element]] = {}
+    for joint in root.findall("joint"):
+        joints_below.setdefault(joint.find("parent").get("link"), []).append(joint)
+    surfaces = {}
+
+    def add(parent: mujoco.MjsBody, name: str, frame: np.ndarray) -> mujoco.MjsBody:
+        body = parent.add_body(name=name, pos=frame[:3, 3], quat=_wxyz(frame[:3, :3]))
+        _set_inertial(body, link_inertial(links[name]))
+        pad = name in robot.finger_links
+        surface = (execution.finger_lateral_friction, execution.finger_spinning_friction, 0.0) if pad else link_friction(links[name])
+        geoms = _add_hulls(spec, body, link_collision_hulls(links[name], hand_urdf.parent), name, contype=HAND_BIT, conaffinity=0,
+                           priority=2, condim=options.finger_condim if pad else 3,
+                           friction=_mujoco_friction(_product(surface, object_surface), options.finger_patch_radius_m if pad else 0.0),
+                           solref=options.finger_contact_solref if pad else options.contact_solref, solimp=options.contact_solimp,
+                           margin=options.hull_margin_m)
+        surfaces[name] = (geoms, surface)
+        for joint in joints_below.get(name, []):
+            child = add(body, joint.find("child").get("link"), urdf_origin(joint.find("origin")))
+            if joint.get("type") == "prismatic":
+                limit = joint.find("limit")
+                child.add_joint(name=joint.get("name"), type=mujoco.mjtJoint.mjJNT_SLIDE, range=[float(limit.get("lower")), float(limit.get("upper"))],
+                                axis=[float(v) for v in (joint.find("axis").get("xyz") or "1 0 0").split()], limited=mujoco.mjtLimited.mjLIMITED_TRUE)
+            elif joint.get("type") != "fixed":
+                raise ValueError(f"hand joint '{joint.get('name')}' is {joint.get('type')}; the MuJoCo hand takes prismatic and fixed joints")
+        return body
+
+    add(spec.worldbody, robot.hand_link, np.eye(4)).add_freejoint()
+    return surfaces
+
+
+def _add_finger_servos(spec: mujoco.MjSpec, robot: RobotDescription, config: Config) -> None:
+    """PyBullet's position motor as a MuJoCo actuator. PyBullet asks for the speed that closes a tenth of
+    the remaining travel a step, with up to ``gripper_force_n``, solved with the contacts: a free finger
+    closes on that exponential and a blocked one pushes with the full force. Here a set point (the
+    actuator's activation) follows the command on that exponential and a stiff spring-damper, clamped
+    to the grip force, pulls the finger after it: saturated once the finger lags
+    ``finger_servo_saturation_m``. A velocity servo stiff enough to push the full force when blocked
+    would not do: MuJoCo integrates an unsaturated actuator's damping implicitly, as added mass, and the
+    finger would strike the object like a hammer."""
+    force, options = config.execution.gripper_force_n, config.labelling.mujoco
+    stiffness = force / options.finger_servo_saturation_m
+    finger_mass = next(body.mass for body in spec.bodies if body.name == robot.finger_links[0])
+    damping = 2.0 * options.finger_servo_damping_ratio * np.sqrt(stiffness * finger_mass)
+    for joint in robot.finger_joints:
+        actuator = spec.add_actuator(name=joint, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        actuator.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+        actuator.dynprm[0] = -config.scene.time_step_s / np.log(1.0 - PYBULLET_POSITION_GAIN)
+        actuator.gaintype, actuator.biastype = mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtBias.mjBIAS_AFFINE
+        actuator.gainprm[0] = stiffness
+        actuator.biasprm[:3] = [0.0, -stiffness, -damping]
+        actuator.forcelimited, actuator.forcerange = mujoco.mjtLimited.mjLIMITED_TRUE, [-force, force]
+
+
+def _set_options(spec: mujoco.MjSpec, config: Config) -> None:
+    options = config.labelling.mujoco
+    spec.option.timestep = config.scene.time_step_s / options.substeps
+    spec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{options.integrator.upper()}")
+    spec.option.solver = getattr(mujoco.mjtSolver, f"mjSOL_{options.solver.upper()}")
+    spec.option.cone = getattr(mujoco.mjtCone, f"mjCONE_{options.cone.upper()}")
+    spec.option.impratio = options.impratio
+    spec.option.iterations, spec.option.ls_iterations = options.iterations, options.ls_iterations
+    spec.option.noslip_iterations = options.noslip_iterations
+    if not options.multiccd:
+        spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_MULTICCD
+
+
+def _add_table(spec: mujoco.MjSpec, hand_surfaces: dict[str, tuple[list[str], tuple[float, float, float]]], config: Config) -> None:
+    """The study's table: a box whose top is at ``table_top_z_m``. The object touches it with its own
+    geoms' friction; the hand's geoms carry the object's, so they touch it through pairs of their own."""
+    scene, options = config.scene, config.labelling.mujoco
+    spec.worldbody.add_geom(name=TABLE_GEOM, type=mujoco.mjtGeom.mjGEOM_BOX, contype=TABLE_BIT, conaffinity=0,
+                            size=[scene.table_size_m[0] / 2, scene.table_size_m[1] / 2, scene.table_top_z_m / 2],
+                            pos=[*scene.table_center_xy_m, scene.table_top_z_m / 2], solref=options.contact_solref, solimp=options.contact_solimp)
+    for geoms, surface in hand_surfaces.values():
+        lateral, spinning, rolling = _product(surface, DEFAULT_FRICTION)
+        for name in geoms:
+            spec.add_pair(geomname1=name, geomname2=TABLE_GEOM, condim=3, friction=[lateral, lateral, spinning, rolling, rolling],
+                          solref=options.contact_solref, solimp=options.contact_solimp, margin=options.hull_margin_m)
+
+
+def compile_world(hand_urdf: Path, robot: RobotDescription, object_urdf: Path, table: bool, config: Config) -> HandWorld:
+    """The world of one object, with the study's table where ``table``, compiled. ``object_urdf``: the
+    object's URDF (its first link is the object); the hand's from ``floating_hand_urdf``."""
+    options = config.labelling.mujoco
+    spec = mujoco.MjSpec()
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+    _set_options(spec, config)
+    link = ElementTree.parse(object_urdf).getroot().find("link")
+    inertial, object_surface = link_inertial(link), link_friction(link)
+    if inertial is None:
+        raise ValueError(f"{object_urdf}: the object's link has no mass")
+    hand_surfaces = _add_hand(spec, hand_urdf, robot, object_surface, config)
+    _add_finger_servos(spec, robot, config)
+    body = spec.worldbody.add_body(name=OBJECT_BODY)
+    body.add_freejoint()
+    _set_inertial(body, inertial)
+    _add_hulls(spec, body, link_collision_hulls(link, object_urdf.parent), OBJECT_BODY, contype=OBJECT_BIT, conaffinity=HAND_BIT | TABLE_BIT,
+               priority=1, condim=3, friction=_mujoco_friction(_product(object_surface, DEFAULT_FRICTION)),
+               solref=options.contact_solref, solimp=options.contact_solimp, margin=options.hull_margin_m)
+    if table:
+        _add_table(spec, hand_surfaces, config)
+    spec.worldbody.add_body(name=HAND_TARGET_BODY, mocap=True)
+    # The grasp target's frame held on the mocap body's (anchor, relative position, relative quaternion, torque scale).
+    spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY, name1=robot.grasp_target_link, name2=HAND_TARGET_BODY,
+                      data=[0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 1], solref=options.hand_weld_solref, solimp=options.hand_weld_solimp)
+    return _located(spec.compile(), robot, inertial)
+
+
+def _located(model: mujoco.MjModel, robot: RobotDescription, inertial: LinkInertial) -> HandWorld:
+    def body(name: str) -> int:
+        return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
+
+    hand, target = body(robot.hand_link), body(robot.grasp_target_link)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    hand_in_target = np.eye(4)
+    target_rotation = data.xmat[target].reshape(3, 3)
+    hand_in_target[:3, :3] = target_rotation.T @ data.xmat[hand].reshape(3, 3)
+    hand_in_target[:3, 3] = target_rotation.T @ (data.xpos[hand] - data.xpos[target])
+    hand_bodies = np.zeros(model.nbody, dtype=bool)
+    hand_bodies[[i for i in range(model.nbody) if model.body_rootid[i] == hand]] = True
+    object_body = body(OBJECT_BODY)
+    frame = inertial.frame_in_link
+    return HandWorld(
+        model=model, object_body=object_body, object_qpos=int(model.jnt_qposadr[model.body_jntadr[object_body]]),
+        hand_qpos=int(model.jnt_qposadr[model.body_jntadr[hand]]),
+        finger_qpos=tuple(int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]) for j in robot.finger_joints),
+        finger_bodies=tuple(body(name) for name in robot.finger_links), grasp_target_body=target, hand_body_mask=hand_bodies,
+        table_geom=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM),
+        com_in_link=(frame[:3, 3].copy(), _wxyz(frame[:3, :3])), hand_in_target=hand_in_target,
+    )
