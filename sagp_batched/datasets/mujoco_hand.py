@@ -10,15 +10,13 @@ over them.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..config import Config
-from ..execution.poses import pose_change, relative_pose
-from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets
 from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
 from .collision_urdf import floating_hand_urdf
@@ -110,26 +108,6 @@ class MuJoCoHand:
         """Send the hand's grasp target toward a pose; the weld pulls it there over the next steps."""
         self.data.mocap_pos[0] = position
         self.data.mocap_quat[0] = np.asarray(self.quat if quat is None else quat)[WXYZ_FROM_XYZW]
-
-    def shake(self, profile: ShakeProfile) -> dict[str, Any]:
-        """Follow ``profile`` around the hand's pose (rotations about the grasp target): the object's motion
-        relative to the hand over the shake and the peaks the hand reached (``achieved_shake_peaks``)."""
-        start = self.hand_pose()
-        object_start = relative_pose(start, self.object_pose())
-        turn = Rotation.from_quat(start[1])
-        positions = np.asarray(start[0]) + turn.apply(profile.offsets[:, :3])
-        quats = (turn * Rotation.from_rotvec(profile.offsets[:, 3:])).as_quat()
-        hand_poses = []
-        for position, quat in zip(positions, quats):
-            self.move(position, quat)
-            self.step(1)
-            hand_poses.append(self.hand_pose())
-        linear, angular = pose_change(object_start, relative_pose(self.hand_pose(), self.object_pose()))
-        return {
-            "object_motion_during_shaking_linear": linear,
-            "object_motion_during_shaking_angular": angular,
-            "shake_achieved_peak_accelerations": achieved_shake_peaks(profile, frame_offsets(start, hand_poses)),
-        }
 
     # -- state ---------------------------------------------------------------------------------------
     def object_pose(self) -> Pose:

@@ -26,11 +26,12 @@ from dataclasses import dataclass
 from typing import Any, Protocol, Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..config import Config
 from ..execution.pick import lift_failure
-from ..execution.poses import pose_change
-from ..execution.shake import ShakeProfile, shake_profile
+from ..execution.poses import pose_change, relative_pose
+from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets, shake_profile
 from ..world.objects import ObjectSpec
 
 PROTOCOLS: tuple[str, ...] = ("tabletop", "floating")
@@ -95,7 +96,7 @@ class HandEngine(Protocol):
     def command_fingers(self, width_m: float) -> None: ...
     def step(self, steps: int) -> None: ...
     def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None: ...
-    def shake(self, profile: ShakeProfile) -> dict[str, Any]: ...
+    def hand_pose(self) -> Pose: ...
     def object_pose(self) -> Pose: ...
     def hand_in_contact(self) -> tuple[bool, bool]: ...
     def table_push_n(self) -> float: ...
@@ -168,10 +169,32 @@ def _close_lift_shake(engine: HandEngine, grasp: np.ndarray, config: Config, pro
     engine.step(labelling.hand_hold_steps)
     if not held():
         return _failed(protocol, *lift_failure(highest_rise, touching_after_close, execution), motion)
-    motion.update(engine.shake(shake_profile(labelling.shake, config.scene.time_step_s)))
+    motion.update(_shake(engine, shake_profile(labelling.shake, config.scene.time_step_s)))
     if held():
         return GraspLabel(mode="hand", held=True, failure_reason=None, failed_at=None, protocol=protocol, **motion)
     return _failed(protocol, "slipped", "shake", motion)
+
+
+def _shake(engine: HandEngine, profile: ShakeProfile) -> dict[str, Any]:
+    """Follow ``profile`` around the hand's pose, rotations about the grasp target: the object's motion
+    relative to the hand over the shake and the peaks the hand reached (``achieved_shake_peaks`` of its
+    pose at every step)."""
+    start = engine.hand_pose()
+    object_start = relative_pose(start, engine.object_pose())
+    turn = Rotation.from_quat(start[1])
+    positions = np.asarray(start[0]) + turn.apply(profile.offsets[:, :3])
+    quats = (turn * Rotation.from_rotvec(profile.offsets[:, 3:])).as_quat()
+    hand_poses = []
+    for position, quat in zip(positions.tolist(), quats.tolist()):
+        engine.move(position, quat)
+        engine.step(1)
+        hand_poses.append(engine.hand_pose())
+    linear, angular = pose_change(object_start, relative_pose(engine.hand_pose(), engine.object_pose()))
+    return {
+        "object_motion_during_shaking_linear": linear,
+        "object_motion_during_shaking_angular": angular,
+        "shake_achieved_peak_accelerations": achieved_shake_peaks(profile, frame_offsets(start, hand_poses)),
+    }
 
 
 def _failed(protocol: str, reason: str, phase: str, motion: dict[str, Any]) -> GraspLabel:

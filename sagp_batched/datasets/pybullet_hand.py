@@ -15,15 +15,13 @@ outcomes after a lift and a shake.
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 import pybullet
 
 from ..config import Config
 from ..execution.pick import fingers_touching, object_held, push_n, set_finger_friction
-from ..execution.poses import pose_change, relative_pose
-from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets
 from ..robot.description import robot_of
 from ..robot.hand import hand_to_grasp_target_m
 from ..world.objects import ObjectLoadError, ObjectSpec
@@ -121,27 +119,6 @@ class PyBulletHand:
             self.constraint, jointChildPivot=list(position), jointChildFrameOrientation=list(quat or self.quat),
             maxForce=self.config.labelling.hand_constraint_max_force_n, physicsClientId=self.client,
         )
-
-    def shake(self, profile: ShakeProfile) -> dict[str, Any]:
-        """Follow ``profile`` around the hand's pose, the constraint carrying the grasp target (so
-        rotations turn about it): the object's motion relative to the hand over the shake and the
-        peaks the hand reached (``achieved_shake_peaks`` of its pose at every step)."""
-        start = self.hand_pose()
-        object_start = relative_pose(start, self.object_pose())
-        hand_poses = []
-        for offset in profile.offsets:
-            position, _ = pybullet.multiplyTransforms(*start, offset[:3].tolist(), [0.0, 0.0, 0.0, 1.0])
-            angle = float(np.linalg.norm(offset[3:]))
-            turn = pybullet.getQuaternionFromAxisAngle((offset[3:] / angle).tolist(), angle) if angle > 0.0 else (0.0, 0.0, 0.0, 1.0)
-            self.move(position, pybullet.multiplyTransforms([0.0, 0.0, 0.0], start[1], [0.0, 0.0, 0.0], turn)[1])
-            self.step(1)
-            hand_poses.append(self.hand_pose())
-        linear, angular = pose_change(object_start, relative_pose(self.hand_pose(), self.object_pose()))
-        return {
-            "object_motion_during_shaking_linear": linear,
-            "object_motion_during_shaking_angular": angular,
-            "shake_achieved_peak_accelerations": achieved_shake_peaks(profile, frame_offsets(start, hand_poses)),
-        }
 
     # -- state ---------------------------------------------------------------------------------------
     def object_pose(self) -> Pose:
