@@ -114,8 +114,13 @@ def test_end_to_end_a_full_disk_stops_with_one_error_line_and_resumes_to_an_unin
     reference = _run(_config(tmp_path, ycb_dir, "reference", n_trials=3))
     tiny = tmp_path / "tiny"
     tiny.mkdir()
-    # Room for the lock, config.json, provenance.json and one page of records: the second record does not fit.
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=24k", "tmpfs", str(tiny)], capture_output=True, text=True)
+    # Room for the lock (a page), config.json and provenance.json (as the reference wrote them, a little longer
+    # for the other path) and one page of records: the second record does not fit. Sized from the files, which
+    # grow with the config.
+    page = 4096
+    pages = sum(-(-((reference.out_dir / name).stat().st_size + 256) // page) for name in ("config.json", "provenance.json"))
+    size = f"size={(pages + 2) * page // 1024}k"
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", size, "tmpfs", str(tiny)], capture_output=True, text=True)
     if mounted.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
     try:
