@@ -150,11 +150,19 @@ def _add_finger_servos(spec: mujoco.MjSpec, robot: RobotDescription, config: Con
     for joint in robot.finger_joints:
         actuator = spec.add_actuator(name=joint, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         actuator.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
-        actuator.dynprm[0] = -config.scene.time_step_s / np.log(1.0 - PYBULLET_POSITION_GAIN)
+        # Whole arrays: newer bindings hand out copies of these parameters (and longer ones), not views.
+        actuator.dynprm = _leading(actuator.dynprm, [-config.scene.time_step_s / np.log(1.0 - PYBULLET_POSITION_GAIN)])
         actuator.gaintype, actuator.biastype = mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtBias.mjBIAS_AFFINE
-        actuator.gainprm[0] = stiffness
-        actuator.biasprm[:3] = [0.0, -stiffness, -damping]
+        actuator.gainprm = _leading(actuator.gainprm, [stiffness])
+        actuator.biasprm = _leading(actuator.biasprm, [0.0, -stiffness, -damping])
         actuator.forcelimited, actuator.forcerange = mujoco.mjtLimited.mjLIMITED_TRUE, [-force, force]
+
+
+def _leading(parameters, values: list[float]) -> np.ndarray:
+    """An actuator parameter array as long as ``parameters``, ``values`` first and zeros after."""
+    array = np.zeros(len(parameters))
+    array[:len(values)] = values
+    return array
 
 
 def _set_options(spec: mujoco.MjSpec, config: Config) -> None:
@@ -207,8 +215,9 @@ def compile_world(hand_urdf: Path, robot: RobotDescription, object_urdf: Path, t
         _add_table(spec, hand_surfaces, config)
     spec.worldbody.add_body(name=HAND_TARGET_BODY, mocap=True)
     # The grasp target's frame held on the mocap body's (anchor, relative position, relative quaternion, torque scale).
-    spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY, name1=robot.grasp_target_link, name2=HAND_TARGET_BODY,
-                      data=[0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 1], solref=options.hand_weld_solref, solimp=options.hand_weld_solimp)
+    weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY, name1=robot.grasp_target_link,
+                             name2=HAND_TARGET_BODY, solref=options.hand_weld_solref, solimp=options.hand_weld_solimp)
+    weld.data = _leading(weld.data, [0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 1])
     return _located(spec.compile(), robot, inertial)
 
 
