@@ -19,7 +19,7 @@ from sagp_batched.execution.pick import execute_grasp
 from sagp_batched.execution.shake import shake_profile
 from sagp_batched.grasps import InvalidGraspError
 from sagp_batched.robot.description import load_robot
-from sagp_batched.world.objects import load_object_set
+from sagp_batched.world.objects import embedded_ycb_dir, load_object_set
 from sagp_batched.world.scene import Scene
 
 ROBOT = load_robot()
@@ -41,8 +41,9 @@ def config(tmp_path_factory) -> Config:
 
 
 def _scene(object_id: str, trial: int = 0):
+    """The object from the embedded set, whatever $SAGP_YCB_DIR names: the recorded values are its hulls'."""
     scene = Scene(Config())
-    scene.reset(load_object_set(None).get(object_id), trial=trial)
+    scene.reset(load_object_set(embedded_ycb_dir()).get(object_id), trial=trial)
     return scene
 
 
