@@ -79,7 +79,7 @@ def test_the_floating_protocol_plans_grasps_all_around_the_object_and_labels_the
         "labelling": {"perturbed_simulations": 1, "hand_urdf_cache_dir": str(tmp_path_factory.mktemp("hand"))}})
     floating = ObjectLabeller(config, labeller.objects)
     try:
-        plan = floating.plan_object("005_tomato_soup_can", 16)
+        plan = floating.plan_object("005_tomato_soup_can", 24)
         labels = object_labels(plan, [floating.simulate(chunk) for chunk in plan.chunks("hand", 100)])
     finally:
         floating.close()
@@ -88,9 +88,9 @@ def test_the_floating_protocol_plans_grasps_all_around_the_object_and_labels_the
     assert (approach[:, 2] > 0.3).any() and (approach[:, 2] < -0.3).any()
     # Picked among the open hands the mesh leaves clear (on every 4th surface point): geometry decides at most
     # its capped share and a graze the sparser check missed.
-    assert labels.grasps.decided_by.count("geometry") <= int(config.dataset.geometry_verdict_fraction * 16) + 1
+    assert labels.grasps.decided_by.count("geometry") <= int(config.dataset.geometry_verdict_fraction * 24) + 1
     assert labels.grasps.held.mean() > 0.5
     # A share of them clear grasps moved toward failure, each measured on the mesh.
     boundary = [i for i, verdict in enumerate(labels.grasps.verdict) if verdict == "boundary"]
-    assert 0 < len(boundary) <= round(config.dataset.boundary_fraction * 16)
+    assert 0 < len(boundary) <= round(config.dataset.boundary_fraction * 24)
     assert (labels.grasps.width_m[boundary] > 0).all()

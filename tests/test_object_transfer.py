@@ -38,7 +38,7 @@ def _assert_files_travelled(materialised, driver, destination: Path):
 
 
 def test_the_embedded_ycb_set_travels_with_its_meshes_textures_and_checksum(tmp_path):
-    driver = load_object_set()
+    driver = load_object_set(embedded_ycb_dir())
     packed = pickle.loads(pickle.dumps(pack_objects(driver, YCB_IDS)))  # what the object store hands a worker
     materialised = materialise(packed, tmp_path / "cache")
     destination = materialised_dir(packed, tmp_path / "cache")
