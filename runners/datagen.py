@@ -4,6 +4,8 @@ Every object of the set (a folder of meshes or URDFs, a YCB-layout folder, or th
 is captured on the table, planned once per capture, and N of its grasps, across the planner's
 verdicts, are labelled by simulation (``--mode hand``: the Panda hand alone; ``arm``: the Panda
 executing the planned motion), spread over ``--workers`` (one object's grasps over all of them).
+``--engines pybullet,mujoco`` labels every hand-mode grasp in both engines: the label is held in both,
+each engine's own is kept in the files and the report says how far they agree.
 Each finished object is written at once; re-running the command resumes. ``--agreement N`` also simulates N grasps of each of the first five objects in both modes
 and reports how often the modes agree.
 """
@@ -35,6 +37,7 @@ SETTING_FLAGS = {
     "--grasps-per-object": ("grasps_per_object", "dataset", "grasps_per_object"),
     "--mode": ("mode", "dataset", "mode"),
     "--protocol": ("protocol", "dataset", "protocol"),
+    "--engines": ("engines", "dataset", "engines"),
     "--captures": ("captures_per_object", "dataset", "captures_per_object"),
     "--grasps-per-chunk": ("grasps_per_chunk", "dataset", "grasps_per_chunk"),
 }
@@ -56,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--protocol", choices=("tabletop", "floating"),
                         help="hand mode: tabletop (the object on the table, the hand approaching) or floating "
                              "(ACRONYM's: the object alone, grasps all around it)")
+    parser.add_argument("--engines", type=_csv,
+                        help="hand mode: comma list of engines every grasp is labelled in (pybullet, mujoco); with two, "
+                             "a grasp is held where both held it and each engine's label is kept (default: pybullet)")
     parser.add_argument("--captures", type=int, dest="captures_per_object", help="captures (placements) per object")
     parser.add_argument("--grasps-per-chunk", type=int, help="hand mode: grasps a worker simulates as one piece of work (labels do not depend on it)")
     parser.add_argument("--out", help="dataset directory (re-running into it resumes)")

@@ -102,6 +102,31 @@ def test_labels_do_not_depend_on_the_workers_or_on_how_grasps_are_chunked(tmp_pa
         assert 0 < one["object_in_gripper"].sum() < 24
 
 
+def test_two_engines_label_every_grasp_keep_each_label_and_report_their_agreement(tmp_path):
+    folder, out = tmp_path / "meshes", tmp_path / "dataset"
+    folder.mkdir()
+    trimesh.creation.box((0.05, 0.04, 0.08)).export(folder / "box.stl")
+    argv = ["--objects-dir", str(folder), "--out", str(out), "--protocol", "floating", "--engines", "pybullet,mujoco",
+            "--grasps-per-object", "8", "--captures", "1", "--pairs", "3000", "--no-progress"]
+    assert datagen.main(argv) == 0
+    with h5py.File(out / "grasps" / "box.h5", "r") as f:
+        assert [e.decode() for e in f["engines"][()]] == ["pybullet", "mujoco"]
+        pybullet, mujoco = (f[f"grasps/qualities/{e}/object_in_gripper"][()].astype(bool) for e in ("pybullet", "mujoco"))
+        flex = f["grasps/qualities/flex/object_in_gripper"][()].astype(bool)
+        assert len(flex) == 8 and (flex == (pybullet & mujoco)).all()
+        assert len(f["grasps/qualities/mujoco/failure_reason"]) == 8
+    graspgen = json.loads((out / "graspgen" / "box.json").read_text())
+    assert graspgen["grasps"]["object_in_gripper"] == flex.tolist()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["engines"] == ["pybullet", "mujoco"] and "held in every engine" in manifest["conventions"]["object_in_gripper"]
+    row = json.loads((out / "objects.jsonl").read_text().splitlines()[0])["engine_agreement"]
+    simulated = row["both_held"] + row["first_only"] + row["second_only"] + row["both_dropped"]
+    assert 0 < simulated <= 8 and row["first_only"] + row["both_held"] <= int(pybullet.sum())
+    report = (out / "report.md").read_text()
+    assert f"On the {simulated} grasps the engines simulated" in report
+    assert (out / "pictures" / "box_engines.png").exists() == bool(row["first_only"] + row["second_only"])
+
+
 @pytest.mark.parametrize("argv, named", [
     (["--grasps-per-object", "0"], "--grasps-per-object"),
     (["--captures", "0"], "--captures"),
@@ -109,6 +134,8 @@ def test_labels_do_not_depend_on_the_workers_or_on_how_grasps_are_chunked(tmp_pa
     (["--agreement", "-1"], "--agreement"),
     (["--objects-dir", "/no/such/folder"], "/no/such/folder"),
     (["--objects", "no_such_object"], "no_such_object"),
+    (["--engines", "pybullet,flex"], "flex"),
+    (["--engines", "mujoco", "--mode", "arm"], "--engines"),
 ])
 def test_bad_dataset_input_is_one_error_line_and_writes_nothing(tmp_path, capsys, argv, named):
     out = tmp_path / "dataset"

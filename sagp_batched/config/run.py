@@ -11,6 +11,8 @@ MAX_TRIALS = 100_000
 # More trial processes than any one host or Ray cluster this study runs on has CPUs.
 MAX_WORKERS = 1024
 RUN_BACKENDS = ("local", "ray")
+# The engines a hand-mode label can be simulated by (``datasets.engines``).
+LABEL_ENGINES = ("pybullet", "mujoco")
 
 
 @dataclass
@@ -56,6 +58,10 @@ class DatasetConfig(_Section):
     # settled on the table and the hand approaching from the pre-grasp; "floating", ACRONYM's: the
     # object alone, the hand closing at the grasp, grasps sampled around the whole object.
     protocol: str = setting("tabletop", choices=("tabletop", "floating"))
+    # The engines every hand-mode grasp is labelled in: with more than one, the dataset's label is
+    # held in all of them (a label one simulator gives and another does not is the simulator's), and
+    # each engine's own is kept beside it. PyBullet is the study's execution engine.
+    engines: tuple[str, ...] = setting(("pybullet",), non_empty=True, unique=True)
     # Share of each object's grasps, at most, taken from each verdict geometry alone fails
     # (``verdicts.GEOMETRY_VERDICTS``: the hand through the table, or in the object's points).
     geometry_verdict_fraction: float = setting(0.05, at_least=0, at_most=1)
@@ -81,5 +87,11 @@ class DatasetConfig(_Section):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        unknown = [engine for engine in self.engines if engine not in LABEL_ENGINES]
+        if unknown:
+            raise ConfigError(f"dataset.engines: unknown engine {unknown[0]!r} (known: {', '.join(LABEL_ENGINES)})", "dataset.engines")
+        if self.mode == "arm" and self.engines != ("pybullet",):
+            raise ConfigError("dataset.engines: arm mode executes the study's motion in PyBullet alone; "
+                              "other engines label hand mode (--mode hand)", "dataset.engines")
         if self.mode == "arm" and self.protocol != "tabletop":
             raise ConfigError(f"dataset.protocol '{self.protocol}' labels with the hand alone: use dataset.mode 'hand' (--mode hand)")

@@ -32,6 +32,7 @@ from ..seeds import capture_trial, labelling_seed
 from ..types import PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
+from .cross_engine import combined_labels, engine_columns, failure_text
 from .export import acronym_gripper_transforms_object
 from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
 
@@ -111,6 +112,7 @@ class ObjectLabels:
     neutral_tasks: dict[str, str]  # task -> why its rating is neutral (the rater does not know the object)
     skipped_poses: list[str] = field(default_factory=list)
     times_s: dict[str, float] = field(default_factory=dict)  # reset, capture, plan, simulate (summed over workers)
+    engine_seconds: dict[str, float] = field(default_factory=dict)  # the simulate stage's share of each engine
 
 
 @dataclass
@@ -180,6 +182,7 @@ class ChunkOutcome:
     chunk: SimulationChunk
     outcomes: list
     seconds: float
+    engine_seconds: dict[str, float] = field(default_factory=dict)
 
 
 def _open_hand_clear_world(spec: ObjectSpec, object_from_world: np.ndarray, config: Config, poses_world: GraspPoses) -> np.ndarray:
@@ -204,10 +207,6 @@ def _classified(spec: ObjectSpec, cloud, config: Config, pose_index: int, n_gras
     clear = functools.partial(_open_hand_clear_world, spec, cloud.object_from_world, config)
     classified = classify_grasps(cloud, config, seed, n_grasps - boundary, taken_object=taken, open_hand_clear=clear)
     return add_boundary_grasps(classified, boundary, object_surface(spec), np.asarray(cloud.object_from_world), robot_of(config), config, seed)
-
-
-def _failure(label) -> str:
-    return "" if label.held else f"{label.failure_reason}@{label.failed_at}"
 
 
 def _motion(value: float | None) -> float:
@@ -317,17 +316,22 @@ class ObjectLabeller:
         spec = self.objects.get(chunk.object_id)
         if (mode or self.config.dataset.mode) == "hand":
             placement = ObjectPlacement(spec, chunk.com_position_world, chunk.com_quat_xyzw)
-            outcomes = list(label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol))
-        else:
-            self._reset_to_pose(spec, chunk.pose_index)
-            labels = label_grasps_arm(self.scene, chunk.grasps, self.config)
-            outcomes = [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
-        return ChunkOutcome(chunk, outcomes, time.perf_counter() - clock)
+            by_engine, seconds = {}, {}
+            for engine in self.config.dataset.engines:
+                started = time.perf_counter()
+                by_engine[engine] = label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol, engine)
+                seconds[engine] = time.perf_counter() - started
+            return ChunkOutcome(chunk, combined_labels(by_engine), time.perf_counter() - clock, seconds)
+        self._reset_to_pose(spec, chunk.pose_index)
+        labels = label_grasps_arm(self.scene, chunk.grasps, self.config)
+        outcomes = [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
+        return ChunkOutcome(chunk, outcomes, time.perf_counter() - clock, {"pybullet": time.perf_counter() - clock})
 
     def label(self, object_id: str, n_grasps: int) -> ObjectLabels:
         """``n_grasps`` grasps of the object planned and simulated here, one chunk a capture."""
         plan = self.plan_object(object_id, n_grasps)
-        return object_labels(plan, [self.simulate(chunk) for chunk in plan.chunks(self.config.dataset.mode, n_grasps)])
+        chunks = plan.chunks(self.config.dataset.mode, n_grasps)
+        return object_labels(plan, [self.simulate(chunk) for chunk in chunks], self.config.dataset.engines)
 
     def compare_modes(self, object_id: str, n_grasps: int) -> dict[str, int]:
         """The same ``n_grasps`` grasps of the object's first capture simulated in hand and in arm mode:
@@ -343,20 +347,21 @@ class ObjectLabeller:
                 "hand_held": sum(h.held for h, _ in both), "arm_held": sum(a.held for _, a in both)}
 
 
-def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome]) -> ObjectLabels:
-    """An object's labels from its plan and the outcomes of every chunk of it (in any order)."""
+def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome], engines: tuple[str, ...] = ("pybullet",)) -> ObjectLabels:
+    """An object's labels from its plan and the outcomes of every chunk of it (in any order), labelled by ``engines``."""
     by_pose: dict[int, list] = {pose.pose_index: [None] * len(pose.candidates) for pose in plan.poses}
     for outcome in outcomes:
         by_pose[outcome.chunk.pose_index][outcome.chunk.first:outcome.chunk.first + len(outcome.outcomes)] = outcome.outcomes
-    parts = [_pose_labels(pose, by_pose[pose.pose_index]) for pose in plan.poses]
+    parts = [_pose_labels(pose, by_pose[pose.pose_index], engines) for pose in plan.poses]
     labelled = [p[0] for p in parts]
-    grasps = LabelledGrasps.concatenate(labelled) if labelled else LabelledGrasps.empty(DATASET_TASKS)
+    grasps = LabelledGrasps.concatenate(labelled) if labelled else LabelledGrasps.empty(DATASET_TASKS, engines)
     untested = UntestedGrasps(np.concatenate([p[1].transforms for p in parts] + [np.zeros((0, 4, 4))]), sum((p[1].reason for p in parts), []))
     times = {**plan.times_s, "simulate": sum(o.seconds for o in outcomes)}
-    return ObjectLabels(plan.object_id, grasps, untested, plan.rater, plan.neutral_tasks, plan.skipped_poses, times)
+    engine_seconds = {engine: sum(o.engine_seconds.get(engine, 0.0) for o in outcomes) for engine in engines}
+    return ObjectLabels(plan.object_id, grasps, untested, plan.rater, plan.neutral_tasks, plan.skipped_poses, times, engine_seconds)
 
 
-def _pose_labels(pose: PosePlan, outcomes: list) -> tuple[LabelledGrasps, UntestedGrasps]:
+def _pose_labels(pose: PosePlan, outcomes: list, engines: tuple[str, ...]) -> tuple[LabelledGrasps, UntestedGrasps]:
     """The capture's simulated grasps as labels in the object frame, and the grasps whose simulation could not run."""
     zoned, classified = pose.candidates, pose.classified
     tested = [i for i, outcome in enumerate(outcomes) if not isinstance(outcome, str)]
@@ -378,7 +383,7 @@ def _pose_labels(pose: PosePlan, outcomes: list) -> tuple[LabelledGrasps, Untest
         held=np.array([o.held for o in simulated], dtype=bool),
         held_fraction=np.array([float(o.held) if o.held_fraction is None else o.held_fraction for o in simulated]),
         decided_by=["simulation" if o.simulated else "geometry" for o in simulated],
-        failure_reason=[_failure(o) for o in simulated],
+        failure_reason=[failure_text(o) for o in simulated],
         motion_closing_linear_m=np.array([_motion(o.object_motion_during_closing_linear) for o in simulated]),
         motion_closing_angular_rad=np.array([_motion(o.object_motion_during_closing_angular) for o in simulated]),
         motion_shaking_linear_m=np.array([_motion(o.object_motion_during_shaking_linear) for o in simulated]),
@@ -387,6 +392,7 @@ def _pose_labels(pose: PosePlan, outcomes: list) -> tuple[LabelledGrasps, Untest
         s_reach=chosen.s_reach.double().numpy(),
         zone=zone_names,
         zone_rating=levels,
+        **dict(zip(("engine_held", "engine_held_fraction", "engine_failure"), engine_columns(simulated, engines))),
     )
     rejected = UntestedGrasps(transforms[untested].reshape(-1, 4, 4), [f"{verdicts[i]}: {outcomes[i]}" for i in untested])
     return labelled, rejected

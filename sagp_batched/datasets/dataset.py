@@ -19,6 +19,9 @@ HDF5 keys (ACRONYM's names and dtypes: float64 arrays, int64 outcomes, UTF-8 str
 - ``grasps/qualities/flex/object_in_gripper`` (N,): 1 held after the shake, 0 dropped. Every row of
   ``grasps/`` was simulated; a grasp whose simulation could not run is kept under ``untested/``
   with its reason, never here.
+- ``grasps/qualities/<engine>/{object_in_gripper, held_fraction, failure_reason}`` (N,): each engine's own
+  label (``engines`` lists them, ``[dataset] engines``); ``flex/object_in_gripper`` is held in all of them
+  (``cross_engine``).
 - ``grasps/qualities/flex/held_fraction`` (N,): the share of the grasp's simulations (its pose and its
   perturbed copies, ``labelling``) that held; ``grasps/decided_by``: "simulation", or "geometry" where the
   open hand already intersects the object or the table at the grasp (labelled a collision, not simulated).
@@ -84,29 +87,39 @@ class LabelledGrasps:
     s_reach: np.ndarray
     zone: list[str]
     zone_rating: dict[str, list[str]]  # task -> per-grasp level ("" unrated)
+    # Per engine that labelled the grasps (``cross_engine``): its own held, held fraction and failure ("" held).
+    engine_held: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    engine_held_fraction: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    engine_failure: dict[str, list[str]] = dataclasses.field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.held)
 
     @classmethod
-    def empty(cls, tasks: tuple[str, ...]) -> "LabelledGrasps":
+    def empty(cls, tasks: tuple[str, ...], engines: tuple[str, ...] = ()) -> "LabelledGrasps":
         """No grasps (an object none of whose captures could be labelled), with every field's shape."""
         none = np.zeros(0)
         return cls(np.zeros((0, 4, 4)), none, np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64), [], [], np.zeros(0, dtype=bool), none, [], [],
-                   none, none, none, none, none, none, [], {task: [] for task in tasks})
+                   none, none, none, none, none, none, [], {task: [] for task in tasks},
+                   {engine: np.zeros(0, dtype=bool) for engine in engines}, {engine: none for engine in engines}, {engine: [] for engine in engines})
 
     @classmethod
     def concatenate(cls, parts: list["LabelledGrasps"]) -> "LabelledGrasps":
         values = {}
         for item in dataclasses.fields(cls):
             pieces = [getattr(part, item.name) for part in parts]
-            if item.name == "zone_rating":
-                values[item.name] = {task: sum((p[task] for p in pieces), []) for task in pieces[0]} if pieces else {}
-            elif isinstance(pieces[0] if pieces else None, list):
-                values[item.name] = sum(pieces, [])
+            if isinstance(pieces[0] if pieces else None, dict):  # per task or engine: joined key by key
+                values[item.name] = {key: _joined([p[key] for p in pieces]) for key in pieces[0]}
             else:
-                values[item.name] = np.concatenate(pieces) if pieces else np.zeros(0)
+                values[item.name] = _joined(pieces)
         return cls(**values)
+
+
+def _joined(pieces: list) -> Any:
+    """Lists joined end to end, arrays concatenated."""
+    if pieces and isinstance(pieces[0], list):
+        return sum(pieces, [])
+    return np.concatenate(pieces) if pieces else np.zeros(0)
 
 
 @dataclass(frozen=True)

@@ -5,11 +5,12 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from ..config import Config
+from ..config.run import LABEL_ENGINES
 
 if TYPE_CHECKING:
     from .protocols import HandEngine
 
-ENGINES: tuple[str, ...] = ("pybullet", "mujoco")
+ENGINES: tuple[str, ...] = LABEL_ENGINES
 
 
 def check_engine(name: str) -> None:

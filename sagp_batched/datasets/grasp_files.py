@@ -271,6 +271,11 @@ def write_object_file(
         f[f"{flex}/object_motion_during_closing_angular"] = grasps.motion_closing_angular_rad.astype(np.float64)
         f[f"{flex}/object_motion_during_shaking_linear"] = grasps.motion_shaking_linear_m.astype(np.float64)
         f[f"{flex}/object_motion_during_shaking_angular"] = grasps.motion_shaking_angular_rad.astype(np.float64)
+        for engine, held in grasps.engine_held.items():
+            f[f"grasps/qualities/{engine}/object_in_gripper"] = held.astype(np.int64)
+            f[f"grasps/qualities/{engine}/held_fraction"] = grasps.engine_held_fraction[engine].astype(np.float64)
+            string_dataset(f, f"grasps/qualities/{engine}/failure_reason", grasps.engine_failure[engine])
+        string_dataset(f, "engines", list(grasps.engine_held))
         f["grasps/qualities/terms/geom"] = grasps.s_geom.astype(np.float64)
         f["grasps/qualities/terms/reach"] = grasps.s_reach.astype(np.float64)
         f["grasps/width"] = grasps.width_m.astype(np.float64)

@@ -15,9 +15,10 @@ which or how many grasps are labelled with it.
 Robust labels: with ``labelling.perturbed_simulations`` K > 1 each grasp is simulated K times, at its
 pose and at K - 1 poses moved ``perturbation_translation_m`` and turned ``perturbation_rotation_deg``
 about the grasp centre in directions drawn from a seed made of the pose itself (the same grasp gets
-the same perturbations in any file and any order). The label is held where most of the K held;
-``held_fraction`` keeps the share, and the label's other fields are those of its own pose where that
-agreed with the majority, else of the first perturbed pose that did.
+the same perturbations in any file and any order). The label is held where most of the K held; the
+simulations stop once the majority is decided (three alike of five), since the rest could not change
+it. ``held_fraction`` keeps the share of the simulations run, and the label's other fields are those
+of its own pose where that agreed with the majority, else of the first perturbed pose that did.
 """
 from __future__ import annotations
 
@@ -238,9 +239,22 @@ def _label(placements: Sequence[ObjectPlacement | FloatingPlacement], targets: S
             if verdicts[0] is not None:  # the grasp itself intersects: no simulation tests it
                 labels.append(verdicts[0])
                 continue
-            outcomes = [verdict or _simulate(engine, placement, target, config) for target, verdict in zip(poses, verdicts)]
-            labels.append(_majority(outcomes))
-    return labels
+            labels.append(_majority(_decisive_outcomes(engine, placement, poses, verdicts, config)))
+    return [dataclasses.replace(label, engine=engine_name) for label in labels]
+
+
+def _decisive_outcomes(engine: HandEngine, placement: ObjectPlacement | FloatingPlacement, poses: list[_Target],
+                       verdicts: list[GraspLabel | None], config: Config) -> list[GraspLabel]:
+    """The grasp's simulations in order (its pose, then its perturbations) until their majority is
+    decided: the simulations left could not change the label, only its ``held_fraction``."""
+    needed = len(poses) // 2 + 1  # held by a strict majority; dropped once held can no longer reach it
+    outcomes: list[GraspLabel] = []
+    for target, verdict in zip(poses, verdicts):
+        outcomes.append(verdict or _simulate(engine, placement, target, config))
+        held = sum(outcome.held for outcome in outcomes)
+        if held >= needed or len(outcomes) - held > len(poses) - needed:
+            break
+    return outcomes
 
 
 def _simulate(engine: HandEngine, placement: ObjectPlacement | FloatingPlacement, target: _Target, config: Config) -> GraspLabel:

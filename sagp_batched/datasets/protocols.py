@@ -51,7 +51,8 @@ class GraspLabel:
     close to its end, ``shaking`` relative to the hand from the shake's start to its end.
     ``shake_achieved_peak_accelerations``: what the hand reached along and about its x, y, z
     (m/s^2, rad/s^2; ``shake.achieved_shake_peaks``), None where it was not shaken.
-    ``simulated``: False where geometry decided the label.
+    ``simulated``: False where geometry decided the label. ``engine``: the engine that simulated it;
+    a label from several engines (``cross_engine.combined_labels``) keeps each one's in ``by_engine``.
     """
 
     mode: str
@@ -66,6 +67,8 @@ class GraspLabel:
     protocol: str = "tabletop"
     simulated: bool = True
     held_fraction: float | None = None
+    engine: str = "pybullet"
+    by_engine: tuple["GraspLabel", ...] = ()
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ import numpy as np
 from ..config import Config
 from ..run_directory import write_json
 from ..study.report import count_and_rate
+from .cross_engine import LABEL_RULE, agreement_report_lines
 from .dataset import read_progress, split_of, write_splits
 from .verdicts import VERDICTS
 
@@ -109,8 +110,10 @@ def write_dataset_report(out_dir: Path, config: Config, objects, object_ids: lis
             "frame": "object link frame; ACRONYM Franka gripper: z approach, x closing axis, origin 0.105 m behind the contacts",
             "object_in_gripper": "1 held after lift and shake in most of the grasp's simulations (held_fraction), 0 dropped; "
                                  "decided_by 'geometry' rows are collisions of the open hand at the grasp, not simulated; "
-                                 "untested grasps are under untested/",
+                                 "untested grasps are under untested/"
+                                 + (f"; {LABEL_RULE}" if len(config.dataset.engines) > 1 else ""),
         },
+        "engines": list(config.dataset.engines),
         "mode": config.dataset.mode, "protocol": config.dataset.protocol, "grasps_per_object": config.dataset.grasps_per_object,
         "robust_labels": {"simulations_per_label": config.labelling.perturbed_simulations,
                           "perturbation_translation_m": config.labelling.perturbation_translation_m,
@@ -149,6 +152,7 @@ def _report_markdown(out_dir, manifest, summary, entries, pictures, plots) -> st
         *[f"| {verdict} | {count_and_rate(*counts)} |" for verdict, counts in by_verdict.items()], "",
         "## Per object", "", *_object_rows(entries), "",
         "## Hand vs arm", "", *_agreement_lines(out_dir), "",
+        "## Engines", "", *agreement_report_lines(entries), "",
     ]
     if manifest["skipped_objects"]:
         lines += ["## Objects that could not serve", "", *[f"- `{path}`: {why}" for path, why in manifest["skipped_objects"]], ""]
@@ -197,15 +201,37 @@ def _write_plots(out_dir: Path, entries: list[dict[str, Any]], summary: dict[str
 
 
 def _write_pictures(out_dir: Path, entries: list[dict[str, Any]]) -> list[Path]:
+    """Each object's labelled grasps, and where two engines disagree on some, those grasps alone."""
     pictures_dir = out_dir / "pictures"
     pictures_dir.mkdir(exist_ok=True)
-    return [draw_object_grasps(out_dir / "grasps" / f"{e['object']}.h5", out_dir / "meshes", pictures_dir / f"{e['object']}.png")
-            for e in entries]
+    written = []
+    for entry in entries:
+        h5_path = out_dir / "grasps" / f"{entry['object']}.h5"
+        written.append(draw_object_grasps(h5_path, out_dir / "meshes", pictures_dir / f"{entry['object']}.png"))
+        engines = entry.get("engine_agreement")
+        if engines and engines["first_only"] + engines["second_only"]:
+            written.append(draw_object_grasps(h5_path, out_dir / "meshes", pictures_dir / f"{entry['object']}_engines.png",
+                                              tuple(engines["engines"])))
+    return written
 
 
-def draw_object_grasps(h5_path: Path, meshes_dir: Path, picture: Path) -> Path:
+def _marker_colours(f, engines: tuple[str, str] | None) -> tuple[np.ndarray, np.ndarray, str]:
+    """Which grasps a picture draws, their colours (RGBA) and its caption: every grasp, held green and
+    dropped red; or, for two ``engines``, the grasps they disagree on, orange held in the first only
+    and blue in the second only."""
+    if engines is None:
+        held = f["grasps/qualities/flex/object_in_gripper"][()].astype(bool)
+        return (np.arange(len(held)), np.where(held[:, None], [[0.1, 0.7, 0.2, 0.8]], [[0.85, 0.1, 0.1, 0.8]]),
+                f"{int(held.sum())} held, {int((~held).sum())} dropped (of {len(held)}")
+    first, second = (f[f"grasps/qualities/{engine}/object_in_gripper"][()].astype(bool) for engine in engines)
+    differ = np.flatnonzero(first != second)
+    return (differ, np.where(first[differ, None], [[0.95, 0.55, 0.0, 0.9]], [[0.1, 0.35, 0.9, 0.9]]),
+            f"{engines[0]} only held {int((first & ~second).sum())} (orange), {engines[1]} only {int((~first & second).sum())} (blue) (of {len(first)}")
+
+
+def draw_object_grasps(h5_path: Path, meshes_dir: Path, picture: Path, engines: tuple[str, str] | None = None) -> Path:
     """The object's mesh (scaled as the file says) with up to ``PICTURE_MAX_GRASPS`` of its labelled
-    grasps as gripper markers: held green, dropped red."""
+    grasps as gripper markers: held green, dropped red; or where ``engines`` disagree (``_marker_colours``)."""
     import h5py
     import matplotlib
 
@@ -216,15 +242,16 @@ def draw_object_grasps(h5_path: Path, meshes_dir: Path, picture: Path) -> Path:
 
     with h5py.File(h5_path, "r") as f:
         transforms = f["grasps/transforms"][()]
-        held = f["grasps/qualities/flex/object_in_gripper"][()].astype(bool)
+        drawable, marker_colours, caption = _marker_colours(f, engines)
         mesh_file, scale = f["object/file"][()].decode(), float(f["object/scale"][()])
     mesh = trimesh.load(meshes_dir / mesh_file, force="mesh")
     mesh.apply_scale(scale)
     rng = np.random.default_rng(0)
     faces = mesh.faces if len(mesh.faces) <= PICTURE_MAX_FACES else mesh.faces[rng.choice(len(mesh.faces), PICTURE_MAX_FACES, replace=False)]
-    shown = rng.permutation(len(transforms))[:PICTURE_MAX_GRASPS]
+    order = rng.permutation(len(drawable))[:PICTURE_MAX_GRASPS]
+    shown = drawable[order]
     segments = np.einsum("nij,skj->nski", transforms[shown, :3, :3], _MARKER_SEGMENTS) + transforms[shown, None, None, :3, 3]
-    colours = np.repeat(np.where(held[shown, None], [[0.1, 0.7, 0.2, 0.8]], [[0.85, 0.1, 0.1, 0.8]]), len(_MARKER_SEGMENTS), axis=0)
+    colours = np.repeat(marker_colours[order], len(_MARKER_SEGMENTS), axis=0)
     figure = plt.figure(figsize=(6, 6))
     axis = figure.add_subplot(projection="3d")
     axis.add_collection3d(Poly3DCollection(mesh.vertices[faces], facecolor=(0.7, 0.7, 0.75, 0.35), edgecolor="none"))
@@ -235,7 +262,7 @@ def draw_object_grasps(h5_path: Path, meshes_dir: Path, picture: Path) -> Path:
     for setter, c in zip((axis.set_xlim, axis.set_ylim, axis.set_zlim), centre):
         setter(c - half, c + half)
     axis.view_init(elev=30, azim=-60)
-    axis.set_title(f"{h5_path.stem}: {int(held.sum())} held, {int((~held).sum())} dropped (of {len(held)}; {len(shown)} drawn)", fontsize=8)
+    axis.set_title(f"{h5_path.stem}: {caption}; {len(shown)} drawn)", fontsize=8)
     axis.set_axis_off()
     figure.subplots_adjust(left=0, right=1, bottom=0, top=0.95)
     figure.savefig(picture, dpi=100)

@@ -236,7 +236,7 @@ def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], 
             plan, outcomes, n_chunks = unfinished[object_id]
             if len(outcomes) == n_chunks:
                 del unfinished[object_id]
-                yield object_labels(plan, outcomes)
+                yield object_labels(plan, outcomes, config.dataset.engines)
     finally:
         workers.close()
 
@@ -245,6 +245,7 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol
     """Write one object's files and return its progress line (what the report and a resume read)."""
     from sagp_batched_kernels.pose_nms import distinct_grasp_count
 
+    from .cross_engine import object_engine_agreement
     from .dataset import append_progress, copy_object_mesh
     from .grasp_files import write_graspgen_file, write_object_file
 
@@ -269,7 +270,9 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol
         "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
         "by_verdict": {v: [int(sum(h for h, w in zip(grasps.held, grasps.verdict) if w == v)), grasps.verdict.count(v)]
                        for v in sorted(set(grasps.verdict))},
-        "times_s": {**labels.times_s, "write": write_s},
+        "times_s": {**labels.times_s, "write": write_s}, "engine_seconds": labels.engine_seconds,
+        "engine_agreement": object_engine_agreement(grasps.engine_held, grasps.engine_failure,
+                                                    np.array([by == "simulation" for by in grasps.decided_by], dtype=bool), grasps.verdict),
     }
     append_progress(out_dir, entry)
     return entry
