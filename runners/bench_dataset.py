@@ -1,13 +1,15 @@
 """Benchmark dataset generation: labelled grasps per second per core, by mode and worker count, with the stage breakdown.
 
-    python -m runners.bench_dataset --json OUT.json [--objects-dir DIR] [--object 025_mug]
-        [--hand-grasps 400] [--arm-grasps 60] [--workers 1,2] [--repeats 3] [--pairs N] [--shared-world-pairs 1,4,16]
+    python -m runners.bench_dataset --json OUT.json [--objects-dir DIR] [--object 025_mug[,...]]
+        [--hand-grasps 400] [--label-engines pybullet,mujoco] [--protocols tabletop,floating] [--arm-grasps 60]
+        [--workers 1,2] [--repeats 3] [--pairs N] [--shared-world-pairs 1,4,16]
 
-Every case is the real dataset run of one object into a fresh directory (one plan per capture, the
-grasps spread over the workers); medians over ``--repeats``, the cases interleaved within each
-repeat. The per-core rate is labelled grasps / (wall time x workers); the busy rate is labelled grasps /
-the workers' summed stage seconds. The projection to ``--project-objects`` x ``--project-grasps``
-uses the hand-mode busy rate at the most workers measured: a long run keeps every core busy.
+Every case is the real dataset run of the objects into a fresh directory (one plan per capture, the
+grasps spread over the workers): hand mode in each engine and protocol, arm mode in PyBullet; medians
+over ``--repeats``, the cases interleaved within each repeat. The per-core rate is labelled grasps /
+(wall time x workers); the busy rate is labelled grasps / the workers' summed stage seconds. The
+projection to ``--project-objects`` x ``--project-grasps`` uses each hand-mode case's busy rate at the
+most workers measured: a long run keeps every core busy.
 
     python -m runners.bench_dataset --fidelity --out DIR [--objects-dir DIR] [--objects a,b] [--grasps 60]
         [--perturbed-simulations K]
@@ -28,12 +30,13 @@ their agreement and kappa, the designed grasps in both and sims/s and labels/s p
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
 
 from sagp_batched.benchmarks import engine_agreement as engines
-from sagp_batched.benchmarks.dataset_speed import STAGES, benchmark_dataset, projected_hours, shared_world_step_cost
+from sagp_batched.benchmarks.dataset_speed import STAGES, DatasetCase, benchmark_dataset, projected_hours, shared_world_step_cost
 from sagp_batched.benchmarks.label_fidelity import DEFAULT_OBJECTS, fidelity_markdown, label_fidelity
 from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.provenance import collect
@@ -63,8 +66,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--json", type=Path, help="where to write the results (required but with --fidelity)")
     parser.add_argument("--profile", default="dataset")
     parser.add_argument("--objects-dir", default=None, help="object set (default: the embedded compact YCB set)")
-    parser.add_argument("--object", default="025_mug", help="the object every case labels")
-    parser.add_argument("--hand-grasps", type=int, default=400, help="grasps per hand-mode case (0 skips hand mode)")
+    parser.add_argument("--object", default="025_mug", help="the object, or comma list of objects, every case labels")
+    parser.add_argument("--hand-grasps", type=int, default=400, help="grasps per object per hand-mode case (0 skips hand mode)")
+    parser.add_argument("--label-engines", default="pybullet,mujoco", help="engines the hand-mode cases label in")
+    parser.add_argument("--protocols", default="tabletop,floating", help="protocols the hand-mode cases label in")
     parser.add_argument("--arm-grasps", type=int, default=60, help="grasps per arm-mode case (0 skips arm mode)")
     parser.add_argument("--workers", default="1,2", help="comma-separated worker counts")
     parser.add_argument("--repeats", type=int, default=3)
@@ -101,33 +106,31 @@ def _speed_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
     pair_counts = _counts(parser, "--shared-world-pairs", args.shared_world_pairs, 1) if args.shared_world_pairs.strip() else []
     if args.repeats < 1 or args.hand_grasps < 0 or args.arm_grasps < 0:
         parser.error("--repeats must be >= 1 and --hand-grasps / --arm-grasps >= 0")
-    grasps_by_mode = {mode: n for mode, n in (("hand", args.hand_grasps), ("arm", args.arm_grasps)) if n > 0}
+    engines, protocols = args.label_engines.split(","), args.protocols.split(",")
+    cases = [DatasetCase("hand", args.hand_grasps, engine.strip(), protocol.strip()) for engine in engines for protocol in protocols
+             if args.hand_grasps > 0]
+    cases += [DatasetCase("arm", args.arm_grasps)] if args.arm_grasps > 0 else []
+    object_ids = [part.strip() for part in args.object.split(",") if part.strip()]
     try:
         config = load_config(args.profile, overrides={"planner": {"n_pairs": args.pairs}} if args.pairs is not None else None)
+        for case in cases:  # an unknown engine or protocol is refused before any work
+            dataclasses.replace(config.dataset, engines=(case.engine,), protocol=case.protocol)
         objects = load_object_set(args.objects_dir)
-        objects.get(args.object)
+        for object_id in object_ids:
+            objects.get(object_id)
     except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     configure_torch()
 
-    rows = benchmark_dataset(config, objects, args.object, grasps_by_mode, worker_counts, args.repeats)
+    rows = benchmark_dataset(config, objects, object_ids, cases, worker_counts, args.repeats)
     for row in rows:
         stages = " ".join(f"{stage}={row['stage_s'][stage]:.2f}s" for stage in STAGES)
-        print(f"{row['mode']:>4} workers={row['workers']} {row['labelled']} labelled ({row['untested']} untested) in {row['wall_s']:.1f} s: "
-              f"{row['labels_per_s_per_core']:.1f} labels/s per core ({row['busy_labels_per_s_per_core']:.1f} busy), simulation alone {row['simulated_labels_per_s_per_core']:.1f}/s | "
-              f"{stages} (summed over workers, medians of {row['repeats']})", flush=True)
-    projection = None
-    hand_rows = [row for row in rows if row["mode"] == "hand"]
-    if hand_rows:
-        widest = max(hand_rows, key=lambda row: row["workers"])
-        rate = widest["busy_labels_per_s_per_core"]
-        projection = {"objects": args.project_objects, "grasps_per_object": args.project_grasps,
-                      "busy_labels_per_s_per_core": rate, "measured_workers": widest["workers"],
-                      "hours_by_cores": {cores: projected_hours(rate, args.project_objects, args.project_grasps, cores) for cores in PROJECTION_CORES}}
-        print(f"projection, hand mode, every core busy at {rate:.1f} labels/s: {args.project_objects} objects x "
-              f"{args.project_grasps} grasps = " + ", ".join(f"{hours:.0f} h on {cores} cores" for cores, hours in projection["hours_by_cores"].items()))
-    shared = shared_world_step_cost(config, objects, args.object, pair_counts) if pair_counts else []
+        print(f"{row['case']:>22} workers={row['workers']} {row['labelled']} labelled ({row['simulated']} simulated, {row['untested']} untested) "
+              f"in {row['wall_s']:.1f} s: {row['labels_per_s_per_core']:.1f} labels/s per core ({row['busy_labels_per_s_per_core']:.1f} busy), "
+              f"simulation alone {row['simulated_labels_per_s_per_core']:.1f}/s | {stages} (summed over workers, medians of {row['repeats']})", flush=True)
+    projection = _projection(rows, args.project_objects, args.project_grasps)
+    shared = shared_world_step_cost(config, objects, object_ids[0], pair_counts) if pair_counts else []
     for row in shared:
         print(f"shared world: {row['pairs']:>3} hand-object pairs, {row['contacts']} contacts: {row['step_ms']:.3f} ms a step, "
               f"{row['step_ms_per_pair']:.3f} ms per pair")
@@ -136,6 +139,21 @@ def _speed_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2, default=str))
     return 0
+
+
+def _projection(rows: list[dict], objects_count: int, grasps_per_object: int) -> list[dict]:
+    """Per hand-mode engine and protocol, the hours ``objects_count`` x ``grasps_per_object`` labels take at
+    the busy rate of the most workers measured, printed as they are made."""
+    projections = []
+    for case in dict.fromkeys(row["case"] for row in rows if row["mode"] == "hand"):
+        widest = max((row for row in rows if row["case"] == case), key=lambda row: row["workers"])
+        rate = widest["busy_labels_per_s_per_core"]
+        hours = {cores: projected_hours(rate, objects_count, grasps_per_object, cores) for cores in PROJECTION_CORES}
+        projections.append({"case": case, "objects": objects_count, "grasps_per_object": grasps_per_object,
+                            "busy_labels_per_s_per_core": rate, "measured_workers": widest["workers"], "hours_by_cores": hours})
+        print(f"projection, {case}, every core busy at {rate:.1f} labels/s: {objects_count} objects x {grasps_per_object} grasps = "
+              + ", ".join(f"{h:.0f} h on {cores} cores" for cores, h in hours.items()))
+    return projections
 
 
 def _fidelity_inputs(parser: argparse.ArgumentParser, args: argparse.Namespace, flag: str = "--fidelity",

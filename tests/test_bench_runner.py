@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -59,25 +61,30 @@ def test_dataset_bench_writes_rates_breakdown_projection_and_shared_world_cost(t
     out = tmp_path / "dataset_bench.json"
     done = subprocess.run(
         [sys.executable, "-m", "runners.bench_dataset", "--json", str(out), "--object", "005_tomato_soup_can", "--hand-grasps", "4",
-         "--arm-grasps", "0", "--workers", "1", "--repeats", "1", "--pairs", "2000", "--shared-world-pairs", "1,2"],
+         "--label-engines", "pybullet,mujoco", "--protocols", "floating", "--arm-grasps", "0", "--workers", "1", "--repeats", "1",
+         "--pairs", "2000", "--shared-world-pairs", "1,2"],
         cwd=REPO, capture_output=True, text=True, timeout=600,
     )
     assert done.returncode == 0, done.stderr[-2000:]
     report = json.loads(out.read_text())
-    (case,) = report["cases"]
-    assert case["mode"] == "hand" and case["workers"] == 1 and case["labelled"] + case["untested"] == 4
-    assert case["wall_s"] > 0 and case["labels_per_s_per_core"] > 0 and case["simulated_labels_per_s_per_core"] > 0
-    assert case["busy_labels_per_s_per_core"] >= case["labels_per_s_per_core"]
-    assert set(case["stage_s"]) == {"reset", "capture", "plan", "simulate", "write"} and case["stage_s"]["simulate"] > 0
-    assert set(report["projection"]["hours_by_cores"]) == {"2", "64"}
+    assert [(case["engine"], case["protocol"]) for case in report["cases"]] == [("pybullet", "floating"), ("mujoco", "floating")]
+    for case in report["cases"]:
+        assert case["mode"] == "hand" and case["workers"] == 1 and case["labelled"] + case["untested"] == 4
+        assert case["wall_s"] > 0 and case["labels_per_s_per_core"] > 0 and case["simulated_labels_per_s_per_core"] > 0
+        assert case["busy_labels_per_s_per_core"] >= case["labels_per_s_per_core"]
+        assert set(case["stage_s"]) == {"reset", "capture", "plan", "simulate", "write"} and case["stage_s"]["simulate"] > 0
+    assert [p["case"] for p in report["projection"]] == ["hand pybullet floating", "hand mujoco floating"]
+    assert all(set(p["hours_by_cores"]) == {"2", "64"} for p in report["projection"])
     assert [row["pairs"] for row in report["shared_world"]] == [1, 2] and all(row["step_ms"] > 0 for row in report["shared_world"])
     assert report["provenance"]["git"] and report["provenance"]["config"]["dataset"]["mode"] == "hand"
 
 
-def test_dataset_bench_refuses_an_unknown_object_in_one_line(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "runners.bench_dataset", "--json", str(tmp_path / "x.json"), "--object", "no_such"],
+@pytest.mark.parametrize("flags, named", [(["--object", "no_such"], "no_such"), (["--label-engines", "pybullet,flex"], "flex"),
+                                          (["--protocols", "upside_down"], "upside_down")])
+def test_dataset_bench_refuses_an_unknown_object_engine_or_protocol_in_one_line(tmp_path, flags, named):
+    done = subprocess.run([sys.executable, "-m", "runners.bench_dataset", "--json", str(tmp_path / "x.json"), *flags],
                           cwd=REPO, capture_output=True, text=True, timeout=120)
-    assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith("error:") and "no_such" in done.stderr
+    assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith("error:") and named in done.stderr
 
 
 def test_bench_compares_single_plans_with_one_plan_batch_per_batch_size(tmp_path, ycb_dir):

@@ -1,6 +1,6 @@
-"""Dataset benchmark: labelled grasps per second per core, by mode and worker count, and where the time goes.
+"""Dataset benchmark: labelled grasps per second per core, by mode, engine, protocol and worker count, and where the time goes.
 
-Each case is the real dataset run (``dataset_run.generate_dataset``) of one object into a fresh
+Each case is the real dataset run (``dataset_run.generate_dataset``) of the objects into a fresh
 directory: wall time from the first plan to the report (worker start-up included), and the per-stage
 seconds the workers report (reset, capture, plan, simulate, write), summed over workers. The
 per-core rate divides by wall time x workers, so idle workers (starting up, or waiting while the
@@ -18,6 +18,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
@@ -30,30 +31,46 @@ from ..world.objects import ObjectSet
 STAGES = ("reset", "capture", "plan", "simulate", "write")
 
 
-def _dataset_config(config: Config, object_id: str, mode: str, n_grasps: int, workers: int) -> Config:
+@dataclass(frozen=True)
+class DatasetCase:
+    """What one benchmark case labels: the mode, and in hand mode the engine and the protocol."""
+
+    mode: str
+    grasps: int
+    engine: str = "pybullet"
+    protocol: str = "tabletop"
+
+    @property
+    def name(self) -> str:
+        return "arm" if self.mode == "arm" else f"hand {self.engine} {self.protocol}"
+
+
+def _dataset_config(config: Config, object_ids: Sequence[str], case: DatasetCase, workers: int) -> Config:
     return dataclasses.replace(
         config,
-        run=dataclasses.replace(config.run, objects=(object_id,), workers=workers, backend="local"),
-        dataset=dataclasses.replace(config.dataset, mode=mode, grasps_per_object=n_grasps),
+        run=dataclasses.replace(config.run, objects=tuple(object_ids), workers=workers, backend="local"),
+        dataset=dataclasses.replace(config.dataset, mode=case.mode, grasps_per_object=case.grasps, engines=(case.engine,),
+                                    protocol=case.protocol),
     )
 
 
-def benchmark_dataset_case(config: Config, objects: ObjectSet, object_id: str, mode: str, n_grasps: int, workers: int) -> dict[str, Any]:
-    """One dataset run of ``n_grasps`` grasps of ``object_id`` in ``mode`` on ``workers`` workers."""
+def benchmark_dataset_case(config: Config, objects: ObjectSet, object_ids: Sequence[str], case: DatasetCase, workers: int) -> dict[str, Any]:
+    """One dataset run of ``case.grasps`` grasps of each of ``object_ids`` on ``workers`` workers."""
     from ..datasets.run import generate_dataset
 
-    run_config = _dataset_config(config, object_id, mode, n_grasps, workers)
+    run_config = _dataset_config(config, object_ids, case, workers)
     entries: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="sagp_dataset_bench_") as out:
         start = time.perf_counter()
         generate_dataset(run_config, objects, Path(out), progress=False, on_object=entries.append)
         wall_s = time.perf_counter() - start
-    (entry,) = entries
-    times = {stage: float(entry["times_s"].get(stage, 0.0)) for stage in STAGES}
-    labelled = int(entry["labelled"])
+    times = {stage: sum(float(entry["times_s"].get(stage, 0.0)) for entry in entries) for stage in STAGES}
+    labelled = sum(int(entry["labelled"]) for entry in entries)
+    simulated = sum(int(entry["labelled"]) - int(entry["decided_by_geometry"]) for entry in entries)
     return {
-        "object": object_id, "mode": mode, "workers": workers, "grasps": n_grasps, "labelled": labelled,
-        "untested": int(entry["untested"]), "held": int(entry["held"]), "wall_s": wall_s,
+        "objects": list(object_ids), "case": case.name, "mode": case.mode, "engine": case.engine, "protocol": case.protocol,
+        "workers": workers, "grasps": case.grasps, "labelled": labelled, "simulated": simulated,
+        "untested": sum(int(entry["untested"]) for entry in entries), "held": sum(int(entry["held"]) for entry in entries), "wall_s": wall_s,
         "labels_per_s_per_core": labelled / (wall_s * workers),
         "busy_labels_per_s_per_core": labelled / sum(times.values()),
         "simulated_labels_per_s_per_core": labelled / times["simulate"] if times["simulate"] > 0 else None,
@@ -61,26 +78,27 @@ def benchmark_dataset_case(config: Config, objects: ObjectSet, object_id: str, m
     }
 
 
-def benchmark_dataset(config: Config, objects: ObjectSet, object_id: str, grasps_by_mode: dict[str, int],
+def benchmark_dataset(config: Config, objects: ObjectSet, object_ids: Sequence[str], cases: Sequence[DatasetCase],
                       worker_counts: Sequence[int], repeats: int) -> list[dict[str, Any]]:
-    """Medians over ``repeats`` of every (mode, workers) case, the cases interleaved within each repeat
+    """Medians over ``repeats`` of every (case, workers), the cases interleaved within each repeat
     so a busy spell on the machine falls on all of them alike."""
-    runs: dict[tuple[str, int], list[dict]] = {}
+    runs: dict[tuple[DatasetCase, int], list[dict]] = {}
     for _ in range(repeats):
-        for mode, n_grasps in grasps_by_mode.items():
+        for case in cases:
             for workers in worker_counts:
-                runs.setdefault((mode, workers), []).append(benchmark_dataset_case(config, objects, object_id, mode, n_grasps, workers))
+                runs.setdefault((case, workers), []).append(benchmark_dataset_case(config, objects, object_ids, case, workers))
     rows = []
-    for (mode, workers), cases in runs.items():
-        first = cases[0]
+    for cases_run in runs.values():
+        first = cases_run[0]
         rows.append({
-            **{key: first[key] for key in ("object", "mode", "workers", "grasps", "labelled", "untested", "held")},
-            "repeats": len(cases),
-            "wall_s": statistics.median(c["wall_s"] for c in cases),
-            "labels_per_s_per_core": statistics.median(c["labels_per_s_per_core"] for c in cases),
-            "busy_labels_per_s_per_core": statistics.median(c["busy_labels_per_s_per_core"] for c in cases),
-            "simulated_labels_per_s_per_core": statistics.median(c["simulated_labels_per_s_per_core"] or 0.0 for c in cases),
-            "stage_s": {stage: statistics.median(c["stage_s"][stage] for c in cases) for stage in STAGES},
+            **{key: first[key] for key in ("objects", "case", "mode", "engine", "protocol", "workers", "grasps", "labelled", "simulated",
+                                           "untested", "held")},
+            "repeats": len(cases_run),
+            "wall_s": statistics.median(c["wall_s"] for c in cases_run),
+            "labels_per_s_per_core": statistics.median(c["labels_per_s_per_core"] for c in cases_run),
+            "busy_labels_per_s_per_core": statistics.median(c["busy_labels_per_s_per_core"] for c in cases_run),
+            "simulated_labels_per_s_per_core": statistics.median(c["simulated_labels_per_s_per_core"] or 0.0 for c in cases_run),
+            "stage_s": {stage: statistics.median(c["stage_s"][stage] for c in cases_run) for stage in STAGES},
         })
     return rows
 
