@@ -22,6 +22,8 @@ from typing import NamedTuple
 
 import torch
 
+from .compiled import MIN_COMPILED_ROWS, compiled, padded_rows
+
 # Runs of consecutive probe points (a coarse voxel subset, so roughly regions of the scene) whose
 # least-bound probe has its exact separation evaluated first: a blocked grasp almost always has
 # one of them under the margin. Four such probes, not eight or the 16 nearest overall (a per-row
@@ -39,6 +41,9 @@ BOUND_SLACK_M = 1e-6
 RAW_ROUNDING_EPS = 64 * torch.finfo(torch.float32).eps
 # MKL's batched GEMM rounds like the exhaustive product only from 12 columns up.
 MIN_GEMM_COLUMNS = 16
+# Rows whose exact separations are evaluated together, padded to the most candidate points of any
+# of them: rows sorted by that count waste little padding in buckets of this many.
+SEPARATION_BUCKET_ROWS = 256
 # (candidate, polytope, axis, probe) elements of the probes' bound computed at once: blocks of
 # ~2 MB temporaries, between smaller blocks' extra rounds and larger ones' cache misses.
 PROBE_BLOCK_ELEMENTS = 524_288
@@ -52,30 +57,44 @@ class HandClearance(NamedTuple):
     clearance_m: torch.Tensor
 
 
-def _least_excess(projection: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+def _least_excess(projection: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, compile: bool = False) -> torch.Tensor:
     """(c, n) the largest slab excess |projection - middle| - half over directions, least over
-    polytopes, NaN -> inf, for (d, c, n) projections and (S, d, c or 1, 1) slabs.
+    polytopes, NaN -> inf, for (d, c, n) projections and (S, d, c or 1, 1) slabs; ``compile``: by
+    the compiled ``_fused_least_excess``, whose exact operations give the same values.
 
     Directions and polytopes lead: their reductions then run along whole (c, n) planes, not
     over a short middle dimension. In place on the one temporary: these are the
     sweep's largest tensors (MBs a block), and fresh allocations of that size cost as much as the
     arithmetic."""
+    if compile and min(projection.shape[1:]) >= MIN_COMPILED_ROWS:
+        return compiled(_fused_least_excess)(projection, middle, half)
     excess = (projection - middle).abs_().sub_(half).amax(dim=1).amin(dim=0)
     return torch.nan_to_num(excess, nan=float("inf"))
 
 
-def _separation(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+def _fused_least_excess(projection: torch.Tensor, middle: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
+    """``_least_excess``, one polytope at a time, fused (for ``compiled``): differences, absolute
+    values, maxima and minima are exact, so every value is the eager one."""
+    least = None
+    for polytope in range(middle.shape[0]):
+        excess = ((projection - middle[polytope]).abs() - half[polytope]).amax(dim=0)
+        least = excess if least is None else torch.minimum(least, excess)
+    return torch.nan_to_num(least, nan=float("inf"))
+
+
+def _separation(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, compile: bool) -> torch.Tensor:
     """(c, n) separation s(p) of points ``relative`` (c, n, 3) from the polytopes, NaN rows -> inf."""
     n_points = relative.shape[1]
     if n_points < MIN_GEMM_COLUMNS:
         relative = torch.cat((relative, relative.new_full((relative.shape[0], MIN_GEMM_COLUMNS - n_points, 3), float("nan"))), dim=1)
     # Projections on the k-DOP directions in one GEMM: (u_d^T R^T) (p - centre).
     projection = (axes @ relative.transpose(1, 2))[:, :, :n_points].transpose(0, 1).contiguous()  # (D, c, n)
-    return _least_excess(projection, middle, half)
+    return _least_excess(projection, middle, half, compile)
 
 
 def _bound_from_world(
-    points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, middle: torch.Tensor, half: torch.Tensor
+    points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, middle: torch.Tensor, half: torch.Tensor,
+    compile: bool = False,
 ) -> torch.Tensor:
     """(r, N) s(p) over the first three directions, a lower bound of s(p) up to rounding, of each
     row's scene points ``points[scene]`` for rows with (r, 3, 3) ``axes`` and (r, 3) ``centre``;
@@ -84,7 +103,7 @@ def _bound_from_world(
     a_d . (p - c) - m_d is taken as a_d . p - (a_d . c + m_d): the points stay in the world frame."""
     projection = _scene_projection(points, scene, axes)  # (3, r, N)
     offset = (axes @ centre[:, :, None]).view(-1, 3).T[:, :, None] + middle[:, :3]  # (S, 3, r, 1)
-    return _least_excess(projection, offset, half[:, :3])
+    return _least_excess(projection, offset, half[:, :3], compile)
 
 
 def _scene_projection(points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor) -> torch.Tensor:
@@ -175,6 +194,7 @@ def hand_clearance(
     high: torch.Tensor,
     margin_m: float,
     chunk_elements: int,
+    compile: bool = False,
 ) -> HandClearance:
     """Whether each candidate gripper comes within ``margin_m`` of a point of its scene, and its clearance.
 
@@ -191,6 +211,9 @@ def hand_clearance(
         low, high: (S, D) extents of S polytopes along ``directions``, metres (low <= high).
         margin_m: a point with separation under this blocks the gripper.
         chunk_elements: bound on the (candidate, polytope, direction, point) elements held at once.
+        compile: take the lower bound that picks the points evaluated exactly from
+            ``_fused_bound_below`` compiled (``compiled``): other roundings within the same slack,
+            the same points' exact separations, so the same result.
 
     Returns:
         ``HandClearance`` of (C,) tensors; every separation it reports is the exhaustive
@@ -211,15 +234,15 @@ def hand_clearance(
     middle = ((low + high) / 2)[:, :, None, None]  # (S, D, 1, 1)
     half = ((high - low) / 2)[:, :, None, None]
     axes = directions @ rotation.transpose(-1, -2)  # (C, D, 3): u_d^T R^T
-    clearance = _probe_clearance(probe_points, object_index, centre, axes, middle, half, chunk_elements)
+    clearance = _probe_clearance(probe_points, object_index, centre, axes, middle, half, chunk_elements, compile)
     slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
-    clearance = _lowered_by_points(points, object_index, centre, axes, middle, half, clearance, margin_m, slack_m, chunk_elements)
+    clearance = _lowered_by_points(points, object_index, centre, axes, middle, half, clearance, margin_m, slack_m, chunk_elements, compile)
     return HandClearance(clearance < margin_m, clearance)
 
 
 def _probe_clearance(
     probe_points: torch.Tensor, object_index: torch.Tensor, centre: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor,
-    half: torch.Tensor, chunk_elements: int,
+    half: torch.Tensor, chunk_elements: int, compile: bool,
 ) -> torch.Tensor:
     """(C,) each candidate's least exact separation of its probes, the least by the lower bound in
     each run of its block's (B, P, 3) ``probe_points``; inf where its scene has none. ``axes``:
@@ -244,30 +267,78 @@ def _probe_clearance(
         )
         # From world coordinates like the point pass: the bound only picks which probes are
         # evaluated, and each evaluated probe's separation is exact whichever are picked.
-        picked = _least_per_run(_bound_from_world(block_probes, scene, block_axes, centre[block], middle, half), n_runs)
+        picked = _least_per_run(_bound_from_world(block_probes, scene, block_axes, centre[block], middle, half, compile), n_runs)
         probe = block_probes[scene[:, None], picked] - centre[block, None, :]  # (c, runs, 3)
-        clearance[block] = _separation(probe, axes[block], middle, half).amin(dim=1)
+        clearance[block] = _separation(probe, axes[block], middle, half, compile).amin(dim=1)
     return clearance
 
 
 def _lowered_by_points(
     points: torch.Tensor, object_index: torch.Tensor, centre: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor,
-    half: torch.Tensor, clearance: torch.Tensor, margin_m: float, slack_m: float, chunk_elements: int,
+    half: torch.Tensor, clearance: torch.Tensor, margin_m: float, slack_m: float, chunk_elements: int, compile: bool,
 ) -> torch.Tensor:
     """(C,) ``clearance`` lowered, where it is at least ``margin_m``, to the least exact separation
     of any of the scene's (B, N, 3) ``points``, evaluated only where the lower bound less
-    ``slack_m`` falls under it; in place. ``axes``, ``middle``, ``half``: as for ``_probe_clearance``."""
+    ``slack_m`` falls under it (``compile``: ``_fused_bound_below``'s); in place. ``axes``,
+    ``middle``, ``half``: as for ``_probe_clearance``."""
     # Only where the probes left the gripper clear, in blocks of those candidates; there only
     # points whose bound is under the probes' clearance can block it or lower that clearance.
+    # The compiled bound holds no (polytope, direction) elements, only the (row, point) verdicts.
     open_rows = (clearance >= margin_m).nonzero().squeeze(1)
     extent = scene_extents(points)
-    for start, end, width in row_blocks(object_index[open_rows], extent, chunk_elements // max(1, middle.numel())):
+    for start, end, width in row_blocks(object_index[open_rows], extent, chunk_elements // (1 if compile else max(1, middle.numel()))):
         rows = open_rows[start:end]
         scene, row_axes = object_index[rows], axes[rows]
         block_points = points[:, :width]
-        candidates = _bound_from_world(block_points, scene, row_axes[:, :3], centre[rows], middle, half) - slack_m < clearance[rows, None]
+        if compile:
+            candidates = _compiled_bound_below(block_points, scene, row_axes[:, :3], centre[rows], middle, half, clearance[rows] + slack_m)
+        else:
+            candidates = _bound_from_world(block_points, scene, row_axes[:, :3], centre[rows], middle, half) - slack_m < clearance[rows, None]
         per_row = candidates.sum(dim=1)
-        if int(per_row.max()):
-            found = _separation(_compacted(block_points, scene, centre[rows], candidates, per_row), row_axes, middle, half).amin(dim=1)
-            clearance[rows] = torch.minimum(clearance[rows], found)
+        # Rows are evaluated in buckets of similar candidate counts: each bucket is padded to its
+        # largest count, and a block's counts range from none to ten times their median.
+        by_count = per_row.argsort()
+        for bucket in by_count[per_row[by_count] > 0].split(SEPARATION_BUCKET_ROWS):
+            compact = _compacted(block_points, scene[bucket], centre[rows[bucket]], candidates[bucket], per_row[bucket])
+            found = _separation(compact, row_axes[bucket], middle, half, compile).amin(dim=1)
+            clearance[rows[bucket]] = torch.minimum(clearance[rows[bucket]], found)
     return clearance
+
+
+def _compiled_bound_below(
+    points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, middle: torch.Tensor, half: torch.Tensor,
+    limit: torch.Tensor,
+) -> torch.Tensor:
+    """(r, N) bool: ``_bound_from_world``'s bound of each row's scene points ``points[scene]`` under
+    its (r,) ``limit``, by the compiled ``_fused_bound_below``, one call per run of rows of one scene.
+    ``axes`` (r, 3, 3), ``centre`` (r, 3), ``middle`` and ``half`` (S, D, 1, 1) as there."""
+    offset = (axes @ centre[:, :, None]).squeeze(2)  # (r, 3): a_d . c
+    slab_middle, slab_half = middle[:, :3, 0, 0].contiguous(), half[:, :3, 0, 0].contiguous()
+    below = torch.empty(scene.shape[0], points.shape[1], dtype=torch.bool)
+    run_scene, run_length = torch.unique_consecutive(scene, return_counts=True)
+    start, bound_below = 0, compiled(_fused_bound_below)
+    for scene_index, length in zip(run_scene.tolist(), run_length.tolist()):
+        block = slice(start, start + length)
+        below[block] = bound_below(
+            points[scene_index].T.contiguous(), padded_rows(axes[block]), padded_rows(offset[block]), slab_middle, slab_half,
+            padded_rows(limit[block]),
+        )[:length]
+        start += length
+    return below
+
+
+def _fused_bound_below(
+    columns: torch.Tensor, axes: torch.Tensor, offset: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, limit: torch.Tensor
+) -> torch.Tensor:
+    """(r, N) bool: s(p) over the first three directions (``_bound_from_world``'s, element by element)
+    under (r,) ``limit``, fused (for ``compiled``): (3, N) ``columns`` the points' world x, y and z rows,
+    (r, 3, 3) ``axes``, (r, 3) ``offset`` (a_d . c), (S, 3) slab ``middle`` and ``half``. NaN points are never under it."""
+    projection = [(axes[:, a, 0, None] * columns[0] + axes[:, a, 1, None] * columns[1]) + axes[:, a, 2, None] * columns[2] for a in range(3)]
+    bound = None
+    for polytope in range(middle.shape[0]):
+        excess = None
+        for a in range(3):
+            term = (projection[a] - (offset[:, a, None] + middle[polytope, a])).abs() - half[polytope, a]
+            excess = term if excess is None else torch.maximum(excess, term)
+        bound = excess if bound is None else torch.minimum(bound, excess)
+    return bound < limit[:, None]

@@ -10,6 +10,7 @@ from typing import NamedTuple
 
 import torch
 
+from .compiled import compiled, padded_rows
 from .gripper_occupancy import GripperGeometry, gripper_occupancy
 
 # How far the volume verdict's coordinates may stray from the exhaustive GEMM's: twice the most
@@ -46,6 +47,7 @@ def gripper_occupancy_within(
     limit: torch.Tensor,
     chunk_elements: int,
     poses: torch.Tensor,
+    compile: bool = False,
 ) -> torch.Tensor:
     """Whether each pose's gripper holds at most ``limit`` points: ``gripper_occupancy``'s verdict
     at a fraction of its cost, identical for every pose.
@@ -69,14 +71,21 @@ def gripper_occupancy_within(
             (one candidate's poses at least).
         limit: (C,) float32 largest point count each candidate's poses may hold.
         poses: (C, K) bool, the poses to decide; the others are reported False.
+        compile: take the bounds from ``_fused_count_bounds`` compiled (``compiled``) instead of
+            the eager blocks: other roundings, within the same slack, so the same verdicts.
 
     Returns:
         (C, K) bool: ``poses & (gripper_occupancy(...).total.to(float32) <= limit[:, None])``.
     """
     n_candidates, n_approaches = rotation.shape[:2]
-    layout, pose_row, pose_slot = _closing_layout(poses, object_index, centre, rotation, width_m, geometry)
-    pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
-    maybe, surely = _pose_bounds(layout, points.permute(2, 0, 1).contiguous(), geometry, pose_budget)
+    if compile:
+        pose_row, pose_slot = poses.nonzero(as_tuple=True)
+        maybe, surely = _compiled_pose_bounds(points, object_index[pose_row], centre[pose_row], rotation[pose_row, pose_slot],
+                                              width_m[pose_row], geometry)
+    else:
+        layout, pose_row, pose_slot = _closing_layout(poses, object_index, centre, rotation, width_m, geometry)
+        pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
+        maybe, surely = _pose_bounds(layout, points.permute(2, 0, 1).contiguous(), geometry, pose_budget)
     pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= _centre_reach_l1(geometry)
     within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
@@ -255,6 +264,51 @@ def _count_bounds(
     torch.sum(torch.le(excess, raise_m + VOLUME_SLACK_M, out=palm_z), dim=-1, out=maybe)
     torch.sum(excess.lt_(raise_m - VOLUME_SLACK_M), dim=-1, out=surely)
     maybe.mul_(2).sub_(surely)
+
+
+def _compiled_pose_bounds(
+    points: torch.Tensor, scene: torch.Tensor, centre: torch.Tensor, frames: torch.Tensor, width_m: torch.Tensor, geometry: GripperGeometry
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``_pose_bounds``' (R,) bounds of R poses (scenes (R,) ``scene``, sorted; (R, 3) ``centre``,
+    (R, 3, 3) ``frames``, (R,) ``width_m``) of (B, N, 3) ``points``, by the compiled
+    ``_fused_count_bounds``, one call per scene over its points up to its last real one."""
+    axes = frames.transpose(1, 2).contiguous()
+    offset = -(axes @ centre[:, :, None]).squeeze(2)
+    offset[:, 2] -= (geometry.finger_z_min + geometry.fingertip_offset_m) / 2
+    finger_y_min = width_m / 2 + geometry.contact_clearance_m
+    finger_y = torch.stack(((finger_y_min + geometry.finger_y_max) / 2, (geometry.finger_y_max - finger_y_min) / 2), dim=1)
+    maybe, surely = torch.empty(scene.shape[0]), torch.empty(scene.shape[0])
+    run_scene, run_length = torch.unique_consecutive(scene, return_counts=True)
+    real_rows = (~points.isnan().any(dim=-1)).sum(dim=1)  # NaN padding follows a scene's points
+    start, count_bounds = 0, compiled(_fused_count_bounds)
+    for scene_index, length in zip(run_scene.tolist(), run_length.tolist()):
+        block = slice(start, start + length)
+        columns = points[scene_index, : max(2, int(real_rows[scene_index]))].T.contiguous()
+        bounds = count_bounds(columns, padded_rows(axes[block]), padded_rows(offset[block]), padded_rows(finger_y[block]), geometry)
+        maybe[block], surely[block] = (bound[:length] for bound in bounds)
+        start += length
+    return maybe, surely
+
+
+def _fused_count_bounds(
+    columns: torch.Tensor, axes: torch.Tensor, offset: torch.Tensor, finger_y: torch.Tensor, geometry: GripperGeometry
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``_count_bounds``' (R,) float32 bounds for R poses, each element of its chain taken as
+    ``_coordinates``, ``_closing_terms`` and ``_count_bounds`` take it, fused (for ``compiled``):
+    (3, N) ``columns`` the points' world x, y and z rows, (R, 3, 3) ``axes`` each pose's grasp axes
+    as rows, (R, 3) ``offset`` their offsets (z measured from the finger slabs' middle), (R, 2)
+    ``finger_y`` the finger slabs' middle and half extent along |y|."""
+    raise_m = geometry.finger_width_m / 2
+    x, y, z = (((axes[:, a, 0, None] * columns[0] + axes[:, a, 1, None] * columns[1]) + axes[:, a, 2, None] * columns[2]) + offset[:, a, None]
+               for a in range(3))
+    abs_x, abs_y = x.abs(), y.abs()
+    finger_y_excess = (abs_y - finger_y[:, 0, None]).abs() - (finger_y[:, 1, None] - raise_m)
+    finger = torch.maximum(torch.maximum(abs_x, finger_y_excess), z.abs() - (geometry.finger_length_m / 2 - raise_m))
+    palm_z = (z + (geometry.finger_length_m + geometry.palm_depth_m) / 2).abs() - (geometry.palm_depth_m / 2 - raise_m)
+    palm = torch.maximum(torch.maximum(abs_x - (geometry.palm_width_m / 2 - raise_m), abs_y - (geometry.palm_span_m / 2 - raise_m)), palm_z)
+    excess = torch.minimum(finger, palm)
+    surely = (excess < raise_m - VOLUME_SLACK_M).sum(dim=1, dtype=torch.float32)
+    return (excess <= raise_m + VOLUME_SLACK_M).sum(dim=1, dtype=torch.float32) * 2 - surely, surely
 
 
 def _counted_where_undecided(

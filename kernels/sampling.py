@@ -9,6 +9,8 @@ import math
 
 import torch
 
+from .compiled import MIN_COMPILED_ROWS, compiled, padded_rows
+
 # (pair, proposal) combinations the guided sampler scores at once, in ~10 work tensors of up to
 # 1.5 MB made once per call: reused, they cost none of the page faults of whole chunks scored in
 # fresh tensors.
@@ -57,6 +59,7 @@ def sample_guided_pair_indices(
     max_width_m: float,
     generator: torch.Generator,
     chunk_elements: int,
+    compile: bool = False,
 ) -> torch.Tensor:
     """Draw ``n_pairs`` pairs whose second point is chosen among proposals for being antipodal to the first.
 
@@ -79,6 +82,8 @@ def sample_guided_pair_indices(
             advanced by exactly P + P * K draws, whatever the geometry.
         chunk_elements: (pair, proposal) combinations evaluated at once (~80 bytes each), at least 1;
             proposals read from a quality table are drawn and read in chunks of their own size.
+        compile: score proposals with the compiled ``_fused_quality`` (``compiled``), the same
+            arithmetic in one pass: the same pairs.
 
     Returns:
         (P, 2) int64 tensor of indices ``(i, j)`` into ``points``, ``i != j``. Pairs are drawn with
@@ -88,20 +93,22 @@ def sample_guided_pair_indices(
     n_points = points.shape[0]
     first = torch.randint(0, n_points, (n_pairs,), generator=generator)
     if n_points * (n_points - 1) < min(n_pairs * n_proposals, QUALITY_TABLE_MAX_ENTRIES + 1):
-        table = _proposal_quality_table(points, normals, min_width_m, max_width_m)
+        table = _proposal_quality_table(points, normals, min_width_m, max_width_m, compile)
         return torch.stack((first, _best_proposals_from_table(table, first, n_proposals, generator)), dim=1)
-    second = _best_proposals_by_scoring(points, normals, first, n_proposals, min_width_m, max_width_m, generator, chunk_elements)
+    second = _best_proposals_by_scoring(points, normals, first, n_proposals, min_width_m, max_width_m, generator, chunk_elements, compile)
     return torch.stack((first, second), dim=1)
 
 
 def _best_proposals_by_scoring(
     points: torch.Tensor, normals: torch.Tensor, first: torch.Tensor, n_proposals: int, min_width_m: float, max_width_m: float,
-    generator: torch.Generator, chunk_elements: int,
+    generator: torch.Generator, chunk_elements: int, compile: bool,
 ) -> torch.Tensor:
     """(P,) int64 second points of the pairs with anchors ``first`` (P,): ``n_proposals`` proposals
     drawn per pair from ``generator``, the best of each by ``_proposal_quality`` on (N, 3)
-    ``points`` and ``normals``, the first among equals."""
+    ``points`` and ``normals`` (``compile``: by the compiled ``_fused_best_proposal``), the first among equals."""
     n_pairs, n_points = first.shape[0], points.shape[0]
+    if compile:
+        return _compiled_best_proposals(points, normals, first, n_proposals, min_width_m, max_width_m, generator, chunk_elements)
     second = torch.empty_like(first)
     chunk_pairs = max(1, chunk_elements // n_proposals)
     # Proposals are drawn a chunk at a time and scored a block at a time into work tensors made
@@ -159,13 +166,16 @@ def _best_proposals_from_table(table: torch.Tensor, first: torch.Tensor, n_propo
     return second
 
 
-def _proposal_quality_table(points: torch.Tensor, normals: torch.Tensor, min_width_m: float, max_width_m: float) -> torch.Tensor:
+def _proposal_quality_table(
+    points: torch.Tensor, normals: torch.Tensor, min_width_m: float, max_width_m: float, compile: bool = False
+) -> torch.Tensor:
     """(N, N - 1) ``_proposal_quality`` of every anchor (row) with every proposal as drawn (column
-    j is point j + (j >= anchor), the sampler's skip), by the same elementwise arithmetic: each
-    entry is bit for bit the value scoring that proposal gives, but for the sign of a coincident
-    pair's zero quality (in reach only when ``min_width_m`` is 0)."""
+    j is point j + (j >= anchor), the sampler's skip), by the same elementwise arithmetic (``compile``:
+    by the compiled ``_fused_quality``): each entry is bit for bit the value scoring that proposal
+    gives, but for the sign of a coincident pair's zero quality (in reach only when ``min_width_m`` is 0)."""
     n_points = points.shape[0]
-    work = _ScoreWork(max(SCORE_BLOCK_ELEMENTS, n_points), points.dtype)
+    work = None if compile else _ScoreWork(max(SCORE_BLOCK_ELEMENTS, n_points), points.dtype)
+    columns = (points.T.contiguous(), normals.T.contiguous()) if compile else None
     table = torch.empty(n_points, n_points, dtype=points.dtype)
     start = 0
     while start < n_points:
@@ -176,13 +186,20 @@ def _proposal_quality_table(points: torch.Tensor, normals: torch.Tensor, min_wid
         # the same bits. Coincident points (offset +0 both ways) are the one exception: in reach
         # only when min_width_m is 0, their zero quality may come out -0.0 one way, +0.0 the
         # other, which compare equal, so the argmax over proposals is the same.
-        rows = max(1, SCORE_BLOCK_ELEMENTS // (n_points - start))
+        # A compiled block holds its qualities alone, no work tensors: it takes as many as a table read.
+        budget = QUALITY_TABLE_BLOCK_ELEMENTS if compile else SCORE_BLOCK_ELEMENTS
+        rows = max(MIN_COMPILED_ROWS if compile else 1, budget // (n_points - start))
         end = min(start + rows, n_points)
+        if compile and n_points - end < MIN_COMPILED_ROWS:
+            end = n_points  # no last block of one row, which a compiled kernel would specialise
+
         # Scoring the cloud from ``start`` on with its first rows as anchors proposes columns
         # start..N-1 by broadcasting.
-        block = _proposal_quality(
-            points[start:], normals[start:], torch.arange(end - start), None, work, min_width_m, max_width_m
-        )
+        if compile:
+            block = compiled(_fused_quality_rows)(*(values[:, start:end] for values in columns), *(values[:, start:] for values in columns),
+                                                   min_width_m, max_width_m)
+        else:
+            block = _proposal_quality(points[start:], normals[start:], torch.arange(end - start), None, work, min_width_m, max_width_m)
         table[start:end, start:] = block
         table[start:, start:end] = block.T
         start = end
@@ -226,7 +243,9 @@ def _proposal_quality(
         return values[None] if flat is None else torch.index_select(values, 0, flat, out=gathered).view(offset.shape)
 
     torch.sub(proposed(points), points[anchor][:, None, :], out=offset)
-    torch.linalg.vector_norm(offset, dim=-1, out=width)
+    # The width as (x x + y y) + z z, not torch.linalg.vector_norm's fused multiply-adds: the same
+    # arithmetic as the compiled ``_fused_quality``, where inductor fuses no multiply-add.
+    _dot(offset, offset, width, term).sqrt_()
     # The clamped widths borrow cos_i's tensor until the cosines are taken.
     axis = offset.div_(torch.clamp_min(width, torch.finfo(points.dtype).tiny, out=cos_i).unsqueeze(-1))
     # The contact cosines as antipodal_pairs' (n * axis).sum(-1), whose sum over three
@@ -236,6 +255,56 @@ def _proposal_quality(
     _dot(normals[anchor][:, None, :], axis, cos_i, term).neg_()
     torch.lt(width, min_width_m, out=out_of_reach).logical_or_(torch.gt(width, max_width_m, out=beyond))
     return torch.minimum(cos_i, cos_j, out=cos_i).masked_fill_(out_of_reach, -torch.inf)
+
+
+def _compiled_best_proposals(
+    points: torch.Tensor, normals: torch.Tensor, first: torch.Tensor, n_proposals: int, min_width_m: float, max_width_m: float,
+    generator: torch.Generator, chunk_elements: int,
+) -> torch.Tensor:
+    """``_best_proposals_by_scoring``'s pairs, each chunk's proposals drawn alike and scored by the compiled ``_fused_best_proposal``."""
+    n_points, chunk_pairs = points.shape[0], max(1, chunk_elements // n_proposals)
+    columns = (points.T.contiguous(), normals.T.contiguous())
+    best = compiled(_fused_best_proposal)
+    second = torch.empty_like(first)
+    for start in range(0, first.shape[0], chunk_pairs):
+        anchor = first[start : start + chunk_pairs]
+        proposal = torch.randint(0, n_points - 1, (anchor.shape[0], n_proposals), generator=generator)
+        proposal += proposal >= anchor[:, None]
+        column = best(*columns, padded_rows(anchor), padded_rows(proposal), min_width_m, max_width_m)[: anchor.shape[0]]
+        second[start : start + anchor.shape[0]] = proposal.gather(1, column[:, None]).squeeze(1)
+    return second
+
+
+def _fused_quality(
+    anchor_points: torch.Tensor, anchor_normals: torch.Tensor, proposed_points: torch.Tensor, proposed_normals: torch.Tensor,
+    min_width_m: float, max_width_m: float,
+) -> torch.Tensor:
+    """``_proposal_quality``'s values, element by element in its order, of anchors against proposals
+    given as (3, ...) x, y and z rows that broadcast against each other (for ``compiled``)."""
+    offset = [proposed_points[axis] - anchor_points[axis] for axis in range(3)]
+    width = ((offset[0] * offset[0] + offset[1] * offset[1]) + offset[2] * offset[2]).sqrt()
+    clamped = width.clamp_min(torch.finfo(width.dtype).tiny)
+    axis = [component / clamped for component in offset]
+    cos_j = (proposed_normals[0] * axis[0] + proposed_normals[1] * axis[1]) + proposed_normals[2] * axis[2]
+    cos_i = -((anchor_normals[0] * axis[0] + anchor_normals[1] * axis[1]) + anchor_normals[2] * axis[2])
+    return torch.minimum(cos_i, cos_j).masked_fill((width < min_width_m) | (width > max_width_m), -torch.inf)
+
+
+def _fused_best_proposal(
+    points: torch.Tensor, normals: torch.Tensor, anchor: torch.Tensor, proposal: torch.Tensor, min_width_m: float, max_width_m: float
+) -> torch.Tensor:
+    """(B,) int64 column of the best of each of (B, K) ``proposal``'s points for (B,) ``anchor``,
+    the first among equals, from (3, N) ``points`` and ``normals`` rows."""
+    quality = _fused_quality(points[:, anchor, None], normals[:, anchor, None], points[:, proposal], normals[:, proposal], min_width_m, max_width_m)
+    return quality.argmax(dim=1)
+
+
+def _fused_quality_rows(
+    anchor_points: torch.Tensor, anchor_normals: torch.Tensor, points: torch.Tensor, normals: torch.Tensor, min_width_m: float,
+    max_width_m: float,
+) -> torch.Tensor:
+    """(R, M) qualities of R anchors ((3, R) rows) against M proposals ((3, M) rows)."""
+    return _fused_quality(anchor_points[:, :, None], anchor_normals[:, :, None], points[:, None, :], normals[:, None, :], min_width_m, max_width_m)
 
 
 class _ScoreWork:

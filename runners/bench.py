@@ -2,10 +2,19 @@
 
     python -m runners.bench --json OUT.json [--objects 025_mug,003_cracker_box] [--pairs 5000,50000,500000]
         [--repeats 5] [--ik-targets 2000] [--ik-unreachable 200] [--objects-dir DIR] [--cache-dir DIR] [--threads 1[,2]]
-        [--batch-sizes 1,4,16] [--batch-objects ID,...] [--batch-pairs 5000]
+        [--batch-sizes 1,4,16] [--batch-objects ID,...] [--batch-pairs 5000] [--compile false,true] [--profile-stages]
+        [--compile-start]
 
 ``--threads 1,2`` times the planner and the IK at each torch thread count in turn, in one run, so
 figures for one core and for several compare on the same clouds and targets.
+
+``--compile false,true`` times the planner eager and with ``[planner] compile`` on, in turn at each
+thread count (the loop reference once per thread count); ``--compile-start`` measures, in fresh
+processes, the first plan eager, compiled with an empty inductor cache and compiled from the cache.
+
+``--profile-stages`` profiles one more plan per object and pair count (and per batch comparison,
+the singles and the batch) with ``torch.profiler`` and prints, per stage, its median time, the
+operators it called, their profiled time and its work items.
 
 ``--batch-sizes 1,4,16`` times, per batch size B, B single plans against one ``plan_batch`` on the
 same B clouds (at the first thread count), per cloud and per stage; 0 or empty (the default) skips it.
@@ -29,7 +38,10 @@ from pathlib import Path
 import torch
 
 from sagp_batched.benchmarks.ik_speed import benchmark_ik
-from sagp_batched.benchmarks.planner_speed import BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud
+from sagp_batched.benchmarks.compile_start import compile_start_costs
+from sagp_batched.benchmarks.planner_speed import (
+    BENCH_OBJECT_XY_M, BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud,
+)
 from sagp_batched.config import load_config
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
 from sagp_batched.runtime import DEFAULT_TORCH_THREADS, configure_torch
@@ -63,6 +75,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--batch-sizes", default="", help="comma-separated batch sizes B: B single plans against one plan_batch; 0 or empty skips")
     parser.add_argument("--batch-objects", default=None, help="comma-separated YCB ids the batches cycle through (default: the set's first, as many as the largest B)")
     parser.add_argument("--batch-pairs", type=int, default=5000, help="sampled pairs per cloud in the batch comparison")
+    parser.add_argument("--compile", default="false", help="comma-separated [planner] compile modes (false, true), each timed in turn")
+    parser.add_argument("--compile-start", action="store_true", help="first plans of fresh processes: eager, compiled cold, compiled from the cache")
+    parser.add_argument("--profile-stages", action="store_true", help="per stage: operators called and their profiled time (torch.profiler)")
     _add_ray_memory_arguments(parser)
     return parser
 
@@ -74,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         return _ray_worker_memory(args)
     thread_counts = _thread_counts(parser, args.threads)
     batch_sizes = _batch_sizes(parser, args.batch_sizes)
+    compile_modes = _compile_modes(parser, args.compile)
 
     configure_torch(thread_counts[0])
     config = load_config(args.profile)
@@ -83,21 +99,25 @@ def main(argv: list[str] | None = None) -> int:
         repeats=args.repeats,
         reference_max_pairs=args.reference_max_pairs,
         cloud_points=args.cloud_points,
-        object_xy_m=(0.55, 0.0),
+        object_xy_m=BENCH_OBJECT_XY_M,
         ik_targets=args.ik_targets,
         ik_unreachable_targets=args.ik_unreachable,
+        profile_stages=args.profile_stages,
     )
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in args.objects.split(",")]
-    results, ik = _planner_and_ik_sections(config, settings, clouds, thread_counts)
+    results, ik = _planner_and_ik_sections(config, settings, clouds, thread_counts, compile_modes)
     configure_torch(thread_counts[0])
-    print(f"reference: run once per pair count up to {settings.reference_max_pairs} pairs; no extrapolation")
-    plan_batch_rows = _plan_batch_section(args, batch_sizes, config, object_set, settings, thread_counts[0]) if batch_sizes else None
+    print(f"reference: run once per pair count (and thread count) up to {settings.reference_max_pairs} pairs; no extrapolation")
+    plan_batch_rows = _plan_batch_section(args, batch_sizes, config, object_set, settings, thread_counts, compile_modes) if batch_sizes else None
+    configure_torch(thread_counts[0])
+    compile_start = _compile_start_section(args, settings, clouds[0].object_id, thread_counts[0]) if args.compile_start else None
     world = _world_section(args, config, object_set, thread_counts[0]) if args.world_runs > 0 else None
     report = {
         "results": results,
         "ik": ik,
         "world": world,
-        "plan_batch": None if plan_batch_rows is None else {"threads": thread_counts[0], "rows": plan_batch_rows},
+        "plan_batch": None if plan_batch_rows is None else {"threads": thread_counts, "compile": compile_modes, "rows": plan_batch_rows},
+        "compile_start": compile_start,
         "provenance": {
             "torch": torch.__version__,
             "threads": thread_counts,
@@ -112,27 +132,53 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _planner_and_ik_sections(config, settings: BenchmarkSettings, clouds: list, thread_counts: list[int]) -> tuple[list[dict], list[dict]]:
-    """At each thread count in turn, the planner against the loop reference on every cloud (one
-    printed line per pair count), then the IK unless ``settings.ik_targets`` is 0; (planner rows, IK rows)."""
+def _planner_and_ik_sections(
+    config, settings: BenchmarkSettings, clouds: list, thread_counts: list[int], compile_modes: list[bool]
+) -> tuple[list[dict], list[dict]]:
+    """At each thread count in turn, the planner in each compile mode against the loop reference
+    (run in the first mode, its time shared) on every cloud (one printed line per pair count), then
+    the IK unless ``settings.ik_targets`` is 0; (planner rows, IK rows)."""
     results, ik = [], []
     for threads in thread_counts:
         configure_torch(threads)
         for cloud in clouds:
-            for row in benchmark_object(cloud, config, settings):
-                row["threads"] = threads
-                results.append(row)
-                reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
-                stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
-                print(
-                    f"{row['object']:>22} pairs={row['pairs']:>7} threads={threads} plan={row['batched_plan_s']:.3f} s "
-                    f"({row['candidates_per_s']:.0f} pairs/s) reference={reference} | {stages} | {row['counts_last_repeat']}",
-                    flush=True,
-                )
+            reference_s = {}
+            for index, compile_ in enumerate(compile_modes):
+                mode_settings = settings if index == 0 else dataclasses.replace(settings, reference_max_pairs=0)
+                for row in benchmark_object(cloud, config.override("planner", compile=compile_), mode_settings):
+                    row["threads"] = threads
+                    reference_s.setdefault(row["pairs"], row["reference_plan_s"])
+                    row["reference_plan_s"] = reference_s[row["pairs"]]
+                    row["speedup"] = None if row["reference_plan_s"] is None else row["reference_plan_s"] / row["batched_plan_s"]
+                    results.append(row)
+                    _print_planner_row(row)
         if settings.ik_targets > 0:
             ik.append({"threads": threads, **benchmark_ik(config, settings)})
             _print_ik(ik[-1])
     return results, ik
+
+
+def _print_planner_row(row: dict) -> None:
+    reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
+    stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
+    print(
+        f"{row['object']:>22} pairs={row['pairs']:>7} compile={'on' if row['compile'] else 'off'} threads={row['threads']} "
+        f"plan={row['batched_plan_s']:.3f} s ({row['candidates_per_s']:.0f} pairs/s, first {row['first_plan_s']:.2f} s) "
+        f"reference={reference} | {stages} | {row['counts_last_repeat']}",
+        flush=True,
+    )
+    if row["stage_profile"] is not None:
+        _print_stage_table(row["stage_profile"], row["stage_median_s"], row["stage_items_last_repeat"])
+
+
+def _print_stage_table(profile: dict, seconds: dict, items: dict, per: int = 1) -> None:
+    """Per stage: median ms (``seconds``), operators called and their profiled ms (``profile``,
+    divided by ``per``, the clouds it covers), and work items (``items``)."""
+    print(f"{'':>8}{'stage':<14}{'ms':>8}{'ops':>8}{'in ops ms':>11}{'items':>9}")
+    for stage, profiled in profile.items():
+        stage_ms = "" if seconds.get(stage) is None else f"{seconds[stage] * 1e3:.1f}"
+        stage_items = "" if items.get(stage) is None else f"{items[stage]}"
+        print(f"{'':>8}{stage:<14}{stage_ms:>8}{profiled['ops'] // per:>8}{profiled['op_s'] * 1e3 / per:>11.1f}{stage_items:>9}")
 
 
 def _world_section(args: argparse.Namespace, config, object_set, threads: int) -> dict:
@@ -217,22 +263,59 @@ def _thread_counts(parser: argparse.ArgumentParser, text: str) -> list[int]:
     return counts
 
 
-def _plan_batch_section(args: argparse.Namespace, batch_sizes: list[int], config, object_set, settings: BenchmarkSettings, threads: int) -> list[dict]:
-    """``benchmark_plan_batch`` on the --batch-objects clouds, one printed line per batch size."""
+def _plan_batch_section(
+    args: argparse.Namespace, batch_sizes: list[int], config, object_set, settings: BenchmarkSettings, thread_counts: list[int],
+    compile_modes: list[bool],
+) -> list[dict]:
+    """``benchmark_plan_batch`` on the --batch-objects clouds at each thread count and compile mode,
+    one printed line per batch size (and with --profile-stages, the per-cloud stage tables)."""
     batch_ids = args.batch_objects.split(",") if args.batch_objects else list(object_set.ids)[: max(batch_sizes)]
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in batch_ids]
-    rows = benchmark_plan_batch(clouds, config.override("planner", n_pairs=args.batch_pairs), tuple(batch_sizes), args.repeats)
-    for row in rows:
-        stages = " ".join(
-            f"{stage}={row['singles_stage_per_cloud_s'][stage] * 1e3:.1f}/{row['batch_stage_per_cloud_s'][stage] * 1e3:.1f}ms"
-            for stage in row["singles_stage_per_cloud_s"]
-        )
-        print(
-            f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} threads={threads}: singles {row['singles_per_cloud_s'] * 1e3:.1f} "
-            f"ms/cloud, batch {row['batch_per_cloud_s'] * 1e3:.1f} ms/cloud, ratio {row['ratio']:.2f} | per cloud, singles/batch: {stages}",
-            flush=True,
-        )
+    rows = []
+    for threads in thread_counts:
+        configure_torch(threads)
+        for compile_ in compile_modes:
+            batch_config = config.override("planner", n_pairs=args.batch_pairs, compile=compile_)
+            for row in benchmark_plan_batch(clouds, batch_config, tuple(batch_sizes), args.repeats, settings.profile_stages):
+                rows.append({**row, "threads": threads, "compile": compile_})
+                _print_plan_batch_row(rows[-1])
     return rows
+
+
+def _print_plan_batch_row(row: dict) -> None:
+    stages = " ".join(
+        f"{stage}={row['singles_stage_per_cloud_s'][stage] * 1e3:.1f}/{row['batch_stage_per_cloud_s'][stage] * 1e3:.1f}ms"
+        for stage in row["singles_stage_per_cloud_s"]
+    )
+    print(
+        f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} threads={row['threads']} compile={'on' if row['compile'] else 'off'}: "
+        f"singles {row['singles_per_cloud_s'] * 1e3:.1f} ms/cloud, batch {row['batch_per_cloud_s'] * 1e3:.1f} ms/cloud, "
+        f"ratio {row['ratio']:.2f} | per cloud, singles/batch: {stages}",
+        flush=True,
+    )
+    for name in ("singles", "batch"):
+        if row[f"{name}_profile"] is not None:
+            print(f"      {name}, per cloud:")
+            _print_stage_table(row[f"{name}_profile"], row[f"{name}_stage_per_cloud_s"], {}, row["batch_size"])
+
+
+def _compile_start_section(args: argparse.Namespace, settings: BenchmarkSettings, object_id: str, threads: int) -> dict:
+    """``compile_start_costs`` for ``object_id`` at the first pair count, printed as one line."""
+    pairs = settings.pairs[0]
+    costs = compile_start_costs(object_id, _ycb_dir(args.objects_dir), args.cache_dir, settings.cloud_points, pairs, threads)
+    print(f"compile start, {object_id}, {pairs} pairs, {threads} threads, fresh processes: " + ", ".join(
+        f"{case} first plan {cost['first_plan_s']:.2f} s (second {cost['second_plan_s']:.3f} s, process {cost['process_s']:.1f} s)"
+        for case, cost in costs.items()
+    ), flush=True)
+    return {"object": object_id, "pairs": pairs, "threads": threads, **costs}
+
+
+def _compile_modes(parser: argparse.ArgumentParser, text: str) -> list[bool]:
+    modes = {"false": False, "true": True}
+    parts = [part.strip().lower() for part in text.split(",")]
+    if not parts or any(part not in modes for part in parts):
+        parser.error(f"--compile takes false and/or true separated by commas, got {text!r}")
+    return [modes[part] for part in parts]
 
 
 def _batch_sizes(parser: argparse.ArgumentParser, text: str) -> list[int]:

@@ -98,7 +98,7 @@ def test_bench_compares_single_plans_with_one_plan_batch_per_batch_size(tmp_path
     )
     assert done.returncode == 0, done.stderr[-2000:]
     section = json.loads(out.read_text())["plan_batch"]
-    assert section["threads"] == 1
+    assert section["threads"] == [1] and section["compile"] == [False]
     assert [row["batch_size"] for row in section["rows"]] == [1, 2]
     assert section["rows"][1]["objects"] == ["003_cracker_box", "005_tomato_soup_can"] and section["rows"][1]["pairs"] == 200
     for row in section["rows"]:
@@ -107,6 +107,35 @@ def test_bench_compares_single_plans_with_one_plan_batch_per_batch_size(tmp_path
             assert set(stages) == {"sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion"}
             assert all(seconds > 0 for seconds in stages.values())
     assert "plan_batch B= 1 pairs=200" in done.stdout and "plan_batch B= 2 pairs=200" in done.stdout
+
+
+def test_bench_profiles_each_stage_with_its_operators_and_work(tmp_path, ycb_dir):
+    out = tmp_path / "bench.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench", "--json", str(out), "--objects", "005_tomato_soup_can", "--pairs", "300",
+         "--repeats", "1", "--reference-max-pairs", "0", "--ik-targets", "0", "--world-runs", "0", "--profile-stages",
+         "--batch-sizes", "2", "--batch-objects", "003_cracker_box,005_tomato_soup_can", "--batch-pairs", "300",
+         "--objects-dir", str(ycb_dir), "--cache-dir", str(tmp_path / "clouds")],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads(out.read_text())
+    (row,) = report["results"]
+    stages = ("sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion", "search")
+    assert row["compile"] is False and row["first_plan_s"] > 0 and tuple(row["stage_profile"]) == stages
+    assert all(row["stage_profile"][stage]["ops"] > 0 and row["stage_profile"][stage]["op_s"] > 0 for stage in stages)
+    assert row["stage_items_last_repeat"]["sampling"] == 300 and row["stage_items_last_repeat"]["frames_volume"] > 0
+    (batch,) = report["plan_batch"]["rows"]
+    assert tuple(batch["singles_profile"]) == stages and tuple(batch["batch_profile"]) == stages
+    # One batch calls fewer operators than its clouds planned one by one.
+    assert sum(p["ops"] for p in batch["batch_profile"].values()) < sum(p["ops"] for p in batch["singles_profile"].values())
+    assert "in ops ms" in done.stdout and "compile=off" in done.stdout
+
+
+def test_bench_rejects_a_bad_compile_mode(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "runners.bench", "--json", str(tmp_path / "bench.json"), "--compile", "false,maybe"],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "--compile takes false and/or true" in done.stderr and not (tmp_path / "bench.json").exists()
 
 
 def test_bench_skips_the_batch_comparison_by_default_and_rejects_a_bad_batch_size(tmp_path, ycb_dir):

@@ -143,27 +143,35 @@ def _top_down_grasps(count, seed):
     return positions, rotations
 
 
+def _reached(ik, joints):
+    """(N, W, 3) positions and (N, W, 3, 3) orientations pk's forward kinematics puts the grasp target at for (N, W, 7) ``joints``."""
+    pose = ik.forward(joints.reshape(-1, 7)).reshape(*joints.shape[:2], 4, 4)
+    return pose[..., :3, 3], pose[..., :3, :3]
+
+
 def test_a_motion_is_followed_in_closed_form_on_the_grasp_branch_with_joint_7_held(ik):
     positions, rotations = _top_down_grasps(100, seed=5)
     grasp = ik.solve(positions, rotations)
     start = grasp.joints[grasp.success]
     waypoints, rotations = _descent_and_lift(ik, start)
-    path = ik.follow(start, waypoints, rotations)
-    reached = ik.forward(path.joints.reshape(-1, 7)).reshape(*path.joints.shape[:2], 4, 4)
-    followed = (path.position_error_m < 1e-4).all(dim=1)
+    joints, found = ik.held_joint7(ik.waypoint_targets(start, waypoints, rotations))
+    joints, found = joints.view(*waypoints.shape[:2], 7), found.view(waypoints.shape[:2])
+    reached, _ = _reached(ik, joints)
+    followed = found.all(dim=1) & ((reached - waypoints).norm(dim=-1) < 1e-4).all(dim=1)
     assert followed.double().mean() > 0.9
     # pk's forward kinematics of the answer reaches each waypoint, and joint 7 never moves.
-    assert torch.allclose(reached[followed][..., :3, 3], waypoints[followed], atol=1e-4)
-    assert torch.equal(path.joints[followed][..., 6], start[followed][:, None, 6].expand(-1, waypoints.shape[1]))
-    assert (_largest_step(start[followed], path.joints[followed]) < 0.3).double().mean() > 0.9
+    assert torch.equal(joints[followed][..., 6], start[followed][:, None, 6].expand(-1, waypoints.shape[1]))
+    assert (_largest_step(start[followed], joints[followed]) < 0.3).double().mean() > 0.9
 
 
 def test_near_the_shoulder_singularity_a_motion_with_every_joint_free_avoids_the_swing_of_holding_joint_7(ik):
     # Joint 2 near zero aligns joints 1 and 3: holding joint 7 along the lift swings them by half a radian.
     start = torch.tensor([[0.09, 0.28, -0.1, -2.2, 0.0, 2.48, 0.79]])
     waypoints, rotations = _descent_and_lift(ik, start)
-    held = ik.follow(start, waypoints, rotations, hold_joint7=True)
-    free = ik.follow(start, waypoints, rotations, hold_joint7=False)
-    assert float(_largest_step(start, held.joints)) > 0.3
-    assert float(_largest_step(start, free.joints)) < 0.1
-    assert float(free.position_error_m.max()) < 1e-4 and float(free.rotation_error_rad.max()) < 1e-3
+    targets = ik.waypoint_targets(start, waypoints, rotations)
+    held, free = ik.held_joint7(targets)[0].view(1, -1, 7), ik.free_joints(targets).view(1, -1, 7)
+    assert float(_largest_step(start, held)) > 0.3
+    assert float(_largest_step(start, free)) < 0.1
+    reached, reached_rotation = _reached(ik, free)
+    turn = (reached_rotation.transpose(-1, -2) @ rotations[:, None]).diagonal(dim1=-2, dim2=-1).sum(-1)
+    assert float((reached - waypoints).norm(dim=-1).max()) < 1e-4 and float(torch.acos(((turn - 1) / 2).clamp(-1, 1)).max()) < 1e-3

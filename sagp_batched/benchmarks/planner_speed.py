@@ -19,13 +19,17 @@ import torch
 
 from .._open3d import o3d
 from ..config import Config
-from ..planning import PlanStageTimes, plan, plan_batch, sample_inputs
+from ..planning import plan, plan_batch, sample_inputs
 from ..planning.reference import plan_reference
+from ..planning.stages import STAGES
 from ..robot.description import robot_of
 from ..types import PerceivedCloud
 from ..world.objects import ObjectSpec
+from .stage_profile import PROFILED_STAGES, SEARCH, profile_stages
 
-STAGES = ("sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion")
+
+# Where the benchmark stands its objects on the table (world x, y), in front of the robot.
+BENCH_OBJECT_XY_M = (0.55, 0.0)
 
 
 @dataclasses.dataclass
@@ -39,6 +43,8 @@ class BenchmarkSettings:
     ik_unreachable_targets: int = 200  # unreachable IK targets (M)
     # Unreachable targets lie at least this far from the shoulder; no Panda pose reaches past 1.09 m.
     ik_unreachable_min_distance_m: float = 1.2
+    # Profile one more plan per row under torch.profiler: operators and their time per stage.
+    profile_stages: bool = False
 
 
 def mesh_cloud(spec: ObjectSpec, config: Config, settings: BenchmarkSettings, cache_dir: Path) -> PerceivedCloud:
@@ -79,23 +85,22 @@ def median(values: list[float]) -> float:
     return float(statistics.median(values))
 
 
-def _stage_seconds(times: PlanStageTimes, stage: str) -> float:
-    return getattr(times, f"{stage}_s")
-
-
 def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkSettings) -> list[dict[str, Any]]:
     rows = []
     for n_pairs in settings.pairs:
         pair_config = config.override("planner", n_pairs=n_pairs)
-        plan(cloud, pair_config, seed=0)  # warm-up: IK chain build, allocator
-        totals, stages, counts = [], {stage: [] for stage in STAGES}, {}
+        start = time.perf_counter()
+        plan(cloud, pair_config, seed=0)  # warm-up: IK chain build, allocator, compiled kernels
+        first_plan_s = time.perf_counter() - start
+        totals, stages, counts = [], {stage: [] for stage in PROFILED_STAGES}, {}
         ik_targets = []
         for repeat in range(settings.repeats):
             start = time.perf_counter()
             result = plan(cloud, pair_config, seed=repeat)
             totals.append(time.perf_counter() - start)
-            for stage in STAGES:
-                stages[stage].append(_stage_seconds(result.times, stage))
+            for stage, seconds in result.times.stage_seconds().items():
+                stages[stage].append(seconds)
+            stages[SEARCH].append(totals[-1] - sum(result.times.stage_seconds().values()))
             ik_targets.append(result.times.ik_targets)
             counts = result.counts.as_dict()
         batched_s = median(totals)
@@ -109,12 +114,16 @@ def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkS
             {
                 "object": cloud.object_id,
                 "pairs": n_pairs,
+                "compile": pair_config.planner.compile,
+                "first_plan_s": first_plan_s,
                 "batched_plan_s": batched_s,
                 "reference_plan_s": reference_s,
                 "speedup": None if reference_s is None else reference_s / batched_s,
                 "candidates_per_s": n_pairs / batched_s,
                 "stage_median_s": {stage: median(values) for stage, values in stages.items()},
                 "ik_targets_median": median(ik_targets),
+                "stage_items_last_repeat": result.times.stage_items(),
+                "stage_profile": profile_stages([cloud], pair_config, [0]) if settings.profile_stages else None,
                 "counts_last_repeat": counts,
             }
         )
@@ -122,7 +131,7 @@ def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkS
 
 
 def benchmark_plan_batch(
-    clouds: list[PerceivedCloud], config: Config, batch_sizes: tuple[int, ...] = (1, 4, 16), repeats: int = 5
+    clouds: list[PerceivedCloud], config: Config, batch_sizes: tuple[int, ...] = (1, 4, 16), repeats: int = 5, profile: bool = False
 ) -> list[dict[str, Any]]:
     """Per batch size B, B single ``plan`` calls against one ``plan_batch`` call on the same B clouds.
 
@@ -131,7 +140,8 @@ def benchmark_plan_batch(
     B the medians over ``repeats`` of the seconds per cloud of each (``singles_per_cloud_s``,
     ``batch_per_cloud_s``), their ``ratio`` (batch over singles), and per stage (``STAGES``) the
     medians of the stage's seconds per cloud, summed over the singles (``singles_stage_per_cloud_s``)
-    and in the batch (``batch_stage_per_cloud_s``).
+    and in the batch (``batch_stage_per_cloud_s``); with ``profile``, ``profile_stages`` of the
+    singles (summed) and of the batch (``singles_profile``, ``batch_profile``).
     """
     rows = []
     for batch_size in batch_sizes:
@@ -144,16 +154,15 @@ def benchmark_plan_batch(
             stage_sums = dict.fromkeys(STAGES, 0.0)
             start = time.perf_counter()
             for cloud, seed in zip(batch, seeds):
-                times = plan(cloud, config, seed=seed).times
-                for stage in STAGES:
-                    stage_sums[stage] += _stage_seconds(times, stage)
+                for stage, seconds in plan(cloud, config, seed=seed).times.stage_seconds().items():
+                    stage_sums[stage] += seconds
             singles.append((time.perf_counter() - start) / batch_size)
             start = time.perf_counter()
             times = plan_batch(batch, config, seeds)[0].times
             batched.append((time.perf_counter() - start) / batch_size)
-            for stage in STAGES:
+            for stage, seconds in times.stage_seconds().items():
                 singles_stages[stage].append(stage_sums[stage] / batch_size)
-                batch_stages[stage].append(_stage_seconds(times, stage) / batch_size)
+                batch_stages[stage].append(seconds / batch_size)
         singles_s, batch_s = median(singles), median(batched)
         rows.append(
             {
@@ -166,6 +175,8 @@ def benchmark_plan_batch(
                 "ratio": batch_s / singles_s,
                 "singles_stage_per_cloud_s": {stage: median(values) for stage, values in singles_stages.items()},
                 "batch_stage_per_cloud_s": {stage: median(values) for stage, values in batch_stages.items()},
+                "singles_profile": profile_stages(batch, config, seeds, singles=True) if profile else None,
+                "batch_profile": profile_stages(batch, config, seeds) if profile else None,
             }
         )
     return rows

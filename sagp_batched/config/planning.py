@@ -61,6 +61,10 @@ class PlannerConfig(_Section):
     # 2 cm cell still leaves points on every part the hand could strike, and most blocked grasps
     # hit one of them.
     hand_screen_voxel_m: float = setting(0.02, above=0)
+    #: Compile the screens' long element-wise chains (the gripper volume's and the swept hand's
+    #: bounds) with torch.compile (inductor): the same verdicts. Off by default: see the README's
+    #: planner benchmark for what it costs and buys on a CPU.
+    compile: bool = False
 
 
 @dataclass

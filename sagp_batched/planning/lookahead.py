@@ -4,7 +4,6 @@ its own grasp alone, so computing it ahead changes no result; it only moves work
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 
 import torch
@@ -33,7 +32,6 @@ class ScreenVerdicts:
         self.computed = torch.zeros(screened.n_objects, dtype=torch.int64)
         self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
         self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
-        self.volume_s = self.hand_s = 0.0
 
     def block_sizes(self, missing: torch.Tensor) -> torch.Tensor:
         """(B,) candidates to compute next per object, given (B,) ``missing``: candidates in its
@@ -61,21 +59,20 @@ class ScreenVerdicts:
             self.compute(rows)
 
     def compute(self, rows: torch.Tensor) -> None:
-        clock = time.perf_counter()
-        self.usable[rows] = self.screened.table_and_volume_ok(rows)
-        hand_clock = time.perf_counter()
-        self.volume_s += hand_clock - clock
+        clock = self.screened.clock
+        with clock.stage("frames_volume", rows.numel() * self.usable.shape[1]):
+            self.usable[rows] = self.screened.table_and_volume_ok(rows)
         # The real hand on every approach still usable, so IK rounds only retry for reachability.
         candidate, slots = self.usable[rows].nonzero(as_tuple=True)
-        swept = self.screened.hand_clearance(rows[candidate], slots)
-        self.clearance_m[rows[candidate], slots] = swept.clearance_m
-        self.hand_blocked[rows[candidate[swept.blocked]], slots[swept.blocked]] = True
-        self.usable[rows[candidate[swept.blocked]], slots[swept.blocked]] = False
-        self.any_usable[rows] = self.usable[rows].any(dim=1)
-        self.usable_rows = torch.cat((self.usable_rows, rows[self.any_usable[rows]])).sort().values
-        self.computed.index_add_(0, self.screened.object_index[rows], torch.ones_like(rows))
-        self.ready[rows] = True
-        self.hand_s += time.perf_counter() - hand_clock
+        with clock.stage("hand_sweep", candidate.numel()):
+            swept = self.screened.hand_clearance(rows[candidate], slots)
+            self.clearance_m[rows[candidate], slots] = swept.clearance_m
+            self.hand_blocked[rows[candidate[swept.blocked]], slots[swept.blocked]] = True
+            self.usable[rows[candidate[swept.blocked]], slots[swept.blocked]] = False
+            self.any_usable[rows] = self.usable[rows].any(dim=1)
+            self.usable_rows = torch.cat((self.usable_rows, rows[self.any_usable[rows]])).sort().values
+            self.computed.index_add_(0, self.screened.object_index[rows], torch.ones_like(rows))
+            self.ready[rows] = True
 
 
 class MotionVerdicts:
@@ -104,8 +101,6 @@ class MotionVerdicts:
         self.kept_index = torch.full((n_candidates, n_approaches), -1, dtype=torch.int32)
         self.kept_paths = torch.zeros(0, n_waypoints, n_joints)
         self.kept_s_reach = torch.zeros(0)
-        self.ik_targets = 0
-        self.ik_s = self.motion_s = 0.0
         self.max_candidates = max_candidates
         # Candidates with any grasp checked, ascending: the only ones that can be decided with a
         # usable approach (a few hundred, where the candidates may be hundreds of thousands).
@@ -217,9 +212,6 @@ class MotionVerdicts:
         self.kept_index[rows[feasible], slots[feasible]] = torch.arange(int(feasible.sum()), dtype=torch.int32) + self.kept_paths.shape[0]
         self.kept_paths = torch.cat((self.kept_paths, motion.joint_path[feasible]))
         self.kept_s_reach = torch.cat((self.kept_s_reach, motion.s_reach[feasible]))
-        self.ik_targets += motion.ik_targets
-        self.ik_s += motion.ik_s
-        self.motion_s += motion.motion_s
 
     def verdicts(self, rows: torch.Tensor, slots: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(R,) bool feasible and (R, 2) int64 ``MotionCheck.rejected_by`` of (``rows``, ``slots``) grasps, all checked."""

@@ -18,6 +18,7 @@ from .motion_check import MotionCheck, check_motions
 from .sampling import check_cloud
 from .screens import ScreenedCandidates, screen_candidates
 from .search import CandidateSearch, CandidateStatus, SearchTuning, segment_exclusive_cumsum
+from .stages import STAGES, StageClock
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,8 @@ class PlanCounts:
 
 @dataclass(frozen=True)
 class PlanStageTimes:
-    """Seconds one ``plan_batch`` call spent per stage, for all its clouds together."""
+    """Seconds one ``plan_batch`` call spent per stage (``STAGES``), for all its clouds together,
+    and the work each stage did."""
 
     sampling_s: float
     antipodal_s: float  # the antipodal filter and the ranking
@@ -49,6 +51,26 @@ class PlanStageTimes:
     ik_s: float  # grasp-pose IK
     motion_s: float  # the whole motion's IK and arm clearance
     ik_targets: int  # grasp poses and waypoints solved, those checked ahead and never reached included
+    pairs: int  # pairs drawn and filtered
+    screened_poses: int  # (candidate, approach) poses the table and volume screens decided
+    swept_poses: int  # poses the swept hand was checked on
+    grasp_targets: int  # grasp poses solved (the rest of ``ik_targets`` are waypoints)
+
+    @classmethod
+    def of(cls, clock: StageClock) -> PlanStageTimes:
+        seconds, items = clock.seconds, clock.items
+        return cls(
+            *(seconds[stage] for stage in STAGES), ik_targets=items["ik"] + items["motion"], pairs=items["sampling"],
+            screened_poses=items["frames_volume"], swept_poses=items["hand_sweep"], grasp_targets=items["ik"],
+        )
+
+    def stage_seconds(self) -> dict[str, float]:
+        return {stage: getattr(self, f"{stage}_s") for stage in STAGES}
+
+    def stage_items(self) -> dict[str, int]:
+        """The work of each stage: pairs (sampling, antipodal), poses (frames_volume, hand_sweep), IK targets (ik, motion)."""
+        return {"sampling": self.pairs, "antipodal": self.pairs, "frames_volume": self.screened_poses, "hand_sweep": self.swept_poses,
+                "ik": self.grasp_targets, "motion": self.ik_targets - self.grasp_targets}
 
 
 @dataclass(frozen=True)
@@ -81,7 +103,8 @@ def plan_batch(
     if not clouds:
         return []
     tuning = SearchTuning() if tuning is None else tuning
-    screened = screen_candidates(clouds, config, seeds)
+    clock = StageClock()
+    screened = screen_candidates(clouds, config, seeds, clock)
     ik = panda_ik(config)
     search = CandidateSearch.start(screened.n_candidates, planner.n_approaches)
     verdicts = ScreenVerdicts(screened, tuning)
@@ -89,7 +112,7 @@ def plan_batch(
                              planner.max_candidates, tuning)
 
     def check(rows: torch.Tensor, slots: torch.Tensor) -> MotionCheck:
-        return check_motions(screened.centre_world[rows], *screened.frames(rows, slots), ik, config)
+        return check_motions(screened.centre_world[rows], *screened.frames(rows, slots), ik, config, clock)
 
     while True:
         in_window = window_with_verdicts(search, verdicts, motions, planner.max_candidates)
@@ -104,8 +127,7 @@ def plan_batch(
         slots = search.cursor[pending]
         motions.ensure(pending, slots, search, verdicts, check)
         search.apply_motions(pending, slots, *motions.verdicts(pending, slots))
-    times = PlanStageTimes(screened.sampling_s, screened.antipodal_s, verdicts.volume_s, verdicts.hand_s, motions.ik_s, motions.motion_s,
-                           motions.ik_targets)
+    times = PlanStageTimes.of(clock)
     candidates = _planned_candidates(screened, search, motions, config)
     return [PlanResult(c, counts, times) for c, counts in zip(candidates, _plan_counts(screened, search, planner.n_pairs))]
 

@@ -58,6 +58,7 @@ def sample_inputs(cloud: PerceivedCloud, robot: RobotDescription, planner: Plann
             min(planner.max_width_m, jaw_width_limit(robot, planner)),
             generator,
             memory.pair_proposal_chunk_elements,
+            planner.compile,
         )
     else:
         pair_indices = sample_pair_indices(cloud.n_points, planner.n_pairs, generator)

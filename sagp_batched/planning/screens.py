@@ -3,7 +3,7 @@ gripper volume, and the real hand swept along the descent, each computed for the
 from __future__ import annotations
 
 import functools
-import time
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -21,6 +21,7 @@ from ..robot.hand import DOP_DIRECTIONS
 from ..types import PerceivedCloud
 from .gripper import gripper_geometry, hand_geometry, jaw_width_limit
 from .sampling import sample_inputs
+from .stages import StageClock
 
 # Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
 # the table and the arm most often, so they are the prior's first choice.
@@ -56,8 +57,7 @@ class ScreenedCandidates:
     robot: RobotDescription
     pregrasp_offset_m: float
     table_top_z_m: float
-    sampling_s: float  # seconds spent drawing the pairs and subsets
-    antipodal_s: float  # seconds spent on the antipodal filter and the ranking
+    clock: StageClock  # the plan's stage times, the draws and the antipodal filter already on it
 
     @property
     def n_candidates(self) -> int:
@@ -123,7 +123,7 @@ class ScreenedCandidates:
         return gripper_occupancy_within(
             self.occupancy_points, self.object_index[rows], self.centre_world[rows], rotation,
             self.width_m[rows], gripper_geometry(self.robot, planner), planner.occupancy_max_fraction * self.occupancy_total[self.object_index[rows]],
-            self.memory.occupancy_chunk_elements, poses,
+            self.memory.occupancy_chunk_elements, poses, planner.compile,
         )
 
     def hand_clearance(self, rows: torch.Tensor, slots: torch.Tensor) -> HandClearance:
@@ -131,10 +131,10 @@ class ScreenedCandidates:
         with approaches ``slots`` comes within the margin of the scene's object and obstacle points,
         and its clearance from them (exact where not blocked). The coarse subset is probed first:
         most blocked grasps (a mug's) strike one of its points."""
-        low, high = hand_geometry(self.robot).swept((0.0, 0.0, -self.pregrasp_offset_m))
+        low, high = _swept_hand(self.robot, self.pregrasp_offset_m)
         return hand_clearance(
             self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.frames(rows, slots)[1],
-            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.memory.hand_check_chunk_elements,
+            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.memory.hand_check_chunk_elements, self.planner.compile,
         )
 
     @property
@@ -144,36 +144,51 @@ class ScreenedCandidates:
         return self.table_and_volume_ok(torch.arange(self.n_candidates))
 
 
-def screen_candidates(clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int]) -> ScreenedCandidates:
-    """Sampling and the antipodal filter for all clouds at once; the screens run on demand."""
+def screen_candidates(
+    clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int], clock: StageClock | None = None
+) -> ScreenedCandidates:
+    """Sampling and the antipodal filter for all clouds at once; the screens run on demand, timed on
+    ``clock`` (a fresh one by default) as the draws and the filter are."""
     planner, robot = config.planner, robot_of(config)
-    clock = time.perf_counter()
+    clock = StageClock() if clock is None else clock
+    if planner.compile:
+        use_compile_cache()
     n_objects = len(clouds)
-    sampled = [sample_inputs(cloud, robot, planner, config.memory, seed) for cloud, seed in zip(clouds, seeds)]
-    point_offsets = torch.tensor([0] + [cloud.n_points for cloud in clouds]).cumsum(0)[:-1]
-    pairs = torch.cat([s.pair_indices + offset for s, offset in zip(sampled, point_offsets)])
-    pair_object = torch.arange(n_objects).repeat_interleave(planner.n_pairs)
-    points = torch.cat([cloud.points_world.to(torch.float32) for cloud in clouds])
-    normals = torch.cat([cloud.normals_world.to(torch.float32) for cloud in clouds])
-    sampled_at = time.perf_counter()
+    n_pairs = planner.n_pairs * n_objects
+    with clock.stage("sampling", n_pairs):
+        sampled = [sample_inputs(cloud, robot, planner, config.memory, seed) for cloud, seed in zip(clouds, seeds)]
+        point_offsets = torch.tensor([0] + [cloud.n_points for cloud in clouds]).cumsum(0)[:-1]
+        pairs = torch.cat([s.pair_indices + offset for s, offset in zip(sampled, point_offsets)])
+        pair_object = torch.arange(n_objects).repeat_interleave(planner.n_pairs)
+        points = torch.cat([cloud.points_world.to(torch.float32) for cloud in clouds])
+        normals = torch.cat([cloud.normals_world.to(torch.float32) for cloud in clouds])
+    with clock.stage("antipodal", n_pairs):
+        pair_eval = antipodal_pairs(points, normals, pairs, planner.min_width_m, planner.max_width_m, planner.max_contact_angle_deg)
+        antipodal = pair_eval["antipodal"].nonzero().squeeze(1)
+        # Rank by S_geom within each object; stable sorts keep sampling order among ties.
+        antipodal = antipodal[torch.sort(pair_eval["s_geom"][antipodal], descending=True, stable=True).indices]
+        if n_objects > 1:  # one object's candidates are already grouped
+            antipodal = antipodal[torch.sort(pair_object[antipodal], stable=True).indices]
+        candidate_object = pair_object[antipodal]
+        contacts = points[pairs[antipodal]]  # (A, 2, 3)
+        return _screened(config, sampled, clock, pairs[antipodal] - point_offsets[candidate_object, None], candidate_object, contacts,
+                         {name: pair_eval[name][antipodal] for name in ("closing_axis", "width_m", "s_geom")})
 
-    pair_eval = antipodal_pairs(points, normals, pairs, planner.min_width_m, planner.max_width_m, planner.max_contact_angle_deg)
-    antipodal = pair_eval["antipodal"].nonzero().squeeze(1)
-    # Rank by S_geom within each object; stable sorts keep sampling order among ties.
-    antipodal = antipodal[torch.sort(pair_eval["s_geom"][antipodal], descending=True, stable=True).indices]
-    if n_objects > 1:  # one object's candidates are already grouped
-        antipodal = antipodal[torch.sort(pair_object[antipodal], stable=True).indices]
-    candidate_object = pair_object[antipodal]
-    contacts = points[pairs[antipodal]]  # (A, 2, 3)
-    n_candidates = antipodal.numel()
+
+def _screened(
+    config: Config, sampled: list, clock: StageClock, pair_indices: torch.Tensor,
+    candidate_object: torch.Tensor, contacts: torch.Tensor, pair_values: dict[str, torch.Tensor],
+) -> ScreenedCandidates:
+    """The ``ScreenedCandidates`` of ranked candidates (their (A, 2) point indices within their
+    clouds, (A,) clouds, (A, 2, 3) contacts, and ``antipodal_pairs``' values for them) and the
+    clouds' ``sampled`` point subsets."""
+    planner, n_candidates = config.planner, candidate_object.numel()
     return ScreenedCandidates(
         object_index=candidate_object,
-        pair_indices=pairs[antipodal] - point_offsets[candidate_object, None],
+        pair_indices=pair_indices,
         contacts_world=contacts,
         centre_world=contacts.mean(dim=1),  # once for every candidate, not per block of candidates
-        closing_axis=pair_eval["closing_axis"][antipodal],
-        width_m=pair_eval["width_m"][antipodal],
-        s_geom=pair_eval["s_geom"][antipodal],
+        **pair_values,
         approach_buffer=torch.empty(n_candidates, planner.n_approaches, 3),
         rotation_buffer=torch.empty(n_candidates, planner.n_approaches, 3, 3),
         framed=torch.zeros(n_candidates, dtype=torch.bool),
@@ -183,12 +198,26 @@ def screen_candidates(clouds: Sequence[PerceivedCloud], config: Config, seeds: S
         hand_screen_points=_padded([s.hand_screen_points for s in sampled]),
         planner=planner,
         memory=config.memory,
-        robot=robot,
+        robot=robot_of(config),
         pregrasp_offset_m=config.motion.pregrasp_offset_m,
         table_top_z_m=config.scene.table_top_z_m,
-        sampling_s=sampled_at - clock,
-        antipodal_s=time.perf_counter() - sampled_at,
+        clock=clock,
     )
+
+
+def use_compile_cache() -> None:
+    """Inductor keeps the kernels it compiles under the project's cache root (``inductor/``), where
+    a later process loads them instead of compiling again; ``$TORCHINDUCTOR_CACHE_DIR``, if set, wins."""
+    from ..world.objects import sagp_cache_root  # the cache root's one home; world is not otherwise needed here
+
+    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(sagp_cache_root() / "inductor"))
+
+
+@functools.lru_cache(maxsize=4)
+def _swept_hand(robot: RobotDescription, pregrasp_offset_m: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The hand's hulls' k-DOP extents (low, high) swept from the pre-grasp to the grasp: built once
+    per robot and motion, not on every block of candidates."""
+    return hand_geometry(robot).swept((0.0, 0.0, -pregrasp_offset_m))
 
 
 @functools.lru_cache(maxsize=4)

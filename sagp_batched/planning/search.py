@@ -54,6 +54,8 @@ class SearchTuning:
 def segment_exclusive_cumsum(values: torch.Tensor, object_index: torch.Tensor, n_objects: int) -> torch.Tensor:
     """Exclusive running sum of ``values`` restarting at each object (rows sorted by object)."""
     exclusive = torch.cumsum(values, 0) - values
+    if n_objects == 1:  # a single plan's rows (hundreds of thousands at 500,000 pairs) need no restarts
+        return exclusive
     first_row = torch.searchsorted(object_index, torch.arange(n_objects))
     base = torch.zeros(n_objects, dtype=values.dtype)
     has_rows = first_row < object_index.shape[0]

@@ -37,14 +37,15 @@ class IKResult:
 
 
 @dataclass
-class PathResult:
-    """Joints along N straight-line motions of W waypoints each, continued from known joints."""
+class WaypointTargets:
+    """R waypoints of motions, one row each, motion by motion (``PandaIK.waypoint_targets``)."""
 
-    joints: torch.Tensor  # (N, W, 7) arm joints, radians, clamped to the joint limits
-    position_error_m: torch.Tensor  # (N, W) distance of the reached grasp target from each waypoint
-    rotation_error_rad: torch.Tensor  # (N, W) angle between the reached and requested orientation
-    # (N, W) world height (m) of the lowest hull vertex of the links ``follow`` was given, if any
-    lowest_link_z_m: torch.Tensor | None = None
+    start: torch.Tensor  # (R, 7) joints of the row's motion's known pose, radians
+    position_base: torch.Tensor  # (R, 3) ``panda_grasptarget`` waypoint, base frame, metres
+    rotation: torch.Tensor  # (R, 3, 3) orientation held there (grasp frame -> base)
+
+    def rows(self, index: torch.Tensor) -> WaypointTargets:
+        return WaypointTargets(self.start[index], self.position_base[index], self.rotation[index])
 
 
 class PandaIK:
@@ -72,6 +73,7 @@ class PandaIK:
         self._link7_in_target = link7_in_target  # (4, 4): fixed flange, hand and grasp-target offsets
         self._q7_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_samples, dtype=torch.float64)
         self._q7_fine_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_fine_samples, dtype=torch.float64)
+        self._damping = torch.eye(6) * config.damping**2  # the damped-least-squares steps' (6, 6) damping, made once
 
     def forward(self, joints: torch.Tensor) -> torch.Tensor:
         """(N, 7) arm joints -> (N, 4, 4) pose of ``panda_grasptarget`` in the world frame."""
@@ -253,7 +255,7 @@ class PandaIK:
     ) -> torch.Tensor:
         """(M, 7) joints after ``iterations`` damped-least-squares steps from (M, 7) ``joints`` toward
         (M, 3) base-frame positions and (M, 3, 3) orientations, clamped to the joint limits after every step."""
-        damping = torch.eye(6) * self.config.damping**2
+        damping = self._damping
         for _ in range(iterations):
             poses = self.frames.poses(joints)
             jacobian, pose = self.frames.jacobian(poses), poses[-1]
@@ -262,33 +264,13 @@ class PandaIK:
             joints = torch.minimum(torch.maximum(joints + step.squeeze(-1), self.lower), self.upper)
         return joints
 
-    def follow(
-        self,
-        start_joints: torch.Tensor,
-        positions_world: torch.Tensor,
-        rotations_world: torch.Tensor,
-        hold_joint7: bool = True,
-        hulls: dict[str, torch.Tensor] | None = None,
-    ) -> PathResult:
-        """Joints reaching W waypoints of each of N motions, on the IK branch of ``start_joints``.
-
-        With ``hold_joint7`` every waypoint is solved in closed form with joint 7 held at its
-        motion's start value, and of the (up to 8) solutions the one nearest in joint space to
-        ``start_joints`` (the grasp solution) is kept: the same branch. A waypoint with no solution
-        at that joint-7 value (a joint limit in the way), and every waypoint without
-        ``hold_joint7``, takes ``path_iterations`` damped-least-squares steps on
-        the chain's geometric Jacobian from the start joints instead, which move every joint, 7
-        included, the least. The caller checks that neighbouring waypoints stay close in joint
-        space. All N x W waypoints are solved in one batch and judged by forward kinematics,
-        whose link poses also place ``hulls`` (link name -> (V, 3) vertices in its frame) if given.
+    def waypoint_targets(self, start_joints: torch.Tensor, positions_world: torch.Tensor, rotations_world: torch.Tensor) -> WaypointTargets:
+        """The W waypoints of each of N motions as N x W rows, motion by motion (``WaypointTargets``).
 
         Args:
             start_joints: (N, 7) joints of each motion's known pose (inside the limits).
             positions_world: (N, W, 3) ``panda_grasptarget`` waypoints, world frame, metres.
             rotations_world: (N, 3, 3) orientation held along each motion (grasp frame -> world).
-
-        Returns:
-            ``PathResult`` with (N, W, ...) tensors.
         """
         n_motions, n_waypoints = positions_world.shape[:2]
         if start_joints.shape != (n_motions, self.n_joints) or rotations_world.shape != (n_motions, 3, 3):
@@ -296,43 +278,43 @@ class PandaIK:
                 f"start_joints must be (N, 7) and rotations_world (N, 3, 3) for positions_world (N, W, 3), got "
                 f"{tuple(start_joints.shape)}, {tuple(rotations_world.shape)} and {tuple(positions_world.shape)}"
             )
-        start = start_joints.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
-        target_position = (positions_world.to(torch.float32) - self.base_xyz_world).reshape(-1, 3)
-        target_rotation = rotations_world.to(torch.float32).repeat_interleave(n_waypoints, dim=0)
-        joints, found = start.clone(), torch.zeros(len(start), dtype=torch.bool)
-        if hold_joint7:
-            joints, found = self._same_branch(start, target_position, target_rotation)
-        missing = (~found).nonzero().squeeze(1)
-        if missing.numel():
-            joints[missing] = self._damped_least_squares(
-                start[missing], target_position[missing], target_rotation[missing], self.config.path_iterations
-            )
-        # One forward-kinematics pass judges the answers and places the links.
-        link_poses = self.frames.poses(joints)
-        position_error, rotation_error = _errors_of_pose(link_poses[-1], target_position, target_rotation)
-        lowest = None if hulls is None else self._lowest_hull_z(link_poses, hulls).view(n_motions, n_waypoints)
-        return PathResult(
-            joints=joints.view(n_motions, n_waypoints, self.n_joints),
-            position_error_m=position_error.view(n_motions, n_waypoints),
-            rotation_error_rad=rotation_error.view(n_motions, n_waypoints),
-            lowest_link_z_m=lowest,
+        return WaypointTargets(
+            start=start_joints.to(torch.float32).repeat_interleave(n_waypoints, dim=0),
+            position_base=(positions_world.to(torch.float32) - self.base_xyz_world).reshape(-1, 3),
+            rotation=rotations_world.to(torch.float32).repeat_interleave(n_waypoints, dim=0),
         )
 
-
-    def _same_branch(
-        self, start: torch.Tensor, positions_base: torch.Tensor, rotations: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(M, 7) closed-form joints with joint 7 held at (M, 7) ``start``'s, the solution nearest to
-        ``start``, clamped to the limits (``start`` itself where there is none); and (M,) bool: one exists."""
-        rotation_link7, position_link7 = self._link7_targets(positions_base, rotations)
-        solutions = panda_ik_closed_form(
-            rotation_link7, position_link7, start[:, 6:].double(), self.arm_geometry, self.lower, self.upper
-        )
-        branches, valid = solutions.joints[:, 0], solutions.valid[:, 0]  # (M, 8, 7), (M, 8)
+    def held_joint7(self, targets: WaypointTargets) -> tuple[torch.Tensor, torch.Tensor]:
+        """(R, 7) joints of each waypoint in closed form with joint 7 held at its start's value, of
+        the (up to 8) solutions the one nearest in joint space to the start (the same IK branch),
+        clamped to the limits; and (R,) bool: one exists (else the start's joints)."""
+        start = targets.start
+        rotation_link7, position_link7 = self._link7_targets(targets.position_base, targets.rotation)
+        solutions = panda_ik_closed_form(rotation_link7, position_link7, start[:, 6:].double(), self.arm_geometry, self.lower, self.upper)
+        branches, valid = solutions.joints[:, 0], solutions.valid[:, 0]  # (R, 8, 7), (R, 8)
         distance = _squared_distances(branches, start.double()).masked_fill(~valid, float("inf"))
         nearest = branches[torch.arange(len(branches)), distance.argmin(dim=1)].to(torch.float32)
         found = valid.any(dim=1)
         return torch.where(found[:, None], torch.minimum(torch.maximum(nearest, self.lower), self.upper), start), found
+
+    def free_joints(self, targets: WaypointTargets) -> torch.Tensor:
+        """(R, 7) joints of each waypoint after ``path_iterations`` damped-least-squares steps on the
+        chain's geometric Jacobian from its start, which move every joint, 7 included, the least."""
+        return self._damped_least_squares(targets.start, targets.position_base, targets.rotation, self.config.path_iterations)
+
+    def judged(self, joints: torch.Tensor, targets: WaypointTargets, hulls: dict[str, torch.Tensor]) -> torch.Tensor:
+        """(R, 10): (R, 7) ``joints`` of the waypoint ``targets``, then the position error (m) and the
+        rotation error (rad) forward kinematics finds at them, then the world height (m) of the
+        lowest vertex of ``hulls`` (link name -> (V, 3) vertices in its frame), from one pass.
+
+        Fewer than 8 rows are judged padded to 8: MKL sums a GEMM of fewer than 4 rows in another
+        order, and every row must round as it would among many."""
+        n_rows = joints.shape[0]
+        padded = torch.cat((joints, joints[:1].expand(max(0, 8 - n_rows), -1))) if 0 < n_rows < 8 else joints
+        link_poses = self.frames.poses(padded)
+        position_error, rotation_error = _errors_of_pose(link_poses[-1, ..., :n_rows], targets.position_base, targets.rotation)
+        lowest = self._lowest_hull_z(link_poses, hulls)[:n_rows]
+        return torch.cat((joints, position_error[:, None], rotation_error[:, None], lowest[:, None]), dim=1)
 
 @functools.lru_cache(maxsize=4)
 def _cached_ik(ik_values: tuple, robot: RobotDescription) -> PandaIK:
