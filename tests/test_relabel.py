@@ -69,8 +69,9 @@ class _Labeller:
 
 
 def _run(path, mesh_root, out, *extra):
+    # --workers 1: the grasps are labelled in this process, where the tests patch the labeller in.
     return relabel.main([str(path), "--mesh-root", str(mesh_root), "--protocol", "floating", "--out", str(out),
-                         "--grasps-per-chunk", "4", *extra])
+                         "--grasps-per-chunk", "4", "--workers", "1", *extra])
 
 
 def test_the_labels_and_the_agreement_come_from_the_grasps_in_the_link_frame(acronym_file, tmp_path, monkeypatch):
@@ -172,7 +173,8 @@ def test_the_library_entry_relabels_as_the_command_does(acronym_file, tmp_path, 
     monkeypatch.setattr(labelling, "label_object_grasps", _Labeller())
     assert _run(path, mesh_root, tmp_path / "command") == 0
     out = tmp_path / "library"
-    config = load_config("dataset", overrides={"run": {"out": str(out)}, "dataset": {"protocol": "floating", "grasps_per_chunk": 4}})
+    config = load_config("dataset", overrides={"run": {"out": str(out), "workers": 1},  # the patched labeller is this process's
+                                               "dataset": {"protocol": "floating", "grasps_per_chunk": 4}})
     with pytest.raises(RelabelInputError, match="^--max-grasps must be at least 1, got 0$"):
         check_relabel_inputs(path, mesh_root, config, max_grasps=0)
     notes = []

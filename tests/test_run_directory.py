@@ -183,8 +183,9 @@ def scripted_runner(monkeypatch):
 
 
 def _study_config(out, **run):
+    # One worker, so the trials run in this process, where the scripted runner is patched in.
     return load_config("ci", overrides={"run": {"objects": [SPEC.id], "tasks": ["t1"], "methods": ["go"], "n_trials": 3,
-                                                 "out": str(out), **run}})
+                                                 "workers": 1, "out": str(out), **run}})
 
 
 def test_error_trials_run_again_on_resume_unless_kept(tmp_path, scripted_runner):
@@ -233,8 +234,9 @@ def _main_exit(argv, capsys):
 
 
 def test_a_run_directory_made_with_another_object_set_is_refused_in_one_line(tmp_path, scripted_runner, capsys):
+    # --workers 1: the trial runs in this process, where the scripted runner is patched in.
     argv = ["--profile", "ci", "--objects", SPEC.id, "--tasks", "t1", "--methods", "go", "--n-trials", "1",
-            "--out", str(tmp_path), "--no-progress"]
+            "--workers", "1", "--out", str(tmp_path), "--no-progress"]
     assert batch.main(argv) == 0
     provenance_path = tmp_path / "provenance.json"
     provenance = json.loads(provenance_path.read_text())

@@ -39,8 +39,9 @@ class _FileMakingRunner:
 
 
 def _config(out, **run):
+    # One worker, so the units run in this process, where the test's runner is patched in.
     return load_config("ci", overrides={"run": {"objects": [SPEC.id], "tasks": ["t1"], "methods": ["go", "sagp"], "n_trials": 3,
-                                                 "out": str(out), **run}})
+                                                 "workers": 1, "out": str(out), **run}})
 
 
 def test_the_driver_writes_each_units_files_before_the_records_that_name_them(tmp_path, monkeypatch):
