@@ -120,3 +120,20 @@ def test_the_robot_is_read_from_its_file_and_an_unknown_one_is_refused_by_name()
     with pytest.raises(ConfigError, match="unknown robot 'ur5'") as caught:
         load_config(overrides={"scene": {"robot": "ur5"}})
     assert caught.value.setting == "scene.robot" and "\n" not in str(caught.value)
+
+
+def test_the_default_worker_count_is_the_cores_this_process_may_use(monkeypatch):
+    import os
+
+    from sagp_batched.config import MAX_WORKERS
+    from sagp_batched.config.run import available_cores
+
+    expected = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    assert Config().run.workers == load_config("ci").run.workers == available_cores() == min(expected, MAX_WORKERS)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    assert Config().run.workers == 3
+    monkeypatch.delattr(os, "sched_getaffinity")
+    monkeypatch.setattr(os, "cpu_count", lambda: 5000)
+    assert Config().run.workers == MAX_WORKERS
+    # A flag or a profile's value is kept whatever the machine has.
+    assert load_config("ci", overrides={"run": {"workers": 1}}).run.workers == 1

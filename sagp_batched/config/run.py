@@ -1,9 +1,21 @@
 """The run's sections: which units a study runs and where (``[run]``), and how a grasp dataset picks its grasps."""
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 from .settings import ConfigError, _Section, setting
+
+
+def available_cores() -> int:
+    """The CPUs this process may run on: its affinity mask where the platform has one (a container's or a
+    ``taskset``'s share of the machine), else every CPU the machine has; at most ``MAX_WORKERS``."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # macOS and Windows have no affinity call
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, MAX_WORKERS))
+
 
 # Trials per (object, task), 5,000 times the published 20: a study plans all its units up front,
 # and a billion of them exhaust memory before the first trial.
@@ -25,7 +37,9 @@ class RunConfig(_Section):
     n_trials: int = setting(20, at_least=1, at_most=MAX_TRIALS)
     objects_dir: str | None = None
     out: str = setting("runs/latest", non_empty=True)
-    workers: int = setting(1, at_least=1, at_most=MAX_WORKERS)
+    # Trial (or labelling) processes: by default one a core this process may use. Records and labels
+    # do not depend on the count, so the default only decides how fast a run is.
+    workers: int = setting(default_factory=available_cores, at_least=1, at_most=MAX_WORKERS)
     backend: str = setting("local", choices=RUN_BACKENDS)
     ray_address: str | None = None
     trial_timeout_s: float = setting(300.0, above=0)

@@ -94,9 +94,10 @@ class Allowed:
         return " and ".join(filter(None, (lower, upper)))
 
 
-def setting(default: Any, **allowed: Any) -> Any:
-    """A config field defaulting to ``default`` whose values must be as ``Allowed(**allowed)`` says."""
-    return field(default=default, metadata={_ALLOWED: Allowed(**allowed)})
+def setting(default: Any = dataclasses.MISSING, *, default_factory: Any = dataclasses.MISSING, **allowed: Any) -> Any:
+    """A config field defaulting to ``default`` (or to what ``default_factory()`` returns when the section is
+    made: a value that depends on the machine) whose values must be as ``Allowed(**allowed)`` says."""
+    return field(default=default, default_factory=default_factory, metadata={_ALLOWED: Allowed(**allowed)})
 
 
 class _Section:
