@@ -16,7 +16,7 @@ from sagp_batched.study.methods import REGISTRY
 from sagp_batched.study.run import plan_units, run_study
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 
-from .cli import config_or_report
+from .cli import config_or_report, workers_line
 
 MODEL_BACKENDS = ("transformers", "openai")
 # The flags that set a config value: flag -> (argparse dest, section, field).
@@ -135,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"objects: {objects.source}", file=sys.stderr)
     labels = {"prior": " (an offline prior table, not a VLM)", "oracle": " (UPPER BOUND: annotated regions and the true object pose, not a model)"}
     print(f"rater: {config.rating.backend}" + labels.get(config.rating.backend, f" ({config.rating.model})"), file=sys.stderr)
+    print(workers_line(args, config), file=sys.stderr)
     configure_torch()
     try:
         result = run_study(config, objects, methods, objects_dir=config.run.objects_dir,

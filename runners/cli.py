@@ -6,6 +6,7 @@ import sys
 from typing import Any
 
 from sagp_batched.config import Config, ConfigError, load_config
+from sagp_batched.config.profiles import read_profile
 
 # A runner's flag table: flag -> (argparse dest, config section, config key).
 SettingFlags = dict[str, tuple[str, str, str]]
@@ -34,3 +35,15 @@ def config_or_report(args: argparse.Namespace, setting_flags: SettingFlags) -> C
     except ConfigError as exc:
         print(setting_error(exc, args, setting_flags), file=sys.stderr)
         return None
+
+
+def workers_line(args: argparse.Namespace, config: Config) -> str:
+    """The run's first word on its workers: how many, and whether ``--workers``, the profile or the cores
+    available to this process (the default: ``sagp_batched.config.run.available_cores``) chose them."""
+    if getattr(args, "workers", None) is not None:
+        why = "--workers"
+    elif "workers" in read_profile(args.profile)[1].get("run", {}):
+        why = f"[run] workers of profile {args.profile}; --workers N to change"
+    else:
+        why = "the cores available; --workers N to change"
+    return f"workers: {config.run.workers} ({why})"

@@ -20,7 +20,7 @@ from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 
-from .cli import config_or_report
+from .cli import config_or_report, workers_line
 
 # Flag -> (argparse dest, config section, config key).
 SETTING_FLAGS = {
@@ -98,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     for path, reason in getattr(objects, "skipped", []):
         print(f"note: skipped {path}: {reason}", file=sys.stderr)
     print(f"objects: {objects.source} ({len(object_ids)} to label)", file=sys.stderr)
+    print(workers_line(args, config), file=sys.stderr)
     configure_torch()
     out_dir = Path(config.run.out).expanduser()
     try:

@@ -71,19 +71,24 @@ def resolve_profile_path(name_or_path: str | Path) -> Traversable:
     raise ConfigError(f"profile '{name_or_path}' not found: {missing} (named profiles: {', '.join(sorted(profiles))})")
 
 
+def read_profile(profile: str | Path) -> tuple[Traversable, dict[str, Any]]:
+    """The profile's file and its tables as TOML gives them (nothing merged or checked yet); raises ``ConfigError``."""
+    path = resolve_profile_path(profile)
+    try:
+        return path, tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"profile {path} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.end]!r})") from exc
+    except OSError as exc:
+        raise ConfigError(f"cannot read profile {path}: {exc.strerror or exc}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"profile {path} is not valid TOML: {exc}") from exc
+
+
 def load_config(profile: str | Path | None = None, overrides: dict[str, dict[str, Any]] | None = None) -> Config:
     """Defaults, then the profile's tables, then ``overrides`` ({section: {field: value}})."""
     config = Config()
     if profile is not None:
-        path = resolve_profile_path(profile)
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except UnicodeDecodeError as exc:
-            raise ConfigError(f"profile {path} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.end]!r})") from exc
-        except OSError as exc:
-            raise ConfigError(f"cannot read profile {path}: {exc.strerror or exc}") from exc
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"profile {path} is not valid TOML: {exc}") from exc
+        path, data = read_profile(profile)
         try:
             config = _merge(config, data, "")
         except ConfigError as exc:
