@@ -93,28 +93,18 @@ def _separation(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor
 
 
 def _bound_from_world(
-    points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, middle: torch.Tensor, half: torch.Tensor,
-    compile: bool = False,
+    points: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, compile: bool = False,
 ) -> torch.Tensor:
-    """(r, N) s(p) over the first three directions, a lower bound of s(p) up to rounding, of each
-    row's scene points ``points[scene]`` for rows with (r, 3, 3) ``axes`` and (r, 3) ``centre``;
+    """(r, N) s(p) over the first three directions, a lower bound of s(p) up to rounding, of the
+    rows' scene's (N, 3) ``points`` for rows with (r, 3, 3) ``axes`` and (r, 3) ``centre``;
     ``middle`` and ``half``: (S, D, 1, 1) slabs. NaN rows -> inf.
 
-    a_d . (p - c) - m_d is taken as a_d . p - (a_d . c + m_d): the points stay in the world frame."""
-    projection = _scene_projection(points, scene, axes)  # (3, r, N)
+    a_d . (p - c) - m_d is taken as a_d . p - (a_d . c + m_d): the points stay in the world frame,
+    and the projections are one GEMM against them: no (r, N, 3) gather, and no batch of
+    (d, 3) x (3, N) products."""
+    projection = (axes.transpose(0, 1).reshape(-1, 3) @ points.T).view(axes.shape[1], axes.shape[0], -1)  # (3, r, N)
     offset = (axes @ centre[:, :, None]).view(-1, 3).T[:, :, None] + middle[:, :3]  # (S, 3, r, 1)
     return _least_excess(projection, offset, half[:, :3], compile)
-
-
-def _scene_projection(points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor) -> torch.Tensor:
-    """(d, r, N) projections of each row's scene points ``points[scene]`` (world frame) on its ``axes`` (r, d, 3).
-
-    Rows all of one scene (candidates are scene-sorted, so almost every block) take one GEMM
-    against that scene's points: no (r, N, 3) gather, and no batch of (d, 3) x (3, N) products."""
-    first, last = scene.aminmax()
-    if first == last:
-        return (axes.transpose(0, 1).reshape(-1, 3) @ points[int(first)].T).view(axes.shape[1], axes.shape[0], -1)
-    return (axes @ points[scene].transpose(1, 2)).transpose(0, 1)
 
 
 def _least_per_run(bound: torch.Tensor, runs: int) -> torch.Tensor:
@@ -153,27 +143,22 @@ def scene_extents(points: torch.Tensor) -> torch.Tensor:
     return (valid * torch.arange(1, points.shape[1] + 1)).amax(dim=1)
 
 
-def row_blocks(scene: torch.Tensor, width: torch.Tensor, budget: int) -> list[tuple[int, int, int]]:
-    """Consecutive ranges (start, end, width) of rows of scenes (R,) ``scene``, each as many rows
-    as ``budget`` elements allow at the widest of their scenes' (B,) ``width`` (one row at least),
-    with that width: rows of a narrow scene take the rows of a wide one's budget.
+def row_blocks(scene: torch.Tensor, width: torch.Tensor, budget: int) -> list[tuple[int, int, int, int]]:
+    """Consecutive ranges (start, end, width, scene) of rows of scenes (R,) ``scene``, each of one
+    scene's rows, as many as ``budget`` elements allow at that scene's (B,) ``width`` (one row at least).
 
-    Walks the runs of equal scenes (a scene-sorted batch's few) in Python integers, not the rows."""
+    A block never mixes scenes: its rows then take one GEMM against their scene's points and its
+    probes are cut at their own scene's extent, so a batch's rows are computed in the blocks, and
+    with the operations, a plan of their scene alone would use. Walks the runs of equal scenes (a
+    scene-sorted batch's few) in Python integers, not the rows."""
     if scene.numel() == 0:
         return []
     run_scene, run_length = torch.unique_consecutive(scene, return_counts=True)
-    blocks, start, rows, block_width = [], 0, 0, 0
-    for run_width, count in zip(width[run_scene].tolist(), run_length.tolist()):
-        while count:
-            wider = max(block_width, run_width)
-            room = max(1, budget // max(1, wider)) - rows
-            if room <= 0:
-                blocks.append((start, start + rows, block_width))
-                start, rows, block_width = start + rows, 0, 0
-                continue
-            taken = min(count, room)
-            rows, count, block_width = rows + taken, count - taken, wider
-    blocks.append((start, start + rows, block_width))
+    blocks, start = [], 0
+    for run, run_width, count in zip(run_scene.tolist(), width[run_scene].tolist(), run_length.tolist()):
+        rows = max(1, budget // max(1, run_width))
+        blocks.extend((first, min(first + rows, start + count), run_width, run) for first in range(start, start + count, rows))
+        start += count
     return blocks
 
 
@@ -254,21 +239,20 @@ def _probe_clearance(
     n_runs = probe_extent.clamp_max(PROBE_RUNS)
     padded_extent = n_runs * torch.where(n_runs > 0, -(-probe_extent // n_runs.clamp_min(1)), 0)
     probe_budget = min(chunk_elements, PROBE_BLOCK_ELEMENTS) // max(1, middle.shape[0] * 3)
-    for start, end, _ in row_blocks(object_index, padded_extent, probe_budget):
+    for start, end, _, scene in row_blocks(object_index, padded_extent, probe_budget):
         block = slice(start, end)
-        scene, block_axes = object_index[block], axes[block, :3]
-        n_runs, run_length = _probe_width(int(probe_extent[scene].max()))
+        n_runs, run_length = _probe_width(int(probe_extent[scene]))
         if not n_runs:
             continue
         # NaN padding to whole runs: its bound is inf, and a run of padding alone gives an inf separation.
         block_probes = torch.nn.functional.pad(
-            probe_points[:, : min(n_runs * run_length, probe_points.shape[1])], (0, 0, 0, max(0, n_runs * run_length - probe_points.shape[1])),
+            probe_points[scene, : min(n_runs * run_length, probe_points.shape[1])], (0, 0, 0, max(0, n_runs * run_length - probe_points.shape[1])),
             value=float("nan"),
         )
         # From world coordinates like the point pass: the bound only picks which probes are
         # evaluated, and each evaluated probe's separation is exact whichever are picked.
-        picked = _least_per_run(_bound_from_world(block_probes, scene, block_axes, centre[block], middle, half, compile), n_runs)
-        probe = block_probes[scene[:, None], picked] - centre[block, None, :]  # (c, runs, 3)
+        picked = _least_per_run(_bound_from_world(block_probes, axes[block, :3], centre[block], middle, half, compile), n_runs)
+        probe = block_probes[picked] - centre[block, None, :]  # (c, runs, 3)
         clearance[block] = _separation(probe, axes[block], middle, half, compile).amin(dim=1)
     return clearance
 
@@ -286,14 +270,14 @@ def _lowered_by_points(
     # The compiled bound holds no (polytope, direction) elements, only the (row, point) verdicts.
     open_rows = (clearance >= margin_m).nonzero().squeeze(1)
     extent = scene_extents(points)
-    for start, end, width in row_blocks(object_index[open_rows], extent, chunk_elements // (1 if compile else max(1, middle.numel()))):
+    for start, end, width, scene_index in row_blocks(object_index[open_rows], extent, chunk_elements // (1 if compile else max(1, middle.numel()))):
         rows = open_rows[start:end]
         scene, row_axes = object_index[rows], axes[rows]
-        block_points = points[:, :width]
+        block_points, scene_points = points[:, :width], points[scene_index, :width]
         if compile:
-            candidates = _compiled_bound_below(block_points, scene, row_axes[:, :3], centre[rows], middle, half, clearance[rows] + slack_m)
+            candidates = _compiled_bound_below(scene_points, row_axes[:, :3], centre[rows], middle, half, clearance[rows] + slack_m)
         else:
-            candidates = _bound_from_world(block_points, scene, row_axes[:, :3], centre[rows], middle, half) - slack_m < clearance[rows, None]
+            candidates = _bound_from_world(scene_points, row_axes[:, :3], centre[rows], middle, half) - slack_m < clearance[rows, None]
         per_row = candidates.sum(dim=1)
         # Rows are evaluated in buckets of similar candidate counts: each bucket is padded to its
         # largest count, and a block's counts range from none to ten times their median.
@@ -306,25 +290,17 @@ def _lowered_by_points(
 
 
 def _compiled_bound_below(
-    points: torch.Tensor, scene: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, middle: torch.Tensor, half: torch.Tensor,
-    limit: torch.Tensor,
+    points: torch.Tensor, axes: torch.Tensor, centre: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, limit: torch.Tensor,
 ) -> torch.Tensor:
-    """(r, N) bool: ``_bound_from_world``'s bound of each row's scene points ``points[scene]`` under
-    its (r,) ``limit``, by the compiled ``_fused_bound_below``, one call per run of rows of one scene.
-    ``axes`` (r, 3, 3), ``centre`` (r, 3), ``middle`` and ``half`` (S, D, 1, 1) as there."""
+    """(r, N) bool: ``_bound_from_world``'s bound of the rows' scene's (N, 3) ``points`` under each
+    row's (r,) ``limit``, by the compiled ``_fused_bound_below``. ``axes`` (r, 3, 3), ``centre``
+    (r, 3), ``middle`` and ``half`` (S, D, 1, 1) as there."""
     offset = (axes @ centre[:, :, None]).squeeze(2)  # (r, 3): a_d . c
     slab_middle, slab_half = middle[:, :3, 0, 0].contiguous(), half[:, :3, 0, 0].contiguous()
-    below = torch.empty(scene.shape[0], points.shape[1], dtype=torch.bool)
-    run_scene, run_length = torch.unique_consecutive(scene, return_counts=True)
-    start, bound_below = 0, compiled(_fused_bound_below)
-    for scene_index, length in zip(run_scene.tolist(), run_length.tolist()):
-        block = slice(start, start + length)
-        below[block] = bound_below(
-            points[scene_index].T.contiguous(), padded_rows(axes[block]), padded_rows(offset[block]), slab_middle, slab_half,
-            padded_rows(limit[block]),
-        )[:length]
-        start += length
-    return below
+    below = compiled(_fused_bound_below)(
+        points.T.contiguous(), padded_rows(axes), padded_rows(offset), slab_middle, slab_half, padded_rows(limit),
+    )
+    return below[: axes.shape[0]]
 
 
 def _fused_bound_below(

@@ -12,6 +12,7 @@ import torch
 
 from .compiled import compiled, padded_rows
 from .gripper_occupancy import GripperGeometry, gripper_occupancy
+from .hand_clearance import scene_extents
 
 # How far the volume verdict's coordinates may stray from the exhaustive GEMM's: twice the most
 # that their rounding moves them (for grasp centres within ~4.8 m, L1, of the origin; see
@@ -30,8 +31,8 @@ class _Layout(NamedTuple):
     closing_offset: torch.Tensor  # (G, 1, 1) its y offset -axis . centre
     finger_y_mid: torch.Tensor  # (G, 1, 1) its finger slabs' middle along |y|
     finger_y_half: torch.Tensor  # (G, 1, 1) and half extent
-    scene: torch.Tensor  # (G,) its scene
-    scene_starts: list[int]  # the groups that begin another scene's run
+    scene_starts: list[int]  # the groups that begin a scene's run (0 first)
+    run_scenes: list[int]  # the scene of each of those runs
     xz_axes: torch.Tensor  # (2, R, 3) each pose's x and z axes, as rows
     xz_offset: torch.Tensor  # (2, R, 1) and offsets, z measured from the finger slabs' middle
     classes: list[tuple[int, int, int, int]]  # per group size: (size, first group, end group, first pose)
@@ -85,7 +86,7 @@ def gripper_occupancy_within(
     else:
         layout, pose_row, pose_slot = _closing_layout(poses, object_index, centre, rotation, width_m, geometry)
         pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
-        maybe, surely = _pose_bounds(layout, points.permute(2, 0, 1).contiguous(), geometry, pose_budget)
+        maybe, surely = _pose_bounds(layout, points.permute(2, 0, 1).contiguous(), scene_extents(points).tolist(), geometry, pose_budget)
     pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= _centre_reach_l1(geometry)
     within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
     undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
@@ -115,9 +116,10 @@ def _closing_layout(
     closing_axis, closing_offset = axes[group_first, 1:2], offset[group_first, 1:2]
     finger_y_min = width_m[pose_row[group_first], None, None] / 2 + geometry.contact_clearance_m
     scene = object_index[pose_row[group_first]]
+    scene_starts = torch.cat((torch.zeros(min(1, scene.numel()), dtype=torch.int64), (scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1))
     layout = _Layout(
-        closing_axis, closing_offset, (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2, scene,
-        ((scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1).tolist(), axes[:, 0::2].transpose(0, 1), offset[:, 0::2].transpose(0, 1), classes,
+        closing_axis, closing_offset, (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2, scene_starts.tolist(),
+        scene[scene_starts].tolist(), axes[:, 0::2].transpose(0, 1), offset[:, 0::2].transpose(0, 1), classes,
     )
     return layout, pose_row, pose_slot
 
@@ -164,49 +166,65 @@ def _closing_groups(pose_row: torch.Tensor, closing_axis: torch.Tensor) -> tuple
     return order, group_first, list(zip(sizes.tolist(), group_starts, group_ends, pose_starts))
 
 
-def _pose_bounds(layout: _Layout, scene_columns: torch.Tensor, geometry: GripperGeometry, pose_budget: int) -> tuple[torch.Tensor, torch.Tensor]:
+def _pose_bounds(
+    layout: _Layout, scene_columns: torch.Tensor, extents: list[int], geometry: GripperGeometry, pose_budget: int
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Upper and lower bounds (R,) float32 of each pose's gripper point count (``_count_bounds``),
-    in blocks of whole groups of one size of at most ``pose_budget`` poses; ``scene_columns``
-    (3, B, N) holds the scene points' world x, y and z rows."""
+    in blocks of whole groups of one size and one scene of at most ``pose_budget`` poses;
+    ``scene_columns`` (3, B, N) holds the scene points' world x, y and z rows, each scene's real
+    ones the first ``extents`` (B,) of them."""
     n_poses, n_points = layout.xz_axes.shape[1], scene_columns.shape[-1]
     maybe, surely = torch.empty(n_poses), torch.empty(n_poses)
     # Every block reuses these (coordinates, scratch, and y terms of up to as many groups): fresh
     # temporaries of this size cost page faults on each block. A block holds one group at least.
     block_rows = min(max([pose_budget] + [size for size, *_ in layout.classes]), n_poses)
-    coordinates, scratch, closing = torch.empty(3, 2, block_rows, n_points)
+    buffers = torch.empty(3, 2 * block_rows * n_points)
     for size, group_start, group_end, pose_start in layout.classes:
         # This size's poses as (group, pose of the group), and the groups per block.
         poses, shape = slice(pose_start, pose_start + (group_end - group_start) * size), (group_end - group_start, size)
         axes, offset = layout.xz_axes[:, poses].unflatten(1, shape), layout.xz_offset[:, poses].unflatten(1, shape)
-        bounds, step = (maybe[poses].view(shape), surely[poses].view(shape)), max(1, pose_budget // size)
-        # The y terms of whole blocks' groups, up to ``pose_budget`` groups, at once: fewer, larger
-        # calls than one per block of poses.
-        span = step * max(1, pose_budget // step)
-        for terms_first in range(group_start, group_end, span):
-            terms_last = min(terms_first + span, group_end)
-            terms = _closing_terms(layout, terms_first, terms_last, scene_columns, geometry, closing[:, : terms_last - terms_first, None])
-            for first in range(terms_first, terms_last, step):
-                last = min(first + step, terms_last)
-                block, rows = slice(first - group_start, last - group_start), slice(first - terms_first, last - terms_first)
-                buffer_shape = (2, last - first, size, n_points)
-                block_coordinates = _coordinates(
-                    axes[:, block], offset[:, block], _scene_rows(layout, scene_columns, first, last),
-                    coordinates[:, : (last - first) * size].view(buffer_shape),
-                )
-                _count_bounds(
-                    block_coordinates, terms[:, rows], geometry, scratch[:, : (last - first) * size].view(buffer_shape),
-                    (bounds[0][block], bounds[1][block]),
-                )
+        bounds = (maybe[poses].view(shape), surely[poses].view(shape))
+        # Blocks never mix scenes: a scene's points broadcast over its groups, with no (groups,
+        # points) gather, and only up to its last real point (a batch pads to its largest scene;
+        # padding is inside no box, so it adds nothing to a count).
+        for scene, run_first, run_last in _scene_runs(layout, group_start, group_end):
+            columns = scene_columns[:, scene, None, None, : extents[scene]]
+            _run_bounds(layout, (axes, offset, bounds), columns, group_start, (run_first, run_last), size, geometry, pose_budget, buffers)
     return maybe, surely
 
 
-def _scene_rows(layout: _Layout, scene_columns: torch.Tensor, first: int, last: int) -> torch.Tensor:
-    """The world x, y and z rows (3, g or 1, 1, N) of the scene points of groups [first, last),
-    from ``scene_columns`` (3, B, N)."""
-    if bisect.bisect_right(layout.scene_starts, first) == bisect.bisect_left(layout.scene_starts, last):
-        # One scene (the common case): its points broadcast over the groups.
-        return scene_columns[:, int(layout.scene[first]), None, None]
-    return scene_columns[:, layout.scene[first:last], None]
+def _scene_runs(layout: _Layout, group_start: int, group_end: int) -> list[tuple[int, int, int]]:
+    """(scene, first group, end group) of each run of one scene's groups within [group_start, group_end)."""
+    first_run = bisect.bisect_right(layout.scene_starts, group_start) - 1
+    end_run = bisect.bisect_left(layout.scene_starts, group_end)
+    starts = [group_start, *layout.scene_starts[first_run + 1 : end_run], group_end]
+    return list(zip(layout.run_scenes[first_run:end_run], starts[:-1], starts[1:]))
+
+
+def _run_bounds(
+    layout: _Layout, size_class: tuple, columns: torch.Tensor, group_start: int, run: tuple[int, int], size: int,
+    geometry: GripperGeometry, pose_budget: int, buffers: torch.Tensor,
+) -> None:
+    """``_pose_bounds``' bounds of the groups [run) of one scene, whose points' rows are ``columns``
+    (3, 1, 1, n), of one size class: its (2, groups, size, 3) axes and (2, groups, size, 1)
+    offsets and its (groups, size) bounds to write (``size_class``), its first group ``group_start``."""
+    axes, offset, bounds = size_class
+    n_points, step = columns.shape[-1], max(1, pose_budget // size)
+    # The y terms of whole blocks' groups, up to ``pose_budget`` groups, at once: fewer, larger
+    # calls than one per block of poses.
+    span = step * max(1, pose_budget // step)
+    for terms_first in range(run[0], run[1], span):
+        terms_last = min(terms_first + span, run[1])
+        closing = buffers[2, : 2 * (terms_last - terms_first) * n_points].view(2, terms_last - terms_first, 1, n_points)
+        terms = _closing_terms(layout, terms_first, terms_last, columns, geometry, closing)
+        for first in range(terms_first, terms_last, step):
+            last = min(first + step, terms_last)
+            block, rows = slice(first - group_start, last - group_start), slice(first - terms_first, last - terms_first)
+            buffer_shape, elements = (2, last - first, size, n_points), 2 * (last - first) * size * n_points
+            block_coordinates = _coordinates(axes[:, block], offset[:, block], columns, buffers[0, :elements].view(buffer_shape))
+            _count_bounds(
+                block_coordinates, terms[:, rows], geometry, buffers[1, :elements].view(buffer_shape), (bounds[0][block], bounds[1][block])
+            )
 
 
 def _coordinates(axes: torch.Tensor, offset: torch.Tensor, columns: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
@@ -219,13 +237,12 @@ def _coordinates(axes: torch.Tensor, offset: torch.Tensor, columns: torch.Tensor
     return out.addcmul_(axes[..., 1:2], columns[1]).addcmul_(axes[..., 2:3], columns[2]).add_(offset)
 
 
-def _closing_terms(layout: _Layout, first: int, last: int, scene_columns: torch.Tensor, geometry: GripperGeometry, out: torch.Tensor) -> torch.Tensor:
-    """``out`` (2, g, 1, N) set to the finger slabs' and the palm's excess along |y| (raised as in
+def _closing_terms(layout: _Layout, first: int, last: int, columns: torch.Tensor, geometry: GripperGeometry, out: torch.Tensor) -> torch.Tensor:
+    """``out`` (2, g, 1, n) set to the finger slabs' and the palm's excess along |y| (raised as in
     ``_count_bounds``) of the scene points' y coordinates along the closing axes of groups
-    [first, last), from ``scene_columns`` (3, B, N)."""
+    [first, last), all of one scene whose points' rows are ``columns`` (3, 1, 1, n)."""
     raise_m = geometry.finger_width_m / 2
     finger, palm = out
-    columns = _scene_rows(layout, scene_columns, first, last)
     _coordinates(layout.closing_axis[first:last], layout.closing_offset[first:last], columns, palm).abs_()
     torch.sub(palm, layout.finger_y_mid[first:last], out=finger).abs_().sub_(layout.finger_y_half[first:last] - raise_m)
     palm.sub_(geometry.palm_span_m / 2 - raise_m)

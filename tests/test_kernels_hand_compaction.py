@@ -103,13 +103,15 @@ def test_scene_extents_end_each_scene_at_its_last_row_without_nan():
     assert scene_extents(points).tolist() == [3, 5, 0]
 
 
-def test_row_blocks_cover_the_rows_in_order_within_the_budget_at_each_blocks_widest_scene():
+def test_row_blocks_cover_the_rows_in_order_within_the_budget_one_scene_each():
     scene = torch.tensor([0] * 7 + [1] * 3 + [2] * 9 + [0] * 2)
     width = torch.tensor([10, 40, 5])
     blocks = row_blocks(scene, width, 60)
-    assert [start for start, _, _ in blocks] == [0] + [end for _, end, _ in blocks[:-1]] and blocks[-1][1] == scene.numel()
-    for start, end, block_width in blocks:
-        assert block_width == int(width[scene[start:end]].max()) and (end - start) * block_width <= 60
+    assert [start for start, *_ in blocks] == [0] + [end for _, end, *_ in blocks[:-1]] and blocks[-1][1] == scene.numel()
+    for start, end, block_width, block_scene in blocks:
+        assert (scene[start:end] == block_scene).all() and block_width == int(width[block_scene]) and (end - start) * block_width <= 60
+    # A block never reaches into the next scene's rows, even where the budget has room.
+    assert row_blocks(torch.tensor([2, 2, 0]), width, 60) == [(0, 2, 5, 2), (2, 3, 10, 0)]
     # A row wider than the whole budget still gets a block of its own.
-    assert row_blocks(torch.tensor([1, 1]), width, 30) == [(0, 1, 40), (1, 2, 40)]
+    assert row_blocks(torch.tensor([1, 1]), width, 30) == [(0, 1, 40, 1), (1, 2, 40, 1)]
     assert row_blocks(torch.zeros(0, dtype=torch.int64), width, 60) == []
