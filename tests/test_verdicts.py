@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from sagp_batched import Scene, capture, load_config, load_object_set, plan
-from sagp_batched.datasets.verdicts import VERDICTS, _verdict_quotas, classify_grasps
+from sagp_batched.datasets.verdicts import FEASIBLE, VERDICTS, _pick, _pick_across_verdicts, _verdict_quotas, classify_grasps
 from sagp_batched_kernels.pose_nms import same_grasp
 
 
@@ -55,3 +55,16 @@ def test_picked_grasps_are_distinct_span_the_verdicts_and_each_says_why(can_clou
     feasible = classified.verdict == 0
     assert (grasps.joint_path[feasible].abs().sum(dim=(1, 2)) > 0).all() and (grasps.s_reach[feasible] > 0).all()
     assert (grasps.joint_path[~feasible] == 0).all()
+
+
+@pytest.mark.parametrize("poses, clear_share, n_grasps", [(5000, 0.6, 21), (300, 0.05, 40), (100, 0.0, 10), (50, 1.0, 60)])
+def test_a_floating_pick_tests_the_draw_until_it_has_enough_and_picks_what_testing_every_pose_picks(poses, clear_share, n_grasps):
+    dataset = load_config("dataset", overrides={"dataset": {"protocol": "floating"}}).dataset
+    clear = torch.rand(poses, generator=torch.Generator().manual_seed(poses)) < clear_share
+    tested = []
+    lazy = _pick(torch.zeros(poses, dtype=torch.int64), 7, n_grasps, dataset, lambda rows: (tested.append(len(rows)), clear[rows])[1])
+    colliding = VERDICTS.index("volume")
+    classes = torch.where(clear, torch.full((poses,), FEASIBLE), torch.full((poses,), colliding))
+    assert torch.equal(lazy, _pick_across_verdicts(classes, 7, n_grasps, 1.0, {colliding: int(dataset.geometry_verdict_fraction * n_grasps)}))
+    # Enough clear hands early in the draw: a block or two tested, not every pose.
+    assert sum(tested) == (64 if clear_share == 0.6 else poses)

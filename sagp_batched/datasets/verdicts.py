@@ -30,6 +30,8 @@ from ..types import PerceivedCloud
 # floating dataset's variant of a clear grasp moved toward failure (``boundary_grasps``).
 VERDICTS: tuple[str, ...] = ("feasible", "table", "volume", "hand_sweep", "grasp_ik", "motion", "boundary")
 FEASIBLE = VERDICTS.index("feasible")
+# Poses a floating capture tests against the mesh at once, at the least, while it draws its picks.
+CLEAR_TEST_BLOCK = 64
 # Per protocol, the verdicts whose grasps geometry alone mostly fails (the open hand through the table,
 # in the object's points, or its hulls swept through them): a dataset takes few of them, since a learner
 # gains little from many. A floating hand has no descent, but the sweep ends in the hand at the grasp.
@@ -137,8 +139,9 @@ def classify_grasps(
     screened = screen_candidates([cloud], config, [seed])
     poses = _covering_poses(screened, cloud, planner.n_approaches, dataset, taken_object)
     verdict, clearance, joint_path, s_reach = _planner_verdicts(screened, config, poses)
-    clear = None if open_hand_clear is None else torch.as_tensor(open_hand_clear(GraspPoses(poses.centre.double(), poses.rotation.double(), "world")))
-    picked = _pick(verdict, seed, n_grasps, dataset, clear)
+    clear_of = None if open_hand_clear is None else (
+        lambda tested: torch.as_tensor(open_hand_clear(GraspPoses(poses.centre[tested].double(), poses.rotation[tested].double(), "world"))))
+    picked = _pick(verdict, seed, n_grasps, dataset, clear_of)
     chosen_rows = poses.rows[picked]
     jaw_limit_m = jaw_width_limit(screened.robot, planner)
     too_wide = screened.width_m[chosen_rows] > jaw_limit_m
@@ -219,22 +222,42 @@ def _planner_verdicts(screened: ScreenedCandidates, config: Config, poses: _Pose
     return verdict, clearance, joint_path, s_reach
 
 
-def _pick(verdict: torch.Tensor, seed: int, n_grasps: int, dataset: DatasetConfig, clear: torch.Tensor | None) -> torch.Tensor:
+def _pick(verdict: torch.Tensor, seed: int, n_grasps: int, dataset: DatasetConfig,
+          clear_of: Callable[[torch.Tensor], torch.Tensor] | None) -> torch.Tensor:
     """The grasps a dataset takes: across the planner's verdicts (``tabletop``), or alike from every
     direction (``floating``: the arm's reach and the table do not bear on a floating object); in both,
     at most ``geometry_verdict_fraction`` of them from each class geometry alone fails: the verdicts of
-    ``GEOMETRY_VERDICTS``, or, where ``clear`` says which open hands stay out of the object's mesh, the rest."""
+    ``GEOMETRY_VERDICTS``, or, where ``clear_of`` (pose indices -> bool) says which open hands stay out
+    of the object's mesh, the rest (``_pick_clear``)."""
     cap = int(dataset.geometry_verdict_fraction * n_grasps)
-    if clear is not None and dataset.protocol == "floating":
-        colliding = VERDICTS.index("volume")  # a class to draw by, not the verdict recorded
-        classes = torch.where(clear, torch.full_like(verdict, FEASIBLE), torch.full_like(verdict, colliding))
-        return _pick_across_verdicts(classes, seed, n_grasps, 1.0, {colliding: cap})
+    if clear_of is not None and dataset.protocol == "floating":
+        return _pick_clear(verdict.numel(), seed, n_grasps, cap, clear_of)
     geometry = [VERDICTS.index(name) for name in GEOMETRY_VERDICTS[dataset.protocol]]
     caps = dict.fromkeys(geometry, cap)
     if dataset.protocol == "tabletop":
         return _pick_across_verdicts(verdict, seed, n_grasps, dataset.feasible_fraction, caps)
     drawn_alike = torch.where(torch.isin(verdict, torch.tensor(geometry)), verdict, torch.full_like(verdict, FEASIBLE))
     return _pick_across_verdicts(drawn_alike, seed, n_grasps, 1.0, caps)
+
+
+def _pick_clear(n: int, seed: int, n_grasps: int, cap: int, clear_of: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+    """A floating dataset's picks: ``n_grasps`` open hands the mesh leaves clear, drawn at random
+    (``_pick_across_verdicts``'s draw), and at most ``cap`` colliding ones where the clear run short.
+
+    The draw's order is tested a block at a time and stops once it holds ``n_grasps`` clear hands:
+    those are the picks a test of every pose gives (the colliding take none then), and the mesh test
+    of thousands of poses, most of a floating capture's planning time, is spared."""
+    order = torch.randperm(n, generator=torch.Generator().manual_seed(int(seed)))
+    clear = torch.zeros(n, dtype=torch.bool)
+    block = max(CLEAR_TEST_BLOCK, 2 * n_grasps)
+    for end in range(block, n + block, block):
+        clear[order[end - block:end]] = clear_of(order[end - block:end])
+        found = order[:end][clear[order[:end]]]
+        if len(found) >= n_grasps:
+            return found[:n_grasps].sort().values
+    colliding = VERDICTS.index("volume")  # a class to draw by, not the verdict recorded
+    classes = torch.where(clear, torch.full((n,), FEASIBLE), torch.full((n,), colliding))
+    return _pick_across_verdicts(classes, seed, n_grasps, 1.0, {colliding: cap})
 
 
 def _pick_across_verdicts(verdict: torch.Tensor, seed: int, n_grasps: int, feasible_fraction: float,
