@@ -99,6 +99,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"note: skipped {path}: {reason}", file=sys.stderr)
     print(f"objects: {objects.source} ({len(object_ids)} to label)", file=sys.stderr)
     print(workers_line(args, config), file=sys.stderr)
+    if config.dataset.mode == "hand":
+        engines = config.dataset.engines
+        print(f"labels: {config.dataset.protocol} protocol in {', '.join(engines)}"
+              + (" (held where every engine held; each engine's label kept)" if len(engines) > 1 else ""), file=sys.stderr)
     configure_torch()
     out_dir = Path(config.run.out).expanduser()
     try:

@@ -102,13 +102,14 @@ def test_labels_do_not_depend_on_the_workers_or_on_how_grasps_are_chunked(tmp_pa
         assert 0 < one["object_in_gripper"].sum() < 24
 
 
-def test_two_engines_label_every_grasp_keep_each_label_and_report_their_agreement(tmp_path):
+def test_two_engines_label_every_grasp_keep_each_label_and_report_their_agreement(tmp_path, capsys):
     folder, out = tmp_path / "meshes", tmp_path / "dataset"
     folder.mkdir()
     trimesh.creation.box((0.05, 0.04, 0.08)).export(folder / "box.stl")
     argv = ["--objects-dir", str(folder), "--out", str(out), "--protocol", "floating", "--engines", "pybullet,mujoco",
             "--grasps-per-object", "8", "--captures", "1", "--pairs", "3000", "--no-progress"]
     assert datagen.main(argv) == 0
+    assert "labels: floating protocol in pybullet, mujoco (held where every engine held" in capsys.readouterr().err
     with h5py.File(out / "grasps" / "box.h5", "r") as f:
         assert [e.decode() for e in f["engines"][()]] == ["pybullet", "mujoco"]
         pybullet, mujoco = (f[f"grasps/qualities/{e}/object_in_gripper"][()].astype(bool) for e in ("pybullet", "mujoco"))
