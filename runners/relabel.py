@@ -39,7 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mesh-root", required=True, help="the folder the file's object/file is relative to")
     parser.add_argument("--protocol", required=True, choices=PROTOCOLS, help="floating: the hand and the object alone; tabletop: the object on the table")
     parser.add_argument("--out", required=True, help="output directory (re-running into it resumes)")
-    parser.add_argument("--engine", default="pybullet", choices=ENGINES, help="the simulator that labels (default: pybullet)")
+    parser.add_argument("--engine", default="pybullet",
+                        help=f"the simulator that labels ({', '.join(ENGINES)}; default pybullet), or a comma list of them: "
+                             "every grasp labelled in each, held where all held, each one's label and agreement kept")
     parser.add_argument("--max-grasps", type=int, help="relabel this many of the file's grasps, drawn with dataset.seed (default: all)")
     parser.add_argument("--workers", type=int, help="worker processes, each with its own simulator")
     parser.add_argument("--grasps-per-chunk", type=int, help="grasps labelled and kept as one piece (labels do not depend on it)")
@@ -76,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     kappa = "undefined" if result["kappa"] is None else f"{result['kappa']:.3f}"
     say(f"{result['n']} grasps: agreement {100 * result['agreement']:.1f} %, kappa {kappa}; report: {out_dir / REPORT_FILE}")
+    for engine, part in result.get("by_engine", {}).items():
+        say(f"  {engine} alone: agreement {100 * part['agreement']:.1f} %, kappa " + ("undefined" if part["kappa"] is None else f"{part['kappa']:.3f}"))
     return 0
 
 

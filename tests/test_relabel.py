@@ -195,11 +195,45 @@ def test_a_relabel_by_the_mujoco_engine_runs_and_records_its_engine(acronym_file
         assert len(f["grasps/held_fraction"][()]) == 3
 
 
-def test_an_unknown_engine_is_refused_by_the_command(acronym_file, tmp_path, capsys):
+@pytest.mark.parametrize("engines", ["bullet", "pybullet,flex", "mujoco,mujoco", ","])
+def test_an_unknown_or_repeated_engine_is_one_error_line(acronym_file, tmp_path, capsys, engines):
     path, mesh_root = acronym_file
-    with pytest.raises(SystemExit):
-        _run(path, mesh_root, tmp_path / "out", "--engine", "bullet")
-    assert "--engine: invalid choice: 'bullet'" in capsys.readouterr().err
+    assert _run(path, mesh_root, tmp_path / "out", "--engine", engines) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "--engine" in errors[0] and repr(engines) in errors[0]
+    assert not (tmp_path / "out" / "relabel.h5").exists()
+
+
+def test_two_engines_relabel_each_grasp_keep_each_label_and_measure_each_against_the_file_and_each_other(acronym_file, tmp_path, monkeypatch):
+    path, mesh_root = acronym_file
+    calls = []
+
+    def by_engine(spec, poses, widths_m, protocol, config, engine="pybullet"):
+        calls.append(engine)
+        x = poses.position.numpy()[:, 0]
+        held = x > (0.0 if engine == "pybullet" else 0.01)  # MuJoCo drops the grasps just past the middle
+        return [GraspLabel("hand", held=bool(h), failure_reason=None if h else "slipped", failed_at=None if h else ("shake" if engine == "pybullet" else "lift"),
+                           protocol=protocol, engine=engine) for h in held]
+
+    monkeypatch.setattr(labelling, "label_object_grasps", by_engine)
+    out = tmp_path / "out"
+    assert _run(path, mesh_root, out, "--engine", "pybullet,mujoco") == 0
+    assert set(calls) == {"pybullet", "mujoco"}
+    result = json.loads((out / "agreement.json").read_text())
+    assert result["engine"] == "pybullet,mujoco" and set(result["by_engine"]) == {"pybullet", "mujoco"}
+    with h5py.File(out / "relabel.h5", "r") as f:
+        pybullet, mujoco = (f[f"grasps/qualities/{e}/object_in_gripper"][()].astype(bool) for e in ("pybullet", "mujoco"))
+        flex = f["grasps/qualities/flex/object_in_gripper"][()].astype(bool)
+        reference = f["grasps/reference/object_in_gripper"][()].astype(bool)
+        assert (flex == (pybullet & mujoco)).all() and (pybullet & ~mujoco).any() and not (mujoco & ~pybullet).any()
+        assert {v.decode() for v in f["grasps/qualities/mujoco/failed_at"][()]} <= {"", "lift"}
+    assert result["agree"] == int((flex == reference).sum())
+    assert result["by_engine"]["mujoco"]["agree"] == int((mujoco == reference).sum())
+    between = result["between_engines"]
+    assert (between["reference"], between["ours"]) == ("pybullet", "mujoco") and between["agree"] == int((pybullet == mujoco).sum())
+    assert between["disagreements_by_phase"] == {"lift": int((pybullet & ~mujoco).sum())}
+    report = (out / "report.md").read_text()
+    assert "vs mujoco alone" in report and "Between the engines: mujoco against pybullet as the reference" in report
 
 
 def test_a_graspgen_uuid_is_found_through_the_roots_map(tmp_path):

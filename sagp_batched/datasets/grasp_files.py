@@ -321,7 +321,8 @@ def relabel_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: np.nd
                   *, object_id: str, mass_kg: float, protocol: str, engine: str) -> bytes:
     """A relabelled file's rows ``rows`` as HDF5 bytes: the grasps as the file gives them (its mesh, scale and frame, so
     ACRONYM's loaders and ``read_grasp_file`` read them as they read the file), our label as ``object_in_gripper`` and
-    the file's under ``grasps/reference/``; ``labels`` hold held, held_fraction, simulated, failure_reason, failed_at."""
+    the file's under ``grasps/reference/``; ``labels`` hold held, held_fraction, simulated, failure_reason, failed_at, and
+    with several engines each one's under "by_engine" (written to ``grasps/qualities/<engine>/``)."""
     import h5py
 
     transforms = grasp_file.transforms[rows]
@@ -338,6 +339,9 @@ def relabel_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: np.nd
         for name in ("failure_reason", "failed_at"):
             string_dataset(f, f"grasps/{name}", [label[name] for label in labels])
         string_dataset(f, "grasps/region", regions)
+        for engine in labels[0].get("by_engine", {}) if labels else ():  # several engines: each one's own label
+            f[f"grasps/qualities/{engine}/object_in_gripper"] = np.array([label["by_engine"][engine]["held"] for label in labels], dtype=np.int64)
+            string_dataset(f, f"grasps/qualities/{engine}/failed_at", [label["by_engine"][engine]["failed_at"] for label in labels])
         if grasp_file.width_m is not None:
             f["grasps/width"] = grasp_file.width_m[rows]
         f["object/file"] = grasp_file.mesh_file

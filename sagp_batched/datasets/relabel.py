@@ -46,11 +46,16 @@ class Inputs:
     selection: np.ndarray  # (M,) rows of the file relabelled, ascending
     object_id: str
     protocol: str
-    engine: str
+    engines: tuple[str, ...]
+
+    @property
+    def engine(self) -> str:
+        """The engines as one name ("pybullet", "pybullet,mujoco"): what the records and the files say."""
+        return ",".join(self.engines)
 
 
 # -- inputs --------------------------------------------------------------------------------------------------------
-def check_inputs(grasp_file: str | Path, mesh_root: str | Path, config: Config, engine: str = "pybullet",
+def check_inputs(grasp_file: str | Path, mesh_root: str | Path, config: Config, engine: str | tuple[str, ...] = "pybullet",
                  max_grasps: int | None = None) -> Inputs:
     """Every named input checked before any work: ``InputError`` / ``GraspFileError`` name the first that cannot serve.
 
@@ -59,8 +64,9 @@ def check_inputs(grasp_file: str | Path, mesh_root: str | Path, config: Config, 
     """
     from ..world.mesh_sources import MESH_SUFFIXES
 
-    if engine not in ENGINES:
-        raise InputError(f"--engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    engines = tuple(name.strip() for name in (engine.split(",") if isinstance(engine, str) else engine) if name.strip())
+    if not engines or any(name not in ENGINES for name in engines) or len(set(engines)) < len(engines):
+        raise InputError(f"--engine must be one of {', '.join(ENGINES)} or a comma list of them without repeats, got {engine!r}")
     grasps = read_grasp_file(grasp_file)
     if len(grasps) == 0:
         raise InputError(f"{grasps.path}: holds no grasps")
@@ -77,7 +83,7 @@ def check_inputs(grasp_file: str | Path, mesh_root: str | Path, config: Config, 
     n = len(grasps)
     count = n if max_grasps is None else min(max_grasps, n)
     selection = np.arange(n) if count == n else np.sort(np.random.default_rng(config.dataset.seed).choice(n, count, replace=False))
-    return Inputs(grasps, mesh_path, selection, _object_id(grasps.path), config.dataset.protocol, engine)
+    return Inputs(grasps, mesh_path, selection, _object_id(grasps.path), config.dataset.protocol, engines)
 
 
 def mesh_file_path(mesh_root: Path, mesh_file: str) -> Path:
@@ -192,26 +198,37 @@ def chunk_bounds(n: int, size: int) -> list[tuple[int, int]]:
     return [(start, min(start + size, n)) for start in range(0, n, size)]
 
 
-def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, protocol: str, engine: str,
+def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, protocol: str, engines: tuple[str, ...],
                 config: Config | dict) -> list[dict[str, Any]]:
-    """Our labels of (C, 4, 4) ACRONYM grasp poses in the object's link frame, by ``engine``, as plain values."""
+    """Our labels of (C, 4, 4) ACRONYM grasp poses in the object's link frame, by each of ``engines``, as plain
+    values: held where every engine held (``cross_engine.combined_labels``), each engine's own under "by_engine"."""
     from ..config import load_config
+    from .cross_engine import combined_labels
     from .export import grasp_poses_from_acronym
     from .labelling import label_object_grasps
 
     if isinstance(config, dict):  # in a worker process: the config travels as its dict
         config = load_config(overrides=config)
-    labels = label_object_grasps(spec, grasp_poses_from_acronym(transforms_link), widths, protocol, config, engine=engine)
+    poses = grasp_poses_from_acronym(transforms_link)
+    labels = combined_labels({engine: label_object_grasps(spec, poses, widths, protocol, config, engine=engine) for engine in engines})
     if len(labels) != len(transforms_link):
         raise RuntimeError(f"{len(labels)} labels for {len(transforms_link)} grasps")
-    return [{
+    plain = [_plain(label) for label in labels]
+    if len(engines) > 1:
+        for values, label in zip(plain, labels):
+            values["by_engine"] = {own.engine: _plain(own) for own in label.by_engine}
+    return plain
+
+
+def _plain(label) -> dict[str, Any]:
+    return {
         "held": bool(label.held),
         "failure_reason": label.failure_reason or "",
         "failed_at": label.failed_at or ("" if label.held else "unknown"),
         # One simulation's share held is its outcome.
         "held_fraction": float(label.held if label.held_fraction is None else label.held_fraction),
         "simulated": bool(getattr(label, "simulated", True)),
-    } for label in labels]
+    }
 
 
 def _read_chunk(path: Path, start: int, stop: int) -> list[dict[str, Any]] | None:
@@ -240,7 +257,7 @@ def label_pending(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndar
             on_chunk(len(done), len(bounds))
 
     def piece(start: int, stop: int) -> tuple:
-        return spec, transforms_link[start:stop], None if widths is None else widths[start:stop], inputs.protocol, inputs.engine
+        return spec, transforms_link[start:stop], None if widths is None else widths[start:stop], inputs.protocol, inputs.engines
 
     if config.run.workers <= 1:
         for start, stop in pending:
@@ -287,10 +304,30 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
         phases = [label["failed_at"] for label in labels]
         result = label_agreement(inputs.grasp_file.labels[inputs.selection], np.array([label["held"] for label in labels]), phases, regions)
         result.update(file=record["file"], protocol=inputs.protocol, engine=inputs.engine, object_id=spec.id)
+        if len(inputs.engines) > 1:
+            result.update(_engine_agreements(inputs.grasp_file.labels[inputs.selection], labels, regions, inputs.engines))
         write_file_atomically(out_dir / RELABEL_FILE, relabel_bytes(
             inputs.grasp_file, inputs.selection, link_from_file, labels, regions, object_id=spec.id, mass_kg=spec.mass_kg,
             protocol=inputs.protocol, engine=inputs.engine))
         write_json(out_dir / AGREEMENT_FILE, result)
-        title = f"Label agreement: {inputs.grasp_file.path.name} ({inputs.grasp_file.format}) vs ours ({inputs.protocol}, {inputs.engine})"
-        write_file_atomically(out_dir / REPORT_FILE, agreement_markdown(result, title).encode("utf-8"))
+        name = f"{inputs.grasp_file.path.name} ({inputs.grasp_file.format})"
+        markdown = agreement_markdown(result, f"Label agreement: {name} vs ours ({inputs.protocol}, {inputs.engine})")
+        for engine, part in result.get("by_engine", {}).items():
+            markdown += "\n" + agreement_markdown(part, f"Label agreement: {name} vs {engine} alone")
+        if "between_engines" in result:
+            between = result["between_engines"]
+            markdown += "\n" + agreement_markdown(between, f"Between the engines: {between['ours']} against {between['reference']} as the reference")
+        write_file_atomically(out_dir / REPORT_FILE, markdown.encode("utf-8"))
     return result
+
+
+def _engine_agreements(reference: np.ndarray, labels: list[dict[str, Any]], regions: list[str], engines: tuple[str, ...]) -> dict[str, Any]:
+    """With several engines: each one's agreement with the file's labels, and the second's with the first's."""
+    from .agreement import label_agreement
+
+    own = {engine: [label["by_engine"][engine] for label in labels] for engine in engines}
+    held = {engine: np.array([label["held"] for label in own[engine]], dtype=bool) for engine in engines}
+    phases = {engine: [label["failed_at"] for label in own[engine]] for engine in engines}
+    first, second = engines[:2]
+    return {"by_engine": {engine: label_agreement(reference, held[engine], phases[engine], regions) for engine in engines},
+            "between_engines": {"reference": first, "ours": second, **label_agreement(held[first], held[second], phases[second], regions)}}
