@@ -85,9 +85,9 @@ def object_engine_agreement(held: dict[str, np.ndarray], failure: dict[str, list
 
 
 def _kappa(counts: dict[str, int]) -> float | None:
-    first = np.repeat([True, True, False, False], [counts["both_held"], counts["first_only"], counts["second_only"], counts["both_dropped"]])
-    second = np.repeat([True, False, True, False], [counts["both_held"], counts["first_only"], counts["second_only"], counts["both_dropped"]])
-    return cohen_kappa(first, second)
+    """Cohen's kappa of the confusion counts, as the two engines' labels they count."""
+    repeats = [counts["both_held"], counts["first_only"], counts["second_only"], counts["both_dropped"]]
+    return cohen_kappa(np.repeat([True, True, False, False], repeats), np.repeat([True, False, True, False], repeats))
 
 
 def _row(counts: dict[str, int]) -> tuple[str, str]:

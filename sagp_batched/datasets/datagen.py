@@ -325,7 +325,8 @@ class ObjectLabeller:
         self._reset_to_pose(spec, chunk.pose_index)
         labels = label_grasps_arm(self.scene, chunk.grasps, self.config)
         outcomes = [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
-        return ChunkOutcome(chunk, outcomes, time.perf_counter() - clock, {"pybullet": time.perf_counter() - clock})
+        seconds = time.perf_counter() - clock
+        return ChunkOutcome(chunk, outcomes, seconds, {"pybullet": seconds})
 
     def label(self, object_id: str, n_grasps: int) -> ObjectLabels:
         """``n_grasps`` grasps of the object planned and simulated here, one chunk a capture."""

@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from ..config import Config
 from ..execution.pick import checked_grasp, execute_grasp
+from ..execution.poses import pose_matrix
 from ..grasps import Grasp, GraspCandidates, GraspPoses, InvalidGraspError
 from ..robot.description import robot_of
 from ..robot.motion import grasp_waypoint_index
@@ -143,15 +144,9 @@ def tabletop_placement(spec: ObjectSpec, config: Config, resting_pose: int = 0, 
 # -- frames ------------------------------------------------------------------------------------------
 def _link_pose_world(placement: ObjectPlacement | FloatingPlacement) -> np.ndarray:
     """(4, 4) the object's link frame in the world."""
-    pose = np.eye(4)
     if isinstance(placement, FloatingPlacement):
-        pose[:3, :3] = Rotation.from_quat(placement.link_quat_xyzw).as_matrix()
-        pose[:3, 3] = placement.link_position_world
-        return pose
-    com_in_link = _com_in_link(placement.spec)
-    pose[:3, :3] = Rotation.from_quat(placement.com_quat_xyzw).as_matrix()
-    pose[:3, 3] = placement.com_position_world
-    return pose @ np.linalg.inv(com_in_link)
+        return pose_matrix(placement.link_position_world, placement.link_quat_xyzw)
+    return pose_matrix(placement.com_position_world, placement.com_quat_xyzw) @ np.linalg.inv(_com_in_link(placement.spec))
 
 
 @functools.lru_cache(maxsize=64)

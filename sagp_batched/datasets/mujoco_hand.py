@@ -17,6 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..config import Config
+from ..execution.poses import pose_matrix
 from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
 from .collision_urdf import floating_hand_urdf
@@ -26,13 +27,6 @@ Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion
 # MuJoCo writes quaternions w first, the protocols x first.
 XYZW_FROM_WXYZ = [1, 2, 3, 0]
 WXYZ_FROM_XYZW = [3, 0, 1, 2]
-
-
-def _pose_matrix(position: Sequence[float], quat_xyzw: Sequence[float]) -> np.ndarray:
-    matrix = np.eye(4)
-    matrix[:3, :3] = Rotation.from_quat(quat_xyzw).as_matrix()
-    matrix[:3, 3] = position
-    return matrix
 
 
 class MuJoCoHand:
@@ -77,11 +71,11 @@ class MuJoCoHand:
         model = world.model
         mujoco.mj_resetData(model, data)
         self.set_gravity(gravity)
-        link = _pose_matrix(*object_pose)
+        link = pose_matrix(*object_pose)
         if pose_of == "com":
-            link = link @ np.linalg.inv(_pose_matrix(world.com_in_link[0], world.com_in_link[1][XYZW_FROM_WXYZ]))
+            link = link @ np.linalg.inv(pose_matrix(world.com_in_link[0], world.com_in_link[1][XYZW_FROM_WXYZ]))
         self._set_free_joint(world.object_qpos, link)
-        self._set_free_joint(world.hand_qpos, _pose_matrix(hand_position, quat) @ world.hand_in_target)
+        self._set_free_joint(world.hand_qpos, pose_matrix(hand_position, quat) @ world.hand_in_target)
         # The fingers open, and their servos' set points with them.
         data.qpos[list(world.finger_qpos)] = data.act[:] = self.robot.open_width_m / 2.0
         self.command_fingers(self.robot.open_width_m)

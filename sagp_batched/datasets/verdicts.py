@@ -244,17 +244,19 @@ def _pick_clear(n: int, seed: int, n_grasps: int, cap: int, clear_of: Callable[[
     """A floating dataset's picks: ``n_grasps`` open hands the mesh leaves clear, drawn at random
     (``_pick_across_verdicts``'s draw), and at most ``cap`` colliding ones where the clear run short.
 
-    The draw's order is tested a block at a time and stops once it holds ``n_grasps`` clear hands:
-    those are the picks a test of every pose gives (the colliding take none then), and the mesh test
-    of thousands of poses, most of a floating capture's planning time, is spared."""
+    The draw's order is tested in blocks that double, and stops once it holds ``n_grasps`` clear
+    hands: those are the picks a test of every pose gives (the colliding take none then), and the mesh
+    test of thousands of poses, most of a floating capture's planning time, is spared; an object whose
+    open hands mostly collide is still tested in a few calls."""
     order = torch.randperm(n, generator=torch.Generator().manual_seed(int(seed)))
     clear = torch.zeros(n, dtype=torch.bool)
-    block = max(CLEAR_TEST_BLOCK, 2 * n_grasps)
-    for end in range(block, n + block, block):
-        clear[order[end - block:end]] = clear_of(order[end - block:end])
+    start, end = 0, min(n, max(CLEAR_TEST_BLOCK, 2 * n_grasps))
+    while start < n:
+        clear[order[start:end]] = clear_of(order[start:end])
         found = order[:end][clear[order[:end]]]
         if len(found) >= n_grasps:
             return found[:n_grasps].sort().values
+        start, end = end, min(n, 2 * end)
     colliding = VERDICTS.index("volume")  # a class to draw by, not the verdict recorded
     classes = torch.where(clear, torch.full((n,), FEASIBLE), torch.full((n,), colliding))
     return _pick_across_verdicts(classes, seed, n_grasps, 1.0, {colliding: cap})

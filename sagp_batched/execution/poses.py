@@ -6,6 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 import pybullet
+from scipy.spatial.transform import Rotation
 
 
 def quat_angle_deg(quat_a: Sequence[float], quat_b: Sequence[float]) -> float:
@@ -23,3 +24,11 @@ def relative_pose(frame: tuple[Any, Any], body: tuple[Any, Any]) -> tuple[tuple[
     """The pose ``body`` (world) expressed in the frame ``frame`` (world pose)."""
     inverse_position, inverse_quat = pybullet.invertTransform(frame[0], frame[1])
     return pybullet.multiplyTransforms(inverse_position, inverse_quat, body[0], body[1])
+
+
+def pose_matrix(position: Sequence[float], quat_xyzw: Sequence[float]) -> np.ndarray:
+    """(4, 4) homogeneous transform of a pose (position, xyzw quaternion)."""
+    matrix = np.eye(4)
+    matrix[:3, :3] = Rotation.from_quat(quat_xyzw).as_matrix()
+    matrix[:3, 3] = position
+    return matrix
