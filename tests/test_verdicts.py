@@ -7,7 +7,9 @@ import pytest
 import torch
 
 from sagp_batched import Scene, capture, load_config, load_object_set, plan
-from sagp_batched.datasets.verdicts import FEASIBLE, VERDICTS, _pick, _pick_across_verdicts, _verdict_quotas, classify_grasps
+from sagp_batched.datasets.verdicts import (
+    FEASIBLE, VERDICTS, _pick, _pick_across_verdicts, _verdict_quotas, capture_verdicts, classify_grasps,
+)
 from sagp_batched_kernels.pose_nms import same_grasp
 
 
@@ -55,6 +57,45 @@ def test_picked_grasps_are_distinct_span_the_verdicts_and_each_says_why(can_clou
     feasible = classified.verdict == 0
     assert (grasps.joint_path[feasible].abs().sum(dim=(1, 2)) > 0).all() and (grasps.s_reach[feasible] > 0).all()
     assert (grasps.joint_path[~feasible] == 0).all()
+
+
+@pytest.fixture(scope="module")
+def two_captures(can_cloud):
+    config, can = can_cloud
+    with Scene(config) as scene:
+        scene.reset(load_object_set(None).get("025_mug"), trial=5)
+        return config, [can, capture(scene, config)]
+
+
+def test_captures_planned_as_one_batch_get_the_verdicts_and_picks_each_gets_alone(two_captures):
+    config, clouds = two_captures
+    seeds = [7, 8]
+    batch = capture_verdicts(clouds, config, seeds)
+    for cloud, seed, verdicts in zip(clouds, seeds, batch):
+        alone = capture_verdicts([cloud], config, [seed])[0]
+        assert verdicts.pool_size == alone.pool_size and len(set(alone.verdict.tolist())) >= 3
+        for name in ("verdict", "clearance", "joint_path", "s_reach"):
+            assert torch.equal(getattr(verdicts, name), getattr(alone, name)), name
+        for name in ("slots", "approach", "rotation", "centre"):
+            assert torch.equal(getattr(verdicts.poses, name), getattr(alone.poses, name)), name
+        assert torch.equal(verdicts.screened.pair_indices[verdicts.poses.rows], alone.screened.pair_indices[alone.poses.rows])
+        from_batch, single = classify_grasps(cloud, config, seed, 30, verdicts=verdicts), classify_grasps(cloud, config, seed, 30)
+        assert from_batch.verdict_names() == single.verdict_names() and from_batch.reasons == single.reasons
+        for field in dataclasses.fields(single.candidates):
+            mine, theirs = getattr(from_batch.candidates, field.name), getattr(single.candidates, field.name)
+            assert torch.equal(mine, theirs) if isinstance(mine, torch.Tensor) else mine == theirs, field.name
+
+
+def test_a_later_capture_leaves_out_the_grasps_an_earlier_one_took(can_cloud):
+    config, cloud = can_cloud
+    first = classify_grasps(cloud, config, seed=7, n_grasps=40)
+    taken = first.candidates.transform(cloud.object_from_world, "object").poses()
+    again = classify_grasps(cloud, config, seed=7, n_grasps=40, taken_object=taken)
+    assert again.pool_size == first.pool_size and again.covering_size <= first.covering_size - len(first)
+    picked = again.candidates.transform(cloud.object_from_world, "object").poses()
+    same = same_grasp(picked.position, picked.rotation, taken.position, taken.rotation,
+                      config.dataset.nms_translation_m, math.radians(config.dataset.nms_rotation_deg))
+    assert len(again) == 40 and not same.any()
 
 
 @pytest.mark.parametrize("poses, clear_share, n_grasps", [(5000, 0.6, 21), (300, 0.05, 40), (100, 0.0, 10), (50, 1.0, 60)])

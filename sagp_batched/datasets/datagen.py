@@ -14,8 +14,6 @@ apart as untested, never written as a failure.
 """
 from __future__ import annotations
 
-import dataclasses
-import functools
 import math
 import time
 import xml.etree.ElementTree as ElementTree
@@ -27,21 +25,18 @@ import numpy as np
 import torch
 
 from ..config import Config
-from ..grasps import Grasp, GraspCandidates, GraspPoses
-from ..seeds import capture_trial, labelling_seed
+from ..grasps import Grasp, GraspCandidates
+from ..seeds import capture_trial
 from ..types import PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
 from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from .cross_engine import combined_labels, engine_columns, failure_text
 from .export import acronym_gripper_transforms_object
-from .verdicts import FEASIBLE, ClassifiedGrasps, classify_grasps
+from .captures import DATASET_TASKS, Capture, PosePlan, plan_captures
 
 if TYPE_CHECKING:
     import trimesh
 
-# The tasks a dataset's zone ratings are asked for: t3 is t1 among distractors, which a dataset
-# of single objects does not place.
-DATASET_TASKS: tuple[str, ...] = ("t1", "t2")
 # PyBullet's lateral friction where a URDF gives none.
 PYBULLET_DEFAULT_FRICTION = 0.5
 
@@ -116,27 +111,6 @@ class ObjectLabels:
 
 
 @dataclass
-class PosePlan:
-    """One capture of an object, planned: the grasps picked across the planner's verdicts, with every
-    field of their label rows but the simulated outcome, and where the object settled."""
-
-    pose_index: int
-    com_position_world: tuple[float, float, float]
-    com_quat_xyzw: tuple[float, float, float, float]
-    candidates: GraspCandidates  # world frame, zones assigned
-    object_from_world: torch.Tensor  # (4, 4)
-    classified: ClassifiedGrasps
-    ratings: dict  # task -> ZoneRating
-
-    def simulated_grasps(self, mode: str) -> list[Grasp]:
-        """The grasps as simulation takes them: in ``arm`` mode a grasp the planner rejected runs
-        without its plan, as execution solves it."""
-        feasible = (self.classified.verdict == FEASIBLE).tolist()
-        grasps = [self.candidates[i] for i in range(len(self.candidates))]
-        return grasps if mode == "hand" else [g if ok else dataclasses.replace(g, joint_path=None) for g, ok in zip(grasps, feasible)]
-
-
-@dataclass
 class ObjectPlan:
     """Every capture of one object, planned; what the captures that failed reported; planning times."""
 
@@ -185,30 +159,6 @@ class ChunkOutcome:
     engine_seconds: dict[str, float] = field(default_factory=dict)
 
 
-def _open_hand_clear_world(spec: ObjectSpec, object_from_world: np.ndarray, config: Config, poses_world: GraspPoses) -> np.ndarray:
-    from ..robot.description import robot_of
-    from .grasp_geometry import object_surface, open_hand_clear
-
-    poses = poses_world.transform(object_from_world, "object")
-    return open_hand_clear(object_surface(spec), poses, robot_of(config), config.labelling.geometry_tolerance_m)
-
-
-def _classified(spec: ObjectSpec, cloud, config: Config, pose_index: int, n_grasps: int, taken: GraspPoses | None) -> ClassifiedGrasps:
-    """A capture's grasps with the planner's verdicts (``classify_grasps``); in the floating protocol
-    among the open hands the mesh leaves clear, ``dataset.boundary_fraction`` of them boundary variants."""
-    from ..robot.description import robot_of
-    from .boundary_grasps import add_boundary_grasps
-    from .grasp_geometry import object_surface
-
-    seed = labelling_seed(config, pose_index)
-    if config.dataset.protocol != "floating":
-        return classify_grasps(cloud, config, seed, n_grasps, taken_object=taken)
-    boundary = round(config.dataset.boundary_fraction * n_grasps)
-    clear = functools.partial(_open_hand_clear_world, spec, cloud.object_from_world, config)
-    classified = classify_grasps(cloud, config, seed, n_grasps - boundary, taken_object=taken, open_hand_clear=clear)
-    return add_boundary_grasps(classified, boundary, object_surface(spec), np.asarray(cloud.object_from_world), robot_of(config), config, seed)
-
-
 def _motion(value: float | None) -> float:
     """A motion the grasp never reached (it failed before that phase) is NaN, not 0."""
     return math.nan if value is None else float(value)
@@ -248,62 +198,45 @@ class ObjectLabeller:
         """Plan ``n_grasps`` grasps of the object, split over its captures."""
         n_poses = self.config.dataset.captures_per_object
         shares = [n_grasps // n_poses + (1 if k < n_grasps % n_poses else 0) for k in range(n_poses)]
-        times = dict.fromkeys(("reset", "capture", "plan"), 0.0)
-        poses, skipped, neutral = [], [], {}
-        # A later capture offers the same grasps again in the object's frame: only new ones are picked.
-        taken = GraspPoses.cat([], "object")
-        for pose_index, share in enumerate(shares):
-            pose, spent = self._plan_pose(self.objects.get(object_id), pose_index, share, taken)
-            for stage, seconds in spent.items():
-                times[stage] += seconds
-            if isinstance(pose, str):
-                skipped.append(pose)
-                continue
-            poses.append(pose)
-            taken = GraspPoses.cat([taken, pose.candidates.transform(pose.object_from_world, "object").poses()], "object")
+        planned, times = self._plan_poses(self.objects.get(object_id), shares)
+        poses = [pose for pose in planned if not isinstance(pose, str)]
+        neutral = {}
+        for pose in poses:
             neutral.update({task: (r.issues[0] if r.issues else "neutral") for task, r in pose.ratings.items() if r.is_neutral})
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
-        return ObjectPlan(object_id, poses, skipped, rater, neutral, times)
+        return ObjectPlan(object_id, poses, [pose for pose in planned if isinstance(pose, str)], rater, neutral, times)
 
-    def _plan_pose(self, spec: ObjectSpec, pose_index: int, n_grasps: int, taken: GraspPoses | None) -> tuple[PosePlan | str, dict[str, float]]:
-        """Capture ``pose_index`` classified and rated, the reason instead where the capture failed; with
-        the seconds its reset, capture and planning took."""
+    def _plan_poses(self, spec: ObjectSpec, shares: list[int]) -> tuple[list[PosePlan | str], dict[str, float]]:
+        """Captures 0, 1, ... taking ``shares`` grasps each, planned (``captures.plan_captures``), or why each
+        gave none, in capture order; with the seconds their resets, captures and planning took."""
+        spent = dict.fromkeys(("reset", "capture", "plan"), 0.0)
+        taken: list[Capture | str] = [self._capture(spec, pose_index, share, spent) for pose_index, share in enumerate(shares)]
+        clock = time.perf_counter()
+        planned = iter(plan_captures([c for c in taken if not isinstance(c, str)], spec, self.config, self.rater))
+        spent["plan"] = time.perf_counter() - clock
+        return [c if isinstance(c, str) else next(planned) for c in taken], spent
+
+    def _capture(self, spec: ObjectSpec, pose_index: int, n_grasps: int, spent: dict[str, float]) -> Capture | str:
+        """Capture ``pose_index`` taken (the whole object's cloud in the floating protocol), or why it
+        failed; its reset and capture seconds added to ``spent``."""
         from .grasp_geometry import object_surface, whole_object_cloud
         from .labelling import ObjectPlacement
         from ..world.perception import capture
-        from ..rating.prompt import describe_zones
-        from ..semantics.zone_marks import rating_image
-        from ..semantics.zones import assign_zones
 
-        config = self.config
-        spent = dict.fromkeys(("reset", "capture", "plan"), 0.0)
         clock = time.perf_counter()
         self._reset_to_pose(spec, pose_index)
-        spent["reset"] = time.perf_counter() - clock
+        spent["reset"] += time.perf_counter() - clock
         clock = time.perf_counter()
         try:
-            cloud = capture(self.scene, config)
+            cloud = capture(self.scene, self.config)
         except PerceptionFailure as failure:
-            return f"capture {pose_index}: {failure.reason}", spent
-        if config.dataset.protocol == "floating":
-            cloud = whole_object_cloud(cloud, object_surface(spec), config.perception.voxel_size_m)
-        spent["capture"] = time.perf_counter() - clock
-        clock = time.perf_counter()
-        classified = _classified(spec, cloud, config, pose_index, n_grasps, taken)
-        if not len(classified):
-            spent["plan"] = time.perf_counter() - clock
-            planner = config.planner
-            if not classified.pool_size:
-                return (f"capture {pose_index}: no antipodal candidate (opposed contacts "
-                        f"{planner.min_width_m * 1000:.0f}-{planner.max_width_m * 1000:.0f} mm apart) in its cloud"), spent
-            return f"capture {pose_index}: each of its {classified.pool_size} candidate poses repeats a grasp of an earlier capture", spent
-        decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
-        shown = rating_image(cloud, decomposition, config.rating)
-        descriptions = describe_zones(decomposition)
-        ratings = {task: self.rater.rate(spec.id, spec.name, task, shown, descriptions) for task in DATASET_TASKS}
+            spent["capture"] += time.perf_counter() - clock
+            return f"capture {pose_index}: {failure.reason}"
+        if self.config.dataset.protocol == "floating":
+            cloud = whole_object_cloud(cloud, object_surface(spec), self.config.perception.voxel_size_m)
+        spent["capture"] += time.perf_counter() - clock
         placement = ObjectPlacement.from_scene(self.scene)
-        spent["plan"] = time.perf_counter() - clock
-        return PosePlan(pose_index, placement.com_position_world, placement.com_quat_xyzw, zoned, cloud.object_from_world, classified, ratings), spent
+        return Capture(pose_index, n_grasps, cloud, placement.com_position_world, placement.com_quat_xyzw)
 
     def simulate(self, chunk: SimulationChunk, mode: str | None = None) -> ChunkOutcome:
         """Label ``chunk`` in ``mode`` (default ``dataset.mode``): ``hand``, the hand alone, each grasp in a
@@ -337,7 +270,7 @@ class ObjectLabeller:
     def compare_modes(self, object_id: str, n_grasps: int) -> dict[str, int]:
         """The same ``n_grasps`` grasps of the object's first capture simulated in hand and in arm mode:
         how many were compared, executed in both, agreed, and held in each."""
-        pose, _ = self._plan_pose(self.objects.get(object_id), 0, n_grasps, None)
+        pose = self._plan_poses(self.objects.get(object_id), [n_grasps])[0][0]
         if isinstance(pose, str):
             return {"compared": 0, "both_tested": 0, "agree": 0, "hand_held": 0, "arm_held": 0, "skipped": pose}
         plan = ObjectPlan(object_id, [pose], [], "", {}, {})

@@ -9,7 +9,9 @@ order the planner runs them, and picks the requested number across the verdicts.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Callable
 
@@ -113,6 +115,48 @@ class _Poses:
     centre: torch.Tensor
 
 
+@dataclass
+class CaptureVerdicts:
+    """One capture's covering poses with the planner's verdict on each (``capture_verdicts``): its cloud's
+    poses that pose-space suppression keeps, before any earlier capture's grasps are set aside."""
+
+    screened: ScreenedCandidates  # the candidates of every cloud screened with this one
+    poses: _Poses
+    verdict: torch.Tensor  # (N,) int64 index into VERDICTS
+    clearance: torch.Tensor  # (N,) swept clearance, inf where the sweep was not reached
+    joint_path: torch.Tensor  # (N, W, 7), zeros where the motion was not reached
+    s_reach: torch.Tensor  # (N,), zeros where grasp IK was not reached
+    pool_size: int  # (candidate, approach) poses the cloud offered
+
+    def subset(self, kept: torch.Tensor) -> CaptureVerdicts:
+        """The poses ``kept`` (indices or an (N,) mask) with their verdicts."""
+        poses = _Poses(*(getattr(self.poses, name)[kept] for name in ("rows", "slots", "approach", "rotation", "centre")))
+        return CaptureVerdicts(self.screened, poses, self.verdict[kept], self.clearance[kept], self.joint_path[kept], self.s_reach[kept],
+                               self.pool_size)
+
+
+def capture_verdicts(clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int], dataset: DatasetConfig | None = None) -> list[CaptureVerdicts]:
+    """Each cloud's covering poses and the planner's verdicts on them, the clouds planned as one batch:
+    one sampling and screening call for all of them (``screen_candidates``) and each check run once
+    over every cloud's poses, so an object's captures share the checks' calls. A pose's verdict is
+    the one it gets planned alone: the suppression runs per cloud and every check decides each pose
+    on its own cloud's points."""
+    dataset = config.dataset if dataset is None else dataset
+    n_approaches = config.planner.n_approaches
+    screened = screen_candidates(list(clouds), config, list(seeds))
+    per_cloud = torch.bincount(screened.object_index, minlength=len(clouds)).tolist()
+    starts = [sum(per_cloud[:index]) for index in range(len(clouds))]
+    covering = [_covering_poses(screened, range(start, start + count), n_approaches, dataset) for start, count in zip(starts, per_cloud)]
+    poses = _Poses(*(torch.cat([getattr(p, name) for p in covering]) for name in ("rows", "slots", "approach", "rotation", "centre")))
+    verdicts = CaptureVerdicts(screened, poses, *_planner_verdicts(screened, config, poses), 0)
+    results, first = [], 0
+    for cloud_poses, n_candidates in zip(covering, per_cloud):
+        end = first + cloud_poses.rows.numel()
+        results.append(dataclasses.replace(verdicts.subset(slice(first, end)), pool_size=n_candidates * n_approaches))
+        first = end
+    return results
+
+
 def classify_grasps(
     cloud: PerceivedCloud,
     config: Config,
@@ -121,6 +165,7 @@ def classify_grasps(
     dataset: DatasetConfig | None = None,
     taken_object: GraspPoses | None = None,
     open_hand_clear: Callable[[GraspPoses], np.ndarray] | None = None,
+    verdicts: CaptureVerdicts | None = None,
 ) -> ClassifiedGrasps:
     """Up to ``n_grasps`` grasps of ``cloud`` covering the object, each with the planner's verdict.
 
@@ -132,13 +177,16 @@ def classify_grasps(
     picked grasps are feasible where the object offers them, the rest spread over the rejection
     verdicts, each drawn at random (``seed``) within its verdict so no region of the object is favoured.
     ``open_hand_clear`` (world-frame poses -> (N,) bool), where given, says which open hands stay out of
-    the object's mesh: a floating dataset takes its grasps among those (``_pick``).
+    the object's mesh: a floating dataset takes its grasps among those (``_pick``). ``verdicts``: the
+    cloud's ``capture_verdicts``, where its captures were planned as a batch (planned here otherwise).
     """
     dataset = config.dataset if dataset is None else dataset
     planner = config.planner
-    screened = screen_candidates([cloud], config, [seed])
-    poses = _covering_poses(screened, cloud, planner.n_approaches, dataset, taken_object)
-    verdict, clearance, joint_path, s_reach = _planner_verdicts(screened, config, poses)
+    verdicts = capture_verdicts([cloud], config, [seed], dataset)[0] if verdicts is None else verdicts
+    if taken_object is not None and len(taken_object):
+        verdicts = verdicts.subset(_new_grasps(verdicts.poses, cloud, dataset, taken_object))
+    screened, poses, verdict, clearance, joint_path, s_reach = (
+        verdicts.screened, verdicts.poses, verdicts.verdict, verdicts.clearance, verdicts.joint_path, verdicts.s_reach)
     clear_of = None if open_hand_clear is None else (
         lambda tested: torch.as_tensor(open_hand_clear(GraspPoses(poses.centre[tested].double(), poses.rotation[tested].double(), "world"))))
     picked = _pick(verdict, seed, n_grasps, dataset, clear_of)
@@ -166,29 +214,27 @@ def classify_grasps(
         _reason(VERDICTS[v], planner, jaw_limit_m, float(c), bool(w))
         for v, c, w in zip(verdict[picked].tolist(), clearance[picked].tolist(), too_wide.tolist())
     )
-    return ClassifiedGrasps(candidates, verdict[picked], reasons, screened.n_candidates * planner.n_approaches, poses.rows.numel())
+    return ClassifiedGrasps(candidates, verdict[picked], reasons, verdicts.pool_size, poses.rows.numel())
 
 
-def _covering_poses(
-    screened: ScreenedCandidates, cloud: PerceivedCloud, n_approaches: int, dataset: DatasetConfig,
-    taken_object: GraspPoses | None,
-) -> _Poses:
-    """The (candidate, approach) poses that cover the object: those pose-space non-maximum
-    suppression keeps of every pose, less the same grasps as one of ``taken_object``."""
-    n_candidates = screened.n_candidates
-    rows = torch.arange(n_candidates).repeat_interleave(n_approaches)
-    slots = torch.arange(n_approaches).repeat(n_candidates)
+def _covering_poses(screened: ScreenedCandidates, rows: range, n_approaches: int, dataset: DatasetConfig) -> _Poses:
+    """The (candidate, approach) poses of candidates ``rows`` (one cloud's) that cover the object: those
+    pose-space non-maximum suppression keeps of every pose."""
+    rows = torch.arange(rows.start, rows.stop).repeat_interleave(n_approaches)
+    slots = torch.arange(n_approaches).repeat(rows.numel() // n_approaches)
     approach, rotation = screened.frames(rows, slots)
     centre = screened.centre_world[rows]
-    rotation_threshold = math.radians(dataset.nms_rotation_deg)
-    covering = pose_nms(centre, rotation, dataset.nms_translation_m, rotation_threshold)
-    if taken_object is not None and len(taken_object):
-        object_from_world = torch.as_tensor(cloud.object_from_world, dtype=torch.float64)
-        centre_object = centre[covering].double() @ object_from_world[:3, :3].T + object_from_world[:3, 3]
-        rotation_object = object_from_world[:3, :3] @ rotation[covering].double()
-        new = ~same_grasp(centre_object, rotation_object, taken_object.position, taken_object.rotation, dataset.nms_translation_m, rotation_threshold).any(dim=1)
-        covering = covering[new]
+    covering = pose_nms(centre, rotation, dataset.nms_translation_m, math.radians(dataset.nms_rotation_deg))
     return _Poses(rows[covering], slots[covering], approach[covering], rotation[covering], centre[covering])
+
+
+def _new_grasps(poses: _Poses, cloud: PerceivedCloud, dataset: DatasetConfig, taken_object: GraspPoses) -> torch.Tensor:
+    """(N,) bool: the ``poses`` of ``cloud`` that are not the same grasp as one of ``taken_object``."""
+    object_from_world = torch.as_tensor(cloud.object_from_world, dtype=torch.float64)
+    centre_object = poses.centre.double() @ object_from_world[:3, :3].T + object_from_world[:3, 3]
+    rotation_object = object_from_world[:3, :3] @ poses.rotation.double()
+    rotation_threshold = math.radians(dataset.nms_rotation_deg)
+    return ~same_grasp(centre_object, rotation_object, taken_object.position, taken_object.rotation, dataset.nms_translation_m, rotation_threshold).any(dim=1)
 
 
 def _planner_verdicts(screened: ScreenedCandidates, config: Config, poses: _Poses) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
