@@ -86,7 +86,7 @@ def pose_nms(
     the answer: a grasp is dropped as soon as one kept grasp is the same (``_suppressed``), and inside a
     block only the grasps no kept one suppressed are compared with each other, since only they can be
     kept or suppress. On a dense capture (300,000 poses, a few thousand kept, hundreds of kept ones
-    near each pose) that spares ~95 % of the frame comparisons. Centre distances still come from one
+    near each pose) that spares most of the frame comparisons, which were most of its time. Centre distances still come from one
     ``cdist`` of the whole block against the kept grasps (and against itself), as ``same_grasp``
     computes them, so that every near/far decision is the same bits.
     """
