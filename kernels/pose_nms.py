@@ -97,6 +97,9 @@ def pose_nms(
         rows = torch.arange(start, min(centres.shape[0], start + block))
         near_kept = torch.cdist(centres[rows], centres[kept]) < translation_m
         free = (~_suppressed(near_kept, features[rows], features[kept], flipped[kept], cos_rotation)).nonzero().squeeze(1)
+        if free.numel() < 2:  # most blocks of a dense capture: nothing left to sweep
+            kept = torch.cat((kept, rows[free]))
+            continue
         # Among the free grasps of the block: (F, F) same-grasp verdicts, near from the block's own cdist.
         near = (torch.cdist(centres[rows], centres[rows]) < translation_m)[free][:, free]
         a, b = near.nonzero(as_tuple=True)
