@@ -210,11 +210,11 @@ class ObjectLabeller:
         """Captures 0, 1, ... taking ``shares`` grasps each, planned (``captures.plan_captures``), or why each
         gave none, in capture order; with the seconds their resets, captures and planning took."""
         spent = dict.fromkeys(("reset", "capture", "plan"), 0.0)
-        taken: list[Capture | str] = [self._capture(spec, pose_index, share, spent) for pose_index, share in enumerate(shares)]
+        captured: list[Capture | str] = [self._capture(spec, pose_index, share, spent) for pose_index, share in enumerate(shares)]
         clock = time.perf_counter()
-        planned = iter(plan_captures([c for c in taken if not isinstance(c, str)], spec, self.config, self.rater))
+        planned = iter(plan_captures([c for c in captured if not isinstance(c, str)], spec, self.config, self.rater))
         spent["plan"] = time.perf_counter() - clock
-        return [c if isinstance(c, str) else next(planned) for c in taken], spent
+        return [c if isinstance(c, str) else next(planned) for c in captured], spent
 
     def _capture(self, spec: ObjectSpec, pose_index: int, n_grasps: int, spent: dict[str, float]) -> Capture | str:
         """Capture ``pose_index`` taken (the whole object's cloud in the floating protocol), or why it

@@ -114,6 +114,13 @@ class _Poses:
     rotation: torch.Tensor
     centre: torch.Tensor
 
+    def select(self, kept: torch.Tensor | slice) -> _Poses:
+        return _Poses(*(getattr(self, field.name)[kept] for field in dataclasses.fields(self)))
+
+    @staticmethod
+    def cat(parts: list[_Poses]) -> _Poses:
+        return _Poses(*(torch.cat([getattr(part, field.name) for part in parts]) for field in dataclasses.fields(_Poses)))
+
 
 @dataclass
 class CaptureVerdicts:
@@ -130,8 +137,7 @@ class CaptureVerdicts:
 
     def subset(self, kept: torch.Tensor) -> CaptureVerdicts:
         """The poses ``kept`` (indices or an (N,) mask) with their verdicts."""
-        poses = _Poses(*(getattr(self.poses, name)[kept] for name in ("rows", "slots", "approach", "rotation", "centre")))
-        return CaptureVerdicts(self.screened, poses, self.verdict[kept], self.clearance[kept], self.joint_path[kept], self.s_reach[kept],
+        return CaptureVerdicts(self.screened, self.poses.select(kept), self.verdict[kept], self.clearance[kept], self.joint_path[kept], self.s_reach[kept],
                                self.pool_size)
 
 
@@ -147,7 +153,7 @@ def capture_verdicts(clouds: Sequence[PerceivedCloud], config: Config, seeds: Se
     per_cloud = torch.bincount(screened.object_index, minlength=len(clouds)).tolist()
     starts = [sum(per_cloud[:index]) for index in range(len(clouds))]
     covering = [_covering_poses(screened, range(start, start + count), n_approaches, dataset) for start, count in zip(starts, per_cloud)]
-    poses = _Poses(*(torch.cat([getattr(p, name) for p in covering]) for name in ("rows", "slots", "approach", "rotation", "centre")))
+    poses = _Poses.cat(covering)
     verdicts = CaptureVerdicts(screened, poses, *_planner_verdicts(screened, config, poses), 0)
     results, first = [], 0
     for cloud_poses, n_candidates in zip(covering, per_cloud):
