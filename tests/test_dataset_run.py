@@ -5,6 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
 from sagp_batched.config import load_config
 from sagp_batched.datasets.datagen import ObjectLabeller, object_labels
@@ -100,3 +101,14 @@ def test_the_floating_protocol_plans_grasps_all_around_the_object_and_labels_the
     boundary = [i for i, verdict in enumerate(labels.grasps.verdict) if verdict == "boundary"]
     assert 0 < len(boundary) <= round(config.dataset.boundary_fraction * 24)
     assert (labels.grasps.width_m[boundary] > 0).all()
+
+
+def test_captures_planned_a_few_at_a_time_give_the_plan_of_one_batch(labeller, plan, monkeypatch):
+    from sagp_batched.datasets import captures
+
+    monkeypatch.setattr(captures, "CAPTURES_PER_BATCH", 1)
+    alone = labeller.plan_object("005_tomato_soup_can", 14)
+    assert [p.pose_index for p in alone.poses] == [p.pose_index for p in plan.poses] == [0, 1]
+    for one, batched in zip(alone.poses, plan.poses):
+        assert one.classified.verdict_names() == batched.classified.verdict_names() and one.classified.reasons == batched.classified.reasons
+        assert torch.equal(one.candidates.rotation, batched.candidates.rotation) and torch.equal(one.candidates.joint_path, batched.candidates.joint_path)

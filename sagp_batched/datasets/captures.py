@@ -18,6 +18,10 @@ from ..types import PerceivedCloud
 from ..world.objects import ObjectSpec
 from .verdicts import FEASIBLE, CaptureVerdicts, ClassifiedGrasps, capture_verdicts, classify_grasps
 
+# Captures whose verdicts one batch computes: a batch holds every capture's candidates, covering poses
+# and their checks at once (~45 MB more a capture at 50,000 pairs, over ~350 MB for the first), so an
+# object of up to a hundred captures is planned a few at a time; the verdicts are the same in any grouping.
+CAPTURES_PER_BATCH = 4
 # The tasks a dataset's zone ratings are asked for: t3 is t1 among distractors, which a dataset
 # of single objects does not place.
 DATASET_TASKS: tuple[str, ...] = ("t1", "t2")
@@ -58,9 +62,11 @@ class Capture:
 
 def plan_captures(captures: list[Capture], spec: ObjectSpec, config: Config, rater) -> list[PosePlan | str]:
     """Each capture planned (``PosePlan``), or why it gave no grasp, in the order of ``captures``: their
-    verdicts in one batch, then each one's picks, zones and ratings (``rater``) in turn."""
-    seeds = [labelling_seed(config, capture.pose_index) for capture in captures]
-    batch = capture_verdicts([capture.cloud for capture in captures], config, seeds) if captures else []
+    verdicts in batches of ``CAPTURES_PER_BATCH``, then each one's picks, zones and ratings (``rater``) in turn."""
+    batch = []
+    for first in range(0, len(captures), CAPTURES_PER_BATCH):
+        group = captures[first : first + CAPTURES_PER_BATCH]
+        batch += capture_verdicts([capture.cloud for capture in group], config, [labelling_seed(config, capture.pose_index) for capture in group])
     planned: list[PosePlan | str] = []
     taken = GraspPoses.cat([], "object")  # a later capture offers the same grasps again in the object's frame
     for capture, verdicts in zip(captures, batch):
