@@ -55,8 +55,8 @@ def gripper_occupancy_within(
 
     Why it is cheaper: each counted pose's grasp-frame coordinates come from its own frame's
     rows applied to the scene's raw points, a . p - a . c, as one thin GEMM (each axis with its
-    offset against the points and a row of ones), without the exhaustive check's (candidate, point, 3) offsets p - c, its GEMM over every
-    approach and its gather of the counted poses; and a candidate's poses that share one closing
+    offset against the points and a row of ones), without the exhaustive check's (candidate,
+    point, 3) offsets p - c, its GEMM over every approach and its gather of the counted poses; and a candidate's poses that share one closing
     axis (all of them, for ``grasp_rotations``' frames) share its y coordinates and their finger
     slab and palm excesses, computed once for them. The coordinates differ from the exhaustive
     GEMM's by rounding (<< ``VOLUME_SLACK_M`` for grasp centres within a few metres of the
