@@ -27,14 +27,12 @@ class _Layout(NamedTuple):
     """The volume verdict's counted poses, in groups that share one closing axis, ordered by group
     size (``_closing_groups``): G groups of R poses."""
 
-    closing_axis: torch.Tensor  # (G, 1, 3) each group's closing axis, as a row
-    closing_offset: torch.Tensor  # (G, 1, 1) its y offset -axis . centre
+    closing_rows: torch.Tensor  # (G, 1, 4) each group's closing axis and its y offset -axis . centre (``_frame_rows``)
     finger_y_mid: torch.Tensor  # (G, 1, 1) its finger slabs' middle along |y|
     finger_y_half: torch.Tensor  # (G, 1, 1) and half extent
     scene_starts: list[int]  # the groups that begin a scene's run (0 first)
     run_scenes: list[int]  # the scene of each of those runs
-    xz_axes: torch.Tensor  # (2, R, 3) each pose's x and z axes, as rows
-    xz_offset: torch.Tensor  # (2, R, 1) and offsets, z measured from the finger slabs' middle
+    xz_rows: torch.Tensor  # (2, R, 4) each pose's x and z axes and offsets (``_frame_rows``)
     classes: list[tuple[int, int, int, int]]  # per group size: (size, first group, end group, first pose)
 
 
@@ -101,27 +99,34 @@ def _closing_layout(
     """The (C, K) bool ``poses`` to decide, laid out for ``_pose_bounds`` in groups that share one
     closing axis; and each laid-out pose's candidate and approach, (R,) int64 each, in that order."""
     n_approaches = rotation.shape[1]
-    finger_z_max, finger_z_min, finger_y_max = geometry.fingertip_offset_m, geometry.finger_z_min, geometry.finger_y_max
+    finger_y_max = geometry.finger_y_max
     pose_row, pose_slot = poses.nonzero(as_tuple=True)
-    # The poses in groups that share one closing axis, then each pose's grasp axes as rows
-    # (R, 3, 3) and offsets -axis . centre (R, 3, 1), z measured from the finger slabs' middle.
+    # The poses in groups that share one closing axis, then each pose's grasp-axis rows.
     frames = rotation.reshape(-1, 3, 3).index_select(0, pose_row * n_approaches + pose_slot)
     order, group_first, classes = _closing_groups(pose_row, frames[:, :, 1])
-    pose_row, pose_slot, axes = pose_row[order], pose_slot[order], frames[order].transpose(1, 2)
-    offset = -(axes @ centre[pose_row, :, None])
-    offset[:, 2] -= (finger_z_min + finger_z_max) / 2
+    pose_row, pose_slot = pose_row[order], pose_slot[order]
+    rows = _frame_rows(frames[order], centre[pose_row], geometry)
     # A group's y coordinates come from its first pose's closing row and y offset: for each of
     # its poses they are a . p - a . c with that pose's own axis a (bit-identical) and centre c,
     # though a . c may round unlike that pose's own product: ``_centre_reach_l1``'s bound holds.
-    closing_axis, closing_offset = axes[group_first, 1:2], offset[group_first, 1:2]
     finger_y_min = width_m[pose_row[group_first], None, None] / 2 + geometry.contact_clearance_m
     scene = object_index[pose_row[group_first]]
     scene_starts = torch.cat((torch.zeros(min(1, scene.numel()), dtype=torch.int64), (scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1))
     layout = _Layout(
-        closing_axis, closing_offset, (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2, scene_starts.tolist(),
-        scene[scene_starts].tolist(), axes[:, 0::2].transpose(0, 1), offset[:, 0::2].transpose(0, 1), classes,
+        rows[group_first, 1:2], (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2, scene_starts.tolist(),
+        scene[scene_starts].tolist(), rows[:, 0::2].transpose(0, 1), classes,
     )
     return layout, pose_row, pose_slot
+
+
+def _frame_rows(frames: torch.Tensor, centre: torch.Tensor, geometry: GripperGeometry) -> torch.Tensor:
+    """(R, 3, 4) each pose's grasp axes as rows, each with its offset -axis . centre, z measured from
+    the finger slabs' middle: a row against a point's (x, y, z, 1) is its grasp-frame coordinate.
+    ``frames`` (R, 3, 3) grasp -> world rotations, ``centre`` (R, 3)."""
+    axes = frames.transpose(1, 2)
+    offset = -(axes @ centre[:, :, None])
+    offset[:, 2] -= (geometry.finger_z_min + geometry.fingertip_offset_m) / 2
+    return torch.cat((axes, offset), dim=2)
 
 
 def _centre_reach_l1(geometry: GripperGeometry) -> float:
@@ -173,23 +178,23 @@ def _pose_bounds(
     in blocks of whole groups of one size and one scene of at most ``pose_budget`` poses;
     ``scene_columns`` (3, B, N) holds the scene points' world x, y and z rows, each scene's real
     ones the first ``extents`` (B,) of them."""
-    n_poses, n_points = layout.xz_axes.shape[1], scene_columns.shape[-1]
+    n_poses, n_points = layout.xz_rows.shape[1], scene_columns.shape[-1]
     maybe, surely = torch.empty(n_poses), torch.empty(n_poses)
     # Every block reuses these (coordinates, scratch, and y terms of up to as many groups): fresh
     # temporaries of this size cost page faults on each block. A block holds one group at least.
     block_rows = min(max([pose_budget] + [size for size, *_ in layout.classes]), n_poses)
     buffers = torch.empty(3, 2 * block_rows * n_points)
+    # Each scene's points as ``_coordinates`` takes them, up to its last real point (a batch pads to
+    # its largest scene; padding is inside no box, so it adds nothing to a count).
+    columns = [torch.cat((scene_columns[:, scene, :extent], torch.ones(1, extent))) for scene, extent in enumerate(extents)]
     for size, group_start, group_end, pose_start in layout.classes:
         # This size's poses as (group, pose of the group), and the groups per block.
         poses, shape = slice(pose_start, pose_start + (group_end - group_start) * size), (group_end - group_start, size)
-        rows = torch.cat((layout.xz_axes[:, poses], layout.xz_offset[:, poses]), dim=2).unflatten(1, shape)
         bounds = (maybe[poses].view(shape), surely[poses].view(shape))
-        # Blocks never mix scenes: a scene's points broadcast over its groups, with no (groups,
-        # points) gather, and only up to its last real point (a batch pads to its largest scene;
-        # padding is inside no box, so it adds nothing to a count).
+        # Blocks never mix scenes: a scene's points broadcast over its groups, with no (groups, points) gather.
         for scene, run_first, run_last in _scene_runs(layout, group_start, group_end):
-            columns = torch.cat((scene_columns[:, scene, : extents[scene]], torch.ones(1, extents[scene])))
-            _run_bounds(layout, (rows, bounds), columns, group_start, (run_first, run_last), size, geometry, pose_budget, buffers)
+            _run_bounds(layout, (layout.xz_rows[:, poses].unflatten(1, shape), bounds), columns[scene], group_start, (run_first, run_last),
+                        size, geometry, pose_budget, buffers)
     return maybe, surely
 
 
@@ -242,7 +247,7 @@ def _closing_terms(layout: _Layout, first: int, last: int, columns: torch.Tensor
     [first, last), all of one scene whose points' rows are ``columns`` (4, n, ``_coordinates``')."""
     raise_m = geometry.finger_width_m / 2
     finger, palm = out
-    _coordinates(torch.cat((layout.closing_axis[first:last], layout.closing_offset[first:last]), dim=2), columns, palm).abs_()
+    _coordinates(layout.closing_rows[first:last], columns, palm).abs_()
     torch.sub(palm, layout.finger_y_mid[first:last], out=finger).abs_().sub_(layout.finger_y_half[first:last] - raise_m)
     palm.sub_(geometry.palm_span_m / 2 - raise_m)
     return out
@@ -288,18 +293,17 @@ def _compiled_pose_bounds(
     """``_pose_bounds``' (R,) bounds of R poses (scenes (R,) ``scene``, sorted; (R, 3) ``centre``,
     (R, 3, 3) ``frames``, (R,) ``width_m``) of (B, N, 3) ``points``, by the compiled
     ``_fused_count_bounds``, one call per scene over its points up to its last real one."""
-    axes = frames.transpose(1, 2).contiguous()
-    offset = -(axes @ centre[:, :, None]).squeeze(2)
-    offset[:, 2] -= (geometry.finger_z_min + geometry.fingertip_offset_m) / 2
+    rows = _frame_rows(frames, centre, geometry)
+    axes, offset = rows[..., :3].contiguous(), rows[..., 3].contiguous()
     finger_y_min = width_m / 2 + geometry.contact_clearance_m
     finger_y = torch.stack(((finger_y_min + geometry.finger_y_max) / 2, (geometry.finger_y_max - finger_y_min) / 2), dim=1)
     maybe, surely = torch.empty(scene.shape[0]), torch.empty(scene.shape[0])
     run_scene, run_length = torch.unique_consecutive(scene, return_counts=True)
-    real_rows = (~points.isnan().any(dim=-1)).sum(dim=1)  # NaN padding follows a scene's points
+    extents = scene_extents(points)
     start, count_bounds = 0, compiled(_fused_count_bounds)
     for scene_index, length in zip(run_scene.tolist(), run_length.tolist()):
         block = slice(start, start + length)
-        columns = points[scene_index, : max(2, int(real_rows[scene_index]))].T.contiguous()
+        columns = points[scene_index, : max(2, int(extents[scene_index]))].T.contiguous()
         bounds = count_bounds(columns, padded_rows(axes[block]), padded_rows(offset[block]), padded_rows(finger_y[block]), geometry)
         maybe[block], surely[block] = (bound[:length] for bound in bounds)
         start += length

@@ -107,20 +107,25 @@ def _best_proposals_by_scoring(
     drawn per pair from ``generator``, the best of each by ``_proposal_quality`` on (N, 3)
     ``points`` and ``normals`` (``compile``: by the compiled ``_fused_best_proposal``), the first among equals."""
     n_pairs, n_points = first.shape[0], points.shape[0]
-    if compile:
-        return _compiled_best_proposals(points, normals, first, n_proposals, min_width_m, max_width_m, generator, chunk_elements)
     second = torch.empty_like(first)
     chunk_pairs = max(1, chunk_elements // n_proposals)
     # Proposals are drawn a chunk at a time and scored a block at a time into work tensors made
     # once: fresh multi-megabyte temporaries cost more in page faults (the allocator hands them
-    # back to the system between chunks) than the arithmetic on them. No value depends on the blocking.
+    # back to the system between chunks) than the arithmetic on them. No value depends on the
+    # blocking. A compiled chunk is scored whole, in registers, with no work tensors.
     block_pairs = max(1, min(chunk_pairs, n_pairs, SCORE_BLOCK_ELEMENTS // n_proposals))
-    work = _ScoreWork(block_pairs * n_proposals, points.dtype)
+    work = None if compile else _ScoreWork(block_pairs * n_proposals, points.dtype)
+    columns = (points.T.contiguous(), normals.T.contiguous()) if compile else None
     for start in range(0, n_pairs, chunk_pairs):
         chunk_anchor = first[start : start + chunk_pairs]
         # Same skip trick as sample_pair_indices: distinct from the anchor without rejection.
         chunk_proposal = torch.randint(0, n_points - 1, (chunk_anchor.shape[0], n_proposals), generator=generator)
         chunk_proposal += chunk_proposal >= chunk_anchor[:, None]
+        if compile:
+            column = compiled(_fused_best_proposal)(*columns, padded_rows(chunk_anchor), padded_rows(chunk_proposal), min_width_m,
+                                                    max_width_m)[: chunk_anchor.shape[0]]
+            second[start : start + chunk_anchor.shape[0]] = chunk_proposal.gather(1, column[:, None]).squeeze(1)
+            continue
         for block in range(0, chunk_anchor.shape[0], block_pairs):
             anchor = chunk_anchor[block : block + block_pairs]
             proposal = chunk_proposal[block : block + block_pairs]
@@ -255,24 +260,6 @@ def _proposal_quality(
     _dot(normals[anchor][:, None, :], axis, cos_i, term).neg_()
     torch.lt(width, min_width_m, out=out_of_reach).logical_or_(torch.gt(width, max_width_m, out=beyond))
     return torch.minimum(cos_i, cos_j, out=cos_i).masked_fill_(out_of_reach, -torch.inf)
-
-
-def _compiled_best_proposals(
-    points: torch.Tensor, normals: torch.Tensor, first: torch.Tensor, n_proposals: int, min_width_m: float, max_width_m: float,
-    generator: torch.Generator, chunk_elements: int,
-) -> torch.Tensor:
-    """``_best_proposals_by_scoring``'s pairs, each chunk's proposals drawn alike and scored by the compiled ``_fused_best_proposal``."""
-    n_points, chunk_pairs = points.shape[0], max(1, chunk_elements // n_proposals)
-    columns = (points.T.contiguous(), normals.T.contiguous())
-    best = compiled(_fused_best_proposal)
-    second = torch.empty_like(first)
-    for start in range(0, first.shape[0], chunk_pairs):
-        anchor = first[start : start + chunk_pairs]
-        proposal = torch.randint(0, n_points - 1, (anchor.shape[0], n_proposals), generator=generator)
-        proposal += proposal >= anchor[:, None]
-        column = best(*columns, padded_rows(anchor), padded_rows(proposal), min_width_m, max_width_m)[: anchor.shape[0]]
-        second[start : start + anchor.shape[0]] = proposal.gather(1, column[:, None]).squeeze(1)
-    return second
 
 
 def _fused_quality(

@@ -171,12 +171,13 @@ def screen_candidates(
             antipodal = antipodal[torch.sort(pair_object[antipodal], stable=True).indices]
         candidate_object = pair_object[antipodal]
         contacts = points[pairs[antipodal]]  # (A, 2, 3)
-        return _screened(config, sampled, clock, pairs[antipodal] - point_offsets[candidate_object, None], candidate_object, contacts,
-                         {name: pair_eval[name][antipodal] for name in ("closing_axis", "width_m", "s_geom")})
+        pair_values = {name: pair_eval[name][antipodal] for name in ("closing_axis", "width_m", "s_geom")}
+    return _screened(config, robot, sampled, clock, pairs[antipodal] - point_offsets[candidate_object, None], candidate_object, contacts,
+                     pair_values)
 
 
 def _screened(
-    config: Config, sampled: list, clock: StageClock, pair_indices: torch.Tensor,
+    config: Config, robot: RobotDescription, sampled: list, clock: StageClock, pair_indices: torch.Tensor,
     candidate_object: torch.Tensor, contacts: torch.Tensor, pair_values: dict[str, torch.Tensor],
 ) -> ScreenedCandidates:
     """The ``ScreenedCandidates`` of ranked candidates (their (A, 2) point indices within their
@@ -198,7 +199,7 @@ def _screened(
         hand_screen_points=_padded([s.hand_screen_points for s in sampled]),
         planner=planner,
         memory=config.memory,
-        robot=robot_of(config),
+        robot=robot,
         pregrasp_offset_m=config.motion.pregrasp_offset_m,
         table_top_z_m=config.scene.table_top_z_m,
         clock=clock,

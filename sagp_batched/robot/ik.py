@@ -316,6 +316,7 @@ class PandaIK:
         lowest = self._lowest_hull_z(link_poses, hulls)[:n_rows]
         return torch.cat((joints, position_error[:, None], rotation_error[:, None], lowest[:, None]), dim=1)
 
+
 @functools.lru_cache(maxsize=4)
 def _cached_ik(ik_values: tuple, robot: RobotDescription) -> PandaIK:
     return PandaIK(IKConfig(*ik_values), robot)
