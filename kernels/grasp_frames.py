@@ -47,7 +47,7 @@ def approach_directions(closing_axis: torch.Tensor, n_approaches: int, preferred
     first = first / first.norm(dim=-1, keepdim=True)
     second = torch.linalg.cross(closing_axis, first, dim=-1)
     steps = [(k + 1) // 2 * (1 if k % 2 else -1) for k in range(n_approaches)]
-    angles = torch.tensor(steps, dtype=closing_axis.dtype) * (2.0 * math.pi / n_approaches)
+    angles = torch.tensor(steps, dtype=closing_axis.dtype, device=closing_axis.device) * (2.0 * math.pi / n_approaches)
     cos, sin = torch.cos(angles), torch.sin(angles)
     return cos[None, :, None] * first[:, None, :] + sin[None, :, None] * second[:, None, :]
 

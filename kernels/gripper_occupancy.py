@@ -101,10 +101,10 @@ def gripper_occupancy(
         raise ValueError(f"rotation must be (C, K, 3, 3) matching centre (C, 3), got {tuple(rotation.shape)} and {tuple(centre.shape)}")
     n_candidates, n_approaches = rotation.shape[:2]
     if poses is None:
-        poses = torch.ones(n_candidates, n_approaches, dtype=torch.bool)
+        poses = torch.ones(n_candidates, n_approaches, dtype=torch.bool, device=centre.device)
     n_points = points.shape[1]
-    finger_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
-    palm_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64)
+    finger_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64, device=centre.device)
+    palm_counts = torch.zeros(n_candidates * n_approaches, dtype=torch.int64, device=centre.device)
     step = max(1, chunk_elements // max(1, n_approaches * n_points))
     counted = poses.any(dim=1).nonzero().squeeze(1)
     for start in range(0, counted.numel(), step):
@@ -117,7 +117,7 @@ def gripper_occupancy(
         grasp_axes = rotation[rows].transpose(-1, -2).reshape(rows.numel(), n_approaches * 3, 3)
         local = (grasp_axes @ relative.transpose(1, 2)).view(-1, 3, n_points)[chosen]  # (R, 3, N)
         finger_y_min = (width_m[rows] / 2 + geometry.contact_clearance_m).repeat_interleave(n_approaches)[chosen, None]
-        pose_index = (rows[:, None] * n_approaches + torch.arange(n_approaches)).view(-1)[chosen]
+        pose_index = (rows[:, None] * n_approaches + torch.arange(n_approaches, device=rows.device)).view(-1)[chosen]
         finger_counts[pose_index], palm_counts[pose_index] = _box_counts(local, finger_y_min, geometry)
     shape = (n_candidates, n_approaches)
     return GripperOccupancy(finger_counts.view(shape), palm_counts.view(shape))

@@ -111,7 +111,7 @@ def _least_per_run(bound: torch.Tensor, runs: int) -> torch.Tensor:
     """(c, runs) column of each row's least ``bound`` value (c, runs * length) within each run of
     ``length`` consecutive columns, the first where tied."""
     length = bound.shape[1] // runs
-    return bound.view(bound.shape[0], runs, length).argmin(dim=2) + torch.arange(0, bound.shape[1], length)
+    return bound.view(bound.shape[0], runs, length).argmin(dim=2) + torch.arange(0, bound.shape[1], length, device=bound.device)
 
 
 def _compacted(points: torch.Tensor, scene: torch.Tensor, centre: torch.Tensor, chosen: torch.Tensor, per_row: torch.Tensor) -> torch.Tensor:
@@ -123,7 +123,7 @@ def _compacted(points: torch.Tensor, scene: torch.Tensor, centre: torch.Tensor, 
     row-major list rather than ordered by a stable sort of the mask, which would sort every
     (row, point) flag."""
     row, point = chosen.nonzero(as_tuple=True)
-    slot = torch.arange(row.numel()) - (per_row.cumsum(0) - per_row)[row]
+    slot = torch.arange(row.numel(), device=row.device) - (per_row.cumsum(0) - per_row)[row]
     compact = points.new_full((chosen.shape[0], int(per_row.max()), 3), float("nan"))
     compact[row, slot] = points[scene[row], point] - centre[row]
     return compact
@@ -138,9 +138,9 @@ def scene_extents(points: torch.Tensor) -> torch.Tensor:
     """(B,) int64 rows of each of (B, N, 3) ``points``' scenes up to its last row without NaN: the
     rows after it are padding, whose separation is inf, so a scene's points end there."""
     if points.shape[1] == 0:
-        return torch.zeros(points.shape[0], dtype=torch.int64)
+        return torch.zeros(points.shape[0], dtype=torch.int64, device=points.device)
     valid = ~points.isnan().any(dim=-1)
-    return (valid * torch.arange(1, points.shape[1] + 1)).amax(dim=1)
+    return (valid * torch.arange(1, points.shape[1] + 1, device=points.device)).amax(dim=1)
 
 
 def row_blocks(scene: torch.Tensor, width: torch.Tensor, budget: int) -> list[tuple[int, int, int, int]]:
@@ -233,7 +233,7 @@ def _probe_clearance(
     each run of its block's (B, P, 3) ``probe_points``; inf where its scene has none. ``axes``:
     (C, D, 3) the candidates' k-DOP directions in the world frame; ``middle`` and ``half``:
     (S, D, 1, 1) slabs."""
-    clearance = torch.full((centre.shape[0],), float("inf"))
+    clearance = torch.full((centre.shape[0],), float("inf"), device=centre.device)
     probe_extent = scene_extents(probe_points)
     # Probe blocks are sized by the probes' own bound tensor, at their runs' padded width.
     n_runs = probe_extent.clamp_max(PROBE_RUNS)

@@ -86,8 +86,8 @@ def gripper_occupancy_within(
         pose_budget = max(1, min(chunk_elements, VOLUME_BLOCK_ELEMENTS) // max(1, points.shape[1]))
         maybe, surely = _pose_bounds(layout, points.permute(2, 0, 1).contiguous(), scene_extents(points).tolist(), geometry, pose_budget)
     pose_limit, pose_ok = limit[pose_row], centre[pose_row].abs().sum(dim=1) <= _centre_reach_l1(geometry)
-    within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-    undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
+    within = torch.zeros(n_candidates, n_approaches, dtype=torch.bool, device=centre.device)
+    undecided = torch.zeros(n_candidates, n_approaches, dtype=torch.bool, device=centre.device)
     within[pose_row, pose_slot] = pose_ok & (maybe <= pose_limit)
     undecided[pose_row, pose_slot] = ~pose_ok | ((maybe > pose_limit) & (surely <= pose_limit))
     return _counted_where_undecided(within, undecided, points, object_index, centre, rotation, width_m, geometry, limit, chunk_elements)
@@ -111,7 +111,7 @@ def _closing_layout(
     # though a . c may round unlike that pose's own product: ``_centre_reach_l1``'s bound holds.
     finger_y_min = width_m[pose_row[group_first], None, None] / 2 + geometry.contact_clearance_m
     scene = object_index[pose_row[group_first]]
-    scene_starts = torch.cat((torch.zeros(min(1, scene.numel()), dtype=torch.int64), (scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1))
+    scene_starts = torch.cat((torch.zeros(min(1, scene.numel()), dtype=torch.int64, device=scene.device), (scene[1:] != scene[:-1]).nonzero().squeeze(1) + 1))
     layout = _Layout(
         rows[group_first, 1:2], (finger_y_min + finger_y_max) / 2, (finger_y_max - finger_y_min) / 2, scene_starts.tolist(),
         scene[scene_starts].tolist(), rows[:, 0::2].transpose(0, 1), classes,
@@ -156,14 +156,14 @@ def _closing_groups(pose_row: torch.Tensor, closing_axis: torch.Tensor) -> tuple
         pose in that order; and per group size, (size, first group, end group, first pose).
     """
     n_poses = pose_row.numel()
-    begins = torch.ones(n_poses, dtype=torch.bool)
+    begins = torch.ones(n_poses, dtype=torch.bool, device=pose_row.device)
     begins[1:] = (pose_row[1:] != pose_row[:-1]) | (closing_axis[1:] != closing_axis[:-1]).any(dim=1)
     first = begins.nonzero().squeeze(1)
-    size = torch.diff(first, append=torch.tensor([n_poses]))
+    size = torch.diff(first, append=torch.tensor([n_poses], device=first.device))
     by_size = torch.argsort(size, stable=True)
     size = size[by_size]
     group_first = size.cumsum(0) - size
-    order = (first[by_size] - group_first).repeat_interleave(size) + torch.arange(n_poses)
+    order = (first[by_size] - group_first).repeat_interleave(size) + torch.arange(n_poses, device=first.device)
     sizes, counts = torch.unique_consecutive(size, return_counts=True)
     group_ends = counts.cumsum(0).tolist()
     group_starts = [0, *group_ends][:-1]
@@ -179,14 +179,14 @@ def _pose_bounds(
     ``scene_columns`` (3, B, N) holds the scene points' world x, y and z rows, each scene's real
     ones the first ``extents`` (B,) of them."""
     n_poses, n_points = layout.xz_rows.shape[1], scene_columns.shape[-1]
-    maybe, surely = torch.empty(n_poses), torch.empty(n_poses)
+    maybe, surely = torch.empty(n_poses, device=scene_columns.device), torch.empty(n_poses, device=scene_columns.device)
     # Every block reuses these (coordinates, scratch, and y terms of up to as many groups): fresh
     # temporaries of this size cost page faults on each block. A block holds one group at least.
     block_rows = min(max([pose_budget] + [size for size, *_ in layout.classes]), n_poses)
-    buffers = torch.empty(3, 2 * block_rows * n_points)
+    buffers = torch.empty(3, 2 * block_rows * n_points, device=scene_columns.device)
     # Each scene's points as ``_coordinates`` takes them, up to its last real point (a batch pads to
     # its largest scene; padding is inside no box, so it adds nothing to a count).
-    columns = [torch.cat((scene_columns[:, scene, :extent], torch.ones(1, extent))) for scene, extent in enumerate(extents)]
+    columns = [torch.cat((scene_columns[:, scene, :extent], scene_columns.new_ones(1, extent))) for scene, extent in enumerate(extents)]
     for size, group_start, group_end, pose_start in layout.classes:
         # This size's poses as (group, pose of the group), and the groups per block.
         poses, shape = slice(pose_start, pose_start + (group_end - group_start) * size), (group_end - group_start, size)
@@ -297,7 +297,7 @@ def _compiled_pose_bounds(
     axes, offset = rows[..., :3].contiguous(), rows[..., 3].contiguous()
     finger_y_min = width_m / 2 + geometry.contact_clearance_m
     finger_y = torch.stack(((finger_y_min + geometry.finger_y_max) / 2, (geometry.finger_y_max - finger_y_min) / 2), dim=1)
-    maybe, surely = torch.empty(scene.shape[0]), torch.empty(scene.shape[0])
+    maybe, surely = centre.new_empty(scene.shape[0]), centre.new_empty(scene.shape[0])
     run_scene, run_length = torch.unique_consecutive(scene, return_counts=True)
     extents = scene_extents(points)
     start, count_bounds = 0, compiled(_fused_count_bounds)

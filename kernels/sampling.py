@@ -42,10 +42,10 @@ def sample_pair_indices(n_points: int, n_pairs: int, generator: torch.Generator)
         raise ValueError(f"need at least 2 points to sample pairs, got n_points={n_points}")
     if n_pairs < 0:
         raise ValueError(f"n_pairs must be >= 0, got {n_pairs}")
-    first = torch.randint(0, n_points, (n_pairs,), generator=generator)
+    first = torch.randint(0, n_points, (n_pairs,), generator=generator, device=generator.device)
     # Drawing the second index from n_points - 1 values and skipping the first gives distinct
     # indices without rejection, so the number of draws (and the generator state) is fixed.
-    second = torch.randint(0, n_points - 1, (n_pairs,), generator=generator)
+    second = torch.randint(0, n_points - 1, (n_pairs,), generator=generator, device=generator.device)
     second = second + (second >= first).to(second.dtype)
     return torch.stack((first, second), dim=1)
 
@@ -91,7 +91,7 @@ def sample_guided_pair_indices(
     """
     _check_guided_inputs(points, normals, n_pairs, n_proposals, min_width_m, max_width_m, chunk_elements)
     n_points = points.shape[0]
-    first = torch.randint(0, n_points, (n_pairs,), generator=generator)
+    first = torch.randint(0, n_points, (n_pairs,), generator=generator, device=generator.device).to(points.device)
     if n_points * (n_points - 1) < min(n_pairs * n_proposals, QUALITY_TABLE_MAX_ENTRIES + 1):
         table = _proposal_quality_table(points, normals, min_width_m, max_width_m, compile)
         return torch.stack((first, _best_proposals_from_table(table, first, n_proposals, generator)), dim=1)
@@ -114,12 +114,13 @@ def _best_proposals_by_scoring(
     # back to the system between chunks) than the arithmetic on them. No value depends on the
     # blocking. A compiled chunk is scored whole, in registers, with no work tensors.
     block_pairs = max(1, min(chunk_pairs, n_pairs, SCORE_BLOCK_ELEMENTS // n_proposals))
-    work = None if compile else _ScoreWork(block_pairs * n_proposals, points.dtype)
+    work = None if compile else _ScoreWork(block_pairs * n_proposals, points.dtype, points.device)
     columns = (points.T.contiguous(), normals.T.contiguous()) if compile else None
     for start in range(0, n_pairs, chunk_pairs):
         chunk_anchor = first[start : start + chunk_pairs]
         # Same skip trick as sample_pair_indices: distinct from the anchor without rejection.
-        chunk_proposal = torch.randint(0, n_points - 1, (chunk_anchor.shape[0], n_proposals), generator=generator)
+        chunk_proposal = torch.randint(0, n_points - 1, (chunk_anchor.shape[0], n_proposals), generator=generator, device=generator.device)
+        chunk_proposal = chunk_proposal.to(points.device)
         chunk_proposal += chunk_proposal >= chunk_anchor[:, None]
         if compile:
             column = compiled(_fused_best_proposal)(*columns, padded_rows(chunk_anchor), padded_rows(chunk_proposal), min_width_m,
@@ -149,11 +150,11 @@ def _best_proposals_from_table(table: torch.Tensor, first: torch.Tensor, n_propo
     # below QUALITY_TABLE_MAX_ENTRIES): the generator's draws below 2**32 are the same numbers in
     # either type, one 32-bit draw each, element by element, so the chunking does not change them
     # either.
-    drawn = torch.empty(draw_pairs, n_proposals, dtype=torch.int32)
-    index = torch.empty(block_pairs, n_proposals, dtype=torch.int32)
-    quality = torch.empty(block_pairs, n_proposals, dtype=table.dtype)
+    drawn = torch.empty(draw_pairs, n_proposals, dtype=torch.int32, device=generator.device)
+    index = torch.empty(block_pairs, n_proposals, dtype=torch.int32, device=table.device)
+    quality = torch.empty(block_pairs, n_proposals, dtype=table.dtype, device=table.device)
     for start in range(0, first.shape[0], draw_pairs):
-        proposal = drawn[: min(draw_pairs, first.shape[0] - start)].random_(0, n_options, generator=generator)
+        proposal = drawn[: min(draw_pairs, first.shape[0] - start)].random_(0, n_options, generator=generator).to(table.device)
         # Pairs read in anchor order read the table (36 MB at 3,000 points) a row (12 KB) at a
         # time instead of at random, for the price of a sort and a permutation. Equal anchors may
         # come in any order: each pair is read alone.
@@ -179,9 +180,9 @@ def _proposal_quality_table(
     by the compiled ``_fused_quality``): each entry is bit for bit the value scoring that proposal
     gives, but for the sign of a coincident pair's zero quality (in reach only when ``min_width_m`` is 0)."""
     n_points = points.shape[0]
-    work = None if compile else _ScoreWork(max(SCORE_BLOCK_ELEMENTS, n_points), points.dtype)
+    work = None if compile else _ScoreWork(max(SCORE_BLOCK_ELEMENTS, n_points), points.dtype, points.device)
     columns = (points.T.contiguous(), normals.T.contiguous()) if compile else None
-    table = torch.empty(n_points, n_points, dtype=points.dtype)
+    table = torch.empty(n_points, n_points, dtype=points.dtype, device=points.device)
     start = 0
     while start < n_points:
         # Only the upper triangle is scored, then mirrored, sparing half the pairs' scoring:
@@ -204,7 +205,8 @@ def _proposal_quality_table(
             block = compiled(_fused_quality_rows)(*(values[:, start:end] for values in columns), *(values[:, start:] for values in columns),
                                                    min_width_m, max_width_m)
         else:
-            block = _proposal_quality(points[start:], normals[start:], torch.arange(end - start), None, work, min_width_m, max_width_m)
+            block = _proposal_quality(points[start:], normals[start:], torch.arange(end - start, device=points.device), None, work, min_width_m,
+                                      max_width_m)
         table[start:end, start:] = block
         table[start:, start:end] = block.T
         start = end
@@ -297,12 +299,12 @@ def _fused_quality_rows(
 class _ScoreWork:
     """The guided sampler's work tensors for blocks of up to ``elements`` (pair, proposal) combinations."""
 
-    def __init__(self, elements: int, dtype: torch.dtype):
+    def __init__(self, elements: int, dtype: torch.dtype, device: torch.device):
         self.tensors = (
-            torch.empty(elements, 3, dtype=dtype),  # gathered points, then normals
-            torch.empty(elements, 3, dtype=dtype),  # offsets, then closing axes
-            *(torch.empty(elements, dtype=dtype) for _ in range(4)),  # widths, cos_i, cos_j, a product
-            *(torch.empty(elements, dtype=torch.bool) for _ in range(2)),  # out of reach, beyond
+            torch.empty(elements, 3, dtype=dtype, device=device),  # gathered points, then normals
+            torch.empty(elements, 3, dtype=dtype, device=device),  # offsets, then closing axes
+            *(torch.empty(elements, dtype=dtype, device=device) for _ in range(4)),  # widths, cos_i, cos_j, a product
+            *(torch.empty(elements, dtype=torch.bool, device=device) for _ in range(2)),  # out of reach, beyond
         )
 
     def cut(self, pairs: int, proposals: int) -> tuple[torch.Tensor, ...]:
@@ -332,8 +334,8 @@ def sample_subset_indices(n_points: int, max_points: int, generator: torch.Gener
         (min(n_points, M),) int64 indices; all indices when the cloud is not larger than M.
     """
     if n_points <= max_points:
-        return torch.arange(n_points)
-    return torch.randperm(n_points, generator=generator)[:max_points].sort().values
+        return torch.arange(n_points, device=generator.device)
+    return torch.randperm(n_points, generator=generator, device=generator.device)[:max_points].sort().values
 
 
 def voxel_representatives(points: torch.Tensor, voxel_m: float) -> torch.Tensor:
@@ -352,7 +354,7 @@ def voxel_representatives(points: torch.Tensor, voxel_m: float) -> torch.Tensor:
     if voxel_m <= 0.0:
         raise ValueError(f"voxel_m must be > 0, got {voxel_m}")
     if points.shape[0] == 0:
-        return torch.zeros(0, dtype=torch.int64)
+        return torch.zeros(0, dtype=torch.int64, device=points.device)
     cells = torch.floor(points / voxel_m).to(torch.int64)
     cells = cells - cells.min(dim=0).values
     extent = cells.max(dim=0).values + 1
@@ -363,6 +365,6 @@ def voxel_representatives(points: torch.Tensor, voxel_m: float) -> torch.Tensor:
         _, inverse = torch.unique(cells, return_inverse=True)
     else:
         _, inverse = torch.unique(cells, dim=0, return_inverse=True)
-    first = torch.full((int(inverse.max()) + 1,), points.shape[0], dtype=torch.int64)
-    first.scatter_reduce_(0, inverse, torch.arange(points.shape[0]), reduce="amin")
+    first = torch.full((int(inverse.max()) + 1,), points.shape[0], dtype=torch.int64, device=points.device)
+    first.scatter_reduce_(0, inverse, torch.arange(points.shape[0], device=points.device), reduce="amin")
     return first.sort().values

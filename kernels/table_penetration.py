@@ -94,4 +94,4 @@ def table_cover(points: torch.Tensor) -> tuple[torch.Tensor, float]:
     for _ in range(min(TABLE_COVER_POINTS, points.shape[0]) - 1):
         chosen.append(int(distance.argmax()))
         distance = torch.minimum(distance, (points - points[chosen[-1]]).norm(dim=1))
-    return torch.tensor(chosen), float(distance.max()) if points.shape[0] else 0.0
+    return torch.tensor(chosen, device=points.device), float(distance.max()) if points.shape[0] else 0.0

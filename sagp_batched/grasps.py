@@ -250,7 +250,7 @@ class GraspCandidates:
     def __post_init__(self) -> None:
         _check_frame(self.frame)
         if self.candidate_id is None:
-            self.candidate_id = torch.arange(self.width_m.shape[0])
+            self.candidate_id = torch.arange(self.width_m.shape[0], device=self.width_m.device)
 
     @property
     def position(self) -> torch.Tensor:
@@ -304,6 +304,10 @@ class GraspCandidates:
     def select(self, index: torch.Tensor | slice) -> "GraspCandidates":
         """The candidates picked by a boolean mask, an index tensor or a slice, in that order."""
         return dataclasses.replace(self, **{name: getattr(self, name)[index] for name in self._tensor_fields()})
+
+    def to(self, device: torch.device) -> "GraspCandidates":
+        """These candidates with every tensor on ``device``."""
+        return dataclasses.replace(self, **{name: getattr(self, name).to(device) for name in self._tensor_fields()})
 
     def with_fields(self, **tensors: torch.Tensor) -> "GraspCandidates":
         return dataclasses.replace(self, **tensors)

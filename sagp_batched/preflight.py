@@ -11,7 +11,8 @@ import socket
 import sys
 from pathlib import Path
 
-from .config import Config, RatingConfig
+from .config import Config, PlannerConfig, RatingConfig
+from .planning.device import planning_device
 from .rating.types import RatingError, VLMRequestError
 from .rating.vlm import OpenAIVLM, TransformersVLM
 
@@ -79,6 +80,14 @@ def check_rater(rating: RatingConfig) -> None:
         raise PreflightError(f"rater '{rating.backend}': {exc}") from exc
 
 
+def check_planner_device(planner: PlannerConfig) -> None:
+    """The planner's device exists on this machine and this torch can use it."""
+    try:
+        planning_device(planner)
+    except ValueError as exc:
+        raise PreflightError(str(exc)) from exc
+
+
 def check_ray_address(address: str, flag: str = "--address") -> None:
     """A TCP connection to ``ray://host:port`` (or ``host:port``) opens; Ray itself is not started.
     ``flag`` is the option the message names as the address's source."""
@@ -101,6 +110,7 @@ def preflight(config: Config) -> None:
     if config.run.backend == "ray":
         check_ray_installed()
     check_out_dir(config.run.out)
+    check_planner_device(config.planner)
     if config.run.backend == "ray" and config.run.ray_address:
         check_ray_address(config.run.ray_address)
     check_rater(config.rating)

@@ -6,6 +6,7 @@ Frames are explicit in field names: ``*_world`` is the PyBullet world frame (z u
 """
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -103,6 +104,13 @@ class PerceivedCloud:
     @property
     def n_points(self) -> int:
         return int(self.points_world.shape[0])
+
+    def on(self, device: torch.device) -> PerceivedCloud:
+        """This cloud with its point tensors on ``device`` (itself where they are there already)."""
+        tensors = ("points_world", "normals_world", "view_index", "obstacle_points_world")
+        if all(getattr(self, name).device == device for name in tensors):
+            return self
+        return dataclasses.replace(self, **{name: getattr(self, name).to(device) for name in tensors})
 
     @property
     def object_from_world(self) -> np.ndarray:

@@ -152,7 +152,7 @@ def test_quality_table_scored_on_one_triangle_equals_scoring_every_pair(monkeypa
     table = sampling._proposal_quality_table(points, normals, min_width_m, PLANNER.max_width_m)
     everything = torch.arange(len(points))
     full = sampling._proposal_quality(
-        points, normals, everything, None, sampling._ScoreWork(len(points) ** 2, points.dtype), min_width_m, PLANNER.max_width_m
+        points, normals, everything, None, sampling._ScoreWork(len(points) ** 2, points.dtype, points.device), min_width_m, PLANNER.max_width_m
     )
     expected = full[~torch.eye(len(points), dtype=torch.bool)].view(len(points), len(points) - 1)
     # Bit for bit, except that a coincident pair's zero quality (in reach when the minimum width

@@ -1,15 +1,18 @@
 """The planner's sections: the contact-pair search and its screens, the batched IK, and the score weights."""
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
-from .settings import _Section, setting
+from .settings import ConfigError, _Section, setting
 
 # Ten times the largest pair count benchmarked (500,000): a larger one is a typo, and two billion
 # pairs exhaust memory in every trial.
 MAX_PAIRS = 5_000_000
 # How planner.pair_sampling draws the method's contact pairs: uniformly, or antipodally guided.
 PAIR_SAMPLING_MODES = ("uniform", "guided")
+# The torch devices a plan may run on: the CPU, or a CUDA device (``cuda`` is the current one).
+PLANNER_DEVICE_PATTERN = re.compile(r"cpu|cuda(:\d+)?")
 
 
 @dataclass
@@ -65,6 +68,15 @@ class PlannerConfig(_Section):
     #: bounds) with torch.compile (inductor): the same verdicts. Off by default: see the README's
     #: planner benchmark for what it costs and buys on a CPU.
     compile: bool = False
+    #: Where the plan's tensors live: ``cpu`` or ``cuda`` (``cuda:N``). Clouds are moved there and the
+    #: results come back to the clouds' own device; the random draws stay on a CPU generator, so a
+    #: seed draws the same pairs on every device.
+    device: str = setting("cpu", non_empty=True)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not PLANNER_DEVICE_PATTERN.fullmatch(self.device):
+            raise ConfigError(f"planner.device: unknown device {self.device!r} (known: cpu, cuda, cuda:N)", "planner.device")
 
 
 @dataclass

@@ -20,18 +20,18 @@ class ScreenVerdicts:
     def __init__(self, screened: ScreenedCandidates, tuning: SearchTuning):
         self.screened = screened
         self.tuning = tuning
-        n_candidates, n_approaches = screened.n_candidates, screened.planner.n_approaches
-        self.ready = torch.zeros(n_candidates, dtype=torch.bool)
-        self.usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)  # table, volume and hand clear
+        n_candidates, n_approaches, device = screened.n_candidates, screened.planner.n_approaches, screened.object_index.device
+        self.ready = torch.zeros(n_candidates, dtype=torch.bool, device=device)
+        self.usable = torch.zeros(n_candidates, n_approaches, dtype=torch.bool, device=device)  # table, volume and hand clear
         # (A,) some approach usable, kept as verdicts come: the window asks every round.
-        self.any_usable = torch.zeros(n_candidates, dtype=torch.bool)
+        self.any_usable = torch.zeros(n_candidates, dtype=torch.bool, device=device)
         # Those candidates' rows, ascending (ranking order within each object): the motion lookahead
         # walks them every round, and they are few where candidates are many.
-        self.usable_rows = torch.zeros(0, dtype=torch.int64)
+        self.usable_rows = torch.zeros(0, dtype=torch.int64, device=device)
         # (B,) candidates with verdicts per object, counted as they come for the same reason
-        self.computed = torch.zeros(screened.n_objects, dtype=torch.int64)
-        self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-        self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"))
+        self.computed = torch.zeros(screened.n_objects, dtype=torch.int64, device=device)
+        self.hand_blocked = torch.zeros(n_candidates, n_approaches, dtype=torch.bool, device=device)
+        self.clearance_m = torch.full((n_candidates, n_approaches), float("inf"), device=device)
 
     def block_sizes(self, missing: torch.Tensor) -> torch.Tensor:
         """(B,) candidates to compute next per object, given (B,) ``missing``: candidates in its
@@ -92,19 +92,22 @@ class MotionVerdicts:
     A round is filled up to ``small_round_checks`` grasps.
     """
 
-    def __init__(self, n_candidates: int, n_approaches: int, n_waypoints: int, n_joints: int, max_candidates: int, tuning: SearchTuning):
+    def __init__(
+        self, n_candidates: int, n_approaches: int, n_waypoints: int, n_joints: int, max_candidates: int, tuning: SearchTuning,
+        device: torch.device,
+    ):
         self.tuning = tuning
-        self.ready = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-        self.feasible = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)
-        self.grasp_ik_rejected = torch.zeros(n_candidates, n_approaches, dtype=torch.bool)  # else, if infeasible, the motion
+        self.ready = torch.zeros(n_candidates, n_approaches, dtype=torch.bool, device=device)
+        self.feasible = torch.zeros(n_candidates, n_approaches, dtype=torch.bool, device=device)
+        self.grasp_ik_rejected = torch.zeros(n_candidates, n_approaches, dtype=torch.bool, device=device)  # else, if infeasible, the motion
         # Joint paths and IK margins of the feasible grasps only (a few hundred), and where each is.
-        self.kept_index = torch.full((n_candidates, n_approaches), -1, dtype=torch.int32)
-        self.kept_paths = torch.zeros(0, n_waypoints, n_joints)
-        self.kept_s_reach = torch.zeros(0)
+        self.kept_index = torch.full((n_candidates, n_approaches), -1, dtype=torch.int32, device=device)
+        self.kept_paths = torch.zeros(0, n_waypoints, n_joints, device=device)
+        self.kept_s_reach = torch.zeros(0, device=device)
         self.max_candidates = max_candidates
         # Candidates with any grasp checked, ascending: the only ones that can be decided with a
         # usable approach (a few hundred, where the candidates may be hundreds of thousands).
-        self.checked_rows = torch.zeros(0, dtype=torch.int64)
+        self.checked_rows = torch.zeros(0, dtype=torch.int64, device=device)
 
     def outcomes(self, search: CandidateSearch, screens: ScreenVerdicts) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Per object (B,): the share of candidates with a usable approach expected to end feasible
@@ -114,7 +117,7 @@ class MotionVerdicts:
         tuning = self.tuning
         status = search.status[self.checked_rows]
         row_object = screens.screened.object_index[self.checked_rows]
-        count = torch.zeros(screens.screened.n_objects, dtype=torch.float32)
+        count = torch.zeros(screens.screened.n_objects, dtype=torch.float32, device=row_object.device)
         exhausted = count.index_add(0, row_object, (status == CandidateStatus.EXHAUSTED).to(torch.float32))
         decided_count = count.index_add(0, row_object, (status != CandidateStatus.UNDECIDED).to(torch.float32))
         feasible = count.index_add(0, row_object, (status == CandidateStatus.FEASIBLE).to(torch.float32))
@@ -135,7 +138,7 @@ class MotionVerdicts:
         n_objects = screens.screened.n_objects
         success, observed, needed = self.outcomes(search, screens)
         check_all = observed | (int(missing.sum()) < small_round)
-        with_missing = torch.zeros(n_objects, dtype=torch.bool)
+        with_missing = torch.zeros(n_objects, dtype=torch.bool, device=pending.device)
         with_missing[candidate_object[pending[missing]]] = True
         fill = torch.where(with_missing, math.ceil(small_round / int(with_missing.sum())), 0)
         rows, grasps, supply = self._open_candidates(search, screens, success, check_all)
@@ -178,7 +181,7 @@ class MotionVerdicts:
         object's ``success`` where one is still unchecked, else 0."""
         rows = screens.usable_rows[search.status[screens.usable_rows] == CandidateStatus.UNDECIDED]
         n_approaches = self.ready.shape[1]
-        order = torch.arange(n_approaches)
+        order = torch.arange(n_approaches, device=rows.device)
         start = torch.where(search.screened[rows], search.cursor[rows], 0)  # past the window: from the first
         remaining = screens.usable[rows] & (order >= start[:, None])
         ready = self.ready[rows]
@@ -198,8 +201,8 @@ class MotionVerdicts:
         the feasible candidates it ``needed`` at its ``success`` share, and to ``fill`` a round."""
         n_objects = needed.shape[0]
         row_object = candidate_object[rows]
-        expected = torch.zeros(n_objects, dtype=torch.float64).index_add_(0, row_object, supply)
-        checks = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, row_object, grasps.sum(dim=1))
+        expected = torch.zeros(n_objects, dtype=torch.float64, device=rows.device).index_add_(0, row_object, supply)
+        checks = torch.zeros(n_objects, dtype=torch.int64, device=rows.device).index_add_(0, row_object, grasps.sum(dim=1))
         for_needed = ((needed - expected).clamp_min(0) / success).ceil().to(torch.int64)
         return torch.maximum(for_needed, (fill - checks).clamp_min(0))
 
@@ -209,7 +212,7 @@ class MotionVerdicts:
         self.checked_rows = torch.cat((self.checked_rows, rows)).unique()
         self.feasible[rows, slots] = feasible
         self.grasp_ik_rejected[rows, slots] = motion.rejected_by[:, 0].bool()
-        self.kept_index[rows[feasible], slots[feasible]] = torch.arange(int(feasible.sum()), dtype=torch.int32) + self.kept_paths.shape[0]
+        self.kept_index[rows[feasible], slots[feasible]] = torch.arange(int(feasible.sum()), dtype=torch.int32, device=rows.device) + self.kept_paths.shape[0]
         self.kept_paths = torch.cat((self.kept_paths, motion.joint_path[feasible]))
         self.kept_s_reach = torch.cat((self.kept_s_reach, motion.s_reach[feasible]))
 
@@ -249,7 +252,7 @@ def window_with_verdicts(
         missing = unknown & in_window
         if not missing.any():
             return in_window
-        wanted = torch.zeros(n_objects, dtype=torch.int64).index_add_(0, candidate_object, missing.to(torch.int64))
+        wanted = torch.zeros(n_objects, dtype=torch.int64, device=missing.device).index_add_(0, candidate_object, missing.to(torch.int64))
         usable = verdicts.usable_per_object()
         if usable_target is None:
             usable_target = usable + motions.screening_shortfall(search, verdicts)

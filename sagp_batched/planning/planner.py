@@ -14,6 +14,7 @@ from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
 from ..types import PerceivedCloud
 from .lookahead import MotionVerdicts, ScreenVerdicts, window_with_verdicts
+from .device import planning_device
 from .motion_check import MotionCheck, check_motions
 from .sampling import check_cloud
 from .screens import ScreenedCandidates, screen_candidates
@@ -88,7 +89,8 @@ def plan_batch(
 ) -> list[PlanResult]:
     """Plan grasps for several objects with shared kernel calls and one IK call per round.
 
-    ``clouds`` are perceived objects (world frame, outward normals); ``seeds`` one sampling seed per
+    ``clouds`` are perceived objects (world frame, outward normals), planned on ``[planner] device``
+    and answered on the first cloud's own device; ``seeds`` one sampling seed per
     cloud (``None`` entries, or no list, use ``config.planner.seed``); ``tuning`` how far ahead
     verdicts are computed (it changes no result). Each result's candidates are at most
     ``max_candidates`` feasible ones ranked by S_geom (ties in sampling order), ``score = s_geom``,
@@ -102,14 +104,16 @@ def plan_batch(
         check_cloud(cloud, position)
     if not clouds:
         return []
+    device, home = planning_device(planner), clouds[0].points_world.device
+    clouds = [cloud.on(device) for cloud in clouds]
     tuning = SearchTuning() if tuning is None else tuning
     clock = StageClock()
     screened = screen_candidates(clouds, config, seeds, clock)
     ik = panda_ik(config)
-    search = CandidateSearch.start(screened.n_candidates, planner.n_approaches)
+    search = CandidateSearch.start(screened.n_candidates, planner.n_approaches, screened.object_index.device)
     verdicts = ScreenVerdicts(screened, tuning)
     motions = MotionVerdicts(screened.n_candidates, planner.n_approaches, waypoint_count(config.motion), len(ik.robot.arm_joints),
-                             planner.max_candidates, tuning)
+                             planner.max_candidates, tuning, screened.object_index.device)
 
     def check(rows: torch.Tensor, slots: torch.Tensor) -> MotionCheck:
         return check_motions(screened.centre_world[rows], *screened.frames(rows, slots), ik, config, clock)
@@ -129,7 +133,8 @@ def plan_batch(
         search.apply_motions(pending, slots, *motions.verdicts(pending, slots))
     times = PlanStageTimes.of(clock)
     candidates = _planned_candidates(screened, search, motions, config)
-    return [PlanResult(c, counts, times) for c, counts in zip(candidates, _plan_counts(screened, search, planner.n_pairs))]
+    counts = _plan_counts(screened, search, planner.n_pairs)
+    return [PlanResult(c.to(home), object_counts, times) for c, object_counts in zip(candidates, counts)]
 
 
 def plan(cloud: PerceivedCloud, config: Config, seed: int | None = None) -> PlanResult:
@@ -142,7 +147,7 @@ def _planned_candidates(screened: ScreenedCandidates, search: CandidateSearch, m
 
     Every object's kept candidates are gathered at once and then cut into objects, so no step
     masks all candidates once per object."""
-    candidate_object, n_objects = screened.object_index, screened.n_objects
+    candidate_object, n_objects, device = screened.object_index, screened.n_objects, screened.object_index.device
     feasible = search.status == CandidateStatus.FEASIBLE
     rank_in_object = segment_exclusive_cumsum(feasible.to(torch.int64), candidate_object, n_objects)
     kept = (feasible & (rank_in_object < config.planner.max_candidates)).nonzero().squeeze(1)  # by object, then rank
@@ -166,11 +171,11 @@ def _planned_candidates(screened: ScreenedCandidates, search: CandidateSearch, m
     parts = {name: [part.clone() for part in values.split(per_object)] for name, values in fields.items()}
     results = []
     for index, n_kept in enumerate(per_object):
-        zeros = torch.zeros(n_kept)
+        zeros = torch.zeros(n_kept, device=device)
         results.append(
             GraspCandidates(
                 **{name: values[index] for name, values in parts.items()},
-                zone=torch.full((n_kept,), -1, dtype=torch.int64),
+                zone=torch.full((n_kept,), -1, dtype=torch.int64, device=device),
                 s_afford=zeros.clone(),
                 s_avoid=zeros.clone(),
                 s_task=zeros.clone(),
@@ -190,6 +195,6 @@ def _plan_counts(screened: ScreenedCandidates, search: CandidateSearch, n_pairs:
     antipodal = torch.bincount(candidate_object, minlength=n_objects).tolist()
     collision_free = per_object(search.screened & search.usable.any(dim=1))
     feasible = per_object(search.status == CandidateStatus.FEASIBLE)
-    hand, grasp_ik, motion = torch.zeros(n_objects, search.rejected.shape[1], dtype=torch.int64).index_add_(
+    hand, grasp_ik, motion = torch.zeros(n_objects, search.rejected.shape[1], dtype=torch.int64, device=candidate_object.device).index_add_(
         0, candidate_object, search.rejected).T.tolist()
     return [PlanCounts(n_pairs, *values) for values in zip(antipodal, collision_free, feasible, hand, grasp_ik, motion)]

@@ -45,7 +45,10 @@ class SampledInputs:
 
 def sample_inputs(cloud: PerceivedCloud, robot: RobotDescription, planner: PlannerConfig, memory: MemoryConfig, seed: int) -> SampledInputs:
     """Draw the contact pairs and the occupancy subset of ``cloud`` from one generator seeded by ``seed``."""
+    # The draws come from a CPU generator on every device: a seed gives the same pairs and subsets
+    # wherever the plan runs (CUDA generators draw other streams).
     generator = torch.Generator().manual_seed(int(seed))
+    device = cloud.points_world.device
     if planner.pair_sampling == "guided":
         # Proposals wider than the open jaws can descend around pass the width filter but are
         # never usable, so the guided sampler's reach is the narrower of the two limits.
@@ -61,11 +64,11 @@ def sample_inputs(cloud: PerceivedCloud, robot: RobotDescription, planner: Plann
             planner.compile,
         )
     else:
-        pair_indices = sample_pair_indices(cloud.n_points, planner.n_pairs, generator)
-    object_subset = sample_subset_indices(cloud.n_points, planner.occupancy_max_points, generator)
+        pair_indices = sample_pair_indices(cloud.n_points, planner.n_pairs, generator).to(device)
+    object_subset = sample_subset_indices(cloud.n_points, planner.occupancy_max_points, generator).to(device)
     n_obstacles = cloud.obstacle_points_world.shape[0]
     n_obstacles_kept = round(n_obstacles * len(object_subset) / cloud.n_points)
-    obstacle_subset = sample_subset_indices(n_obstacles, n_obstacles_kept, generator)
+    obstacle_subset = sample_subset_indices(n_obstacles, n_obstacles_kept, generator).to(device)
     occupancy_points = torch.cat(
         (
             cloud.points_world.to(torch.float32)[object_subset],

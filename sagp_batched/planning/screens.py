@@ -78,7 +78,7 @@ class ScreenedCandidates:
         if new.numel():
             new = new.unique()  # a candidate may be asked for once per approach
             closing_axis = self.closing_axis[new]
-            approach = approach_directions(closing_axis, self.planner.n_approaches, WORLD_DOWN)
+            approach = approach_directions(closing_axis, self.planner.n_approaches, WORLD_DOWN.to(closing_axis.device))
             self.approach_buffer[new] = approach
             self.rotation_buffer[new] = grasp_rotations(closing_axis[:, None, :], approach)
             self.framed[new] = True
@@ -89,12 +89,12 @@ class ScreenedCandidates:
     @property
     def approach(self) -> torch.Tensor:
         """(A, K, 3) every candidate's approaches (framing all of them; for tests)."""
-        return self.frames(torch.arange(self.n_candidates))[0]
+        return self.frames(torch.arange(self.n_candidates, device=self.width_m.device))[0]
 
     @property
     def rotation_world(self) -> torch.Tensor:
         """(A, K, 3, 3) every candidate's grasp frames (framing all of them; for tests)."""
-        return self.frames(torch.arange(self.n_candidates))[1]
+        return self.frames(torch.arange(self.n_candidates, device=self.width_m.device))[1]
 
     def clear_of_table(self, rows: torch.Tensor, rotation: torch.Tensor | None = None) -> torch.Tensor:
         """(R, K) bool: the hand of candidates ``rows`` stays above the table at the grasp and the
@@ -102,7 +102,7 @@ class ScreenedCandidates:
         ``rotation``: their (R, K, 3, 3) frames, where the caller has them (default: ``frames``).
         """
         planner = self.planner
-        (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(self.robot)
+        (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(self.robot, self.width_m.device)
         centre = self.centre_world[rows]
         rotation = self.frames(rows)[1] if rotation is None else rotation
         through_table = table_penetration(
@@ -131,17 +131,17 @@ class ScreenedCandidates:
         with approaches ``slots`` comes within the margin of the scene's object and obstacle points,
         and its clearance from them (exact where not blocked). The coarse subset is probed first:
         most blocked grasps (a mug's) strike one of its points."""
-        low, high = _swept_hand(self.robot, self.pregrasp_offset_m)
+        low, high = _swept_hand(self.robot, self.pregrasp_offset_m, self.width_m.device)
         return hand_clearance(
             self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.frames(rows, slots)[1],
-            DOP_DIRECTIONS, low, high, self.planner.hand_clearance_margin_m, self.memory.hand_check_chunk_elements, self.planner.compile,
+            DOP_DIRECTIONS.to(low.device), low, high, self.planner.hand_clearance_margin_m, self.memory.hand_check_chunk_elements, self.planner.compile,
         )
 
     @property
     def usable(self) -> torch.Tensor:
         """(A, K) bool: the published screen (table, 12 % volume) on every candidate, eagerly (for
         tests); the candidate search adds the swept hand and the motion."""
-        return self.table_and_volume_ok(torch.arange(self.n_candidates))
+        return self.table_and_volume_ok(torch.arange(self.n_candidates, device=self.width_m.device))
 
 
 def screen_candidates(
@@ -157,9 +157,10 @@ def screen_candidates(
     n_pairs = planner.n_pairs * n_objects
     with clock.stage("sampling", n_pairs):
         sampled = [sample_inputs(cloud, robot, planner, config.memory, seed) for cloud, seed in zip(clouds, seeds)]
-        point_offsets = torch.tensor([0] + [cloud.n_points for cloud in clouds]).cumsum(0)[:-1]
+        device = clouds[0].points_world.device
+        point_offsets = torch.tensor([0] + [cloud.n_points for cloud in clouds], device=device).cumsum(0)[:-1]
         pairs = torch.cat([s.pair_indices + offset for s, offset in zip(sampled, point_offsets)])
-        pair_object = torch.arange(n_objects).repeat_interleave(planner.n_pairs)
+        pair_object = torch.arange(n_objects, device=device).repeat_interleave(planner.n_pairs)
         points = torch.cat([cloud.points_world.to(torch.float32) for cloud in clouds])
         normals = torch.cat([cloud.normals_world.to(torch.float32) for cloud in clouds])
     with clock.stage("antipodal", n_pairs):
@@ -183,18 +184,18 @@ def _screened(
     """The ``ScreenedCandidates`` of ranked candidates (their (A, 2) point indices within their
     clouds, (A,) clouds, (A, 2, 3) contacts, and ``antipodal_pairs``' values for them) and the
     clouds' ``sampled`` point subsets."""
-    planner, n_candidates = config.planner, candidate_object.numel()
+    planner, n_candidates, device = config.planner, candidate_object.numel(), candidate_object.device
     return ScreenedCandidates(
         object_index=candidate_object,
         pair_indices=pair_indices,
         contacts_world=contacts,
         centre_world=contacts.mean(dim=1),  # once for every candidate, not per block of candidates
         **pair_values,
-        approach_buffer=torch.empty(n_candidates, planner.n_approaches, 3),
-        rotation_buffer=torch.empty(n_candidates, planner.n_approaches, 3, 3),
-        framed=torch.zeros(n_candidates, dtype=torch.bool),
+        approach_buffer=torch.empty(n_candidates, planner.n_approaches, 3, device=device),
+        rotation_buffer=torch.empty(n_candidates, planner.n_approaches, 3, 3, device=device),
+        framed=torch.zeros(n_candidates, dtype=torch.bool, device=device),
         occupancy_points=_padded([s.occupancy_points for s in sampled]),
-        occupancy_total=torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32),
+        occupancy_total=torch.tensor([s.occupancy_total for s in sampled], dtype=torch.float32, device=device),
         hand_check_points=_padded([s.hand_check_points for s in sampled]),
         hand_screen_points=_padded([s.hand_screen_points for s in sampled]),
         planner=planner,
@@ -214,26 +215,32 @@ def use_compile_cache() -> None:
     os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(sagp_cache_root() / "inductor"))
 
 
-@functools.lru_cache(maxsize=4)
-def _swept_hand(robot: RobotDescription, pregrasp_offset_m: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """The hand's hulls' k-DOP extents (low, high) swept from the pre-grasp to the grasp: built once
-    per robot and motion, not on every block of candidates."""
-    return hand_geometry(robot).swept((0.0, 0.0, -pregrasp_offset_m))
+@functools.lru_cache(maxsize=8)
+def _swept_hand(robot: RobotDescription, pregrasp_offset_m: float, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """The hand's hulls' k-DOP extents (low, high) swept from the pre-grasp to the grasp, on ``device``:
+    built once per robot, motion and device, not on every block of candidates."""
+    low, high = hand_geometry(robot).swept((0.0, 0.0, -pregrasp_offset_m))
+    return low.to(device), high.to(device)
 
 
-@functools.lru_cache(maxsize=4)
-def _table_check_points(robot: RobotDescription) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
+@functools.lru_cache(maxsize=8)
+def _table_check_points(robot: RobotDescription, device: torch.device) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
     """The fingers' and the other links' hull vertices (grasp frame) the table check tests, each
-    with its ``table_cover``: built once per robot, not on every block of candidates."""
+    with its ``table_cover``, on ``device``: built once per robot and device, not on every block of candidates."""
     hand = hand_geometry(robot)
     fingers = hand.vertices(robot.finger_links)
     rest = hand.vertices(tuple(name for name in hand.links if name not in robot.finger_links))
-    return (fingers, table_cover(fingers)), (rest, table_cover(rest))
+
+    def on_device(vertices: torch.Tensor) -> tuple[torch.Tensor, tuple[torch.Tensor, float]]:
+        cover, reach = table_cover(vertices)
+        return vertices.to(device), (cover.to(device), reach)
+
+    return on_device(fingers), on_device(rest)
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
     """(B, max N, 3) the point sets stacked, shorter ones padded with NaN rows (never inside anything)."""
-    padded = torch.full((len(point_sets), max(len(points) for points in point_sets), 3), float("nan"))
+    padded = torch.full((len(point_sets), max(len(points) for points in point_sets), 3), float("nan"), device=point_sets[0].device)
     for index, points in enumerate(point_sets):
         padded[index, : len(points)] = points
     return padded

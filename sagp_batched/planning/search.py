@@ -56,8 +56,8 @@ def segment_exclusive_cumsum(values: torch.Tensor, object_index: torch.Tensor, n
     exclusive = torch.cumsum(values, 0) - values
     if n_objects == 1:  # a single plan's rows (hundreds of thousands at 500,000 pairs) need no restarts
         return exclusive
-    first_row = torch.searchsorted(object_index, torch.arange(n_objects))
-    base = torch.zeros(n_objects, dtype=values.dtype)
+    first_row = torch.searchsorted(object_index, torch.arange(n_objects, device=object_index.device))
+    base = torch.zeros(n_objects, dtype=values.dtype, device=values.device)
     has_rows = first_row < object_index.shape[0]
     base[has_rows] = exclusive[first_row[has_rows]]
     return exclusive - base[object_index]
@@ -81,16 +81,16 @@ class CandidateSearch:
     rejected: torch.Tensor  # (A, 3) int64 rejections per candidate: hand, grasp IK, motion
 
     @classmethod
-    def start(cls, n_candidates: int, n_approaches: int) -> CandidateSearch:
+    def start(cls, n_candidates: int, n_approaches: int, device: torch.device) -> CandidateSearch:
         # Candidates without a table-clear approach are found, and exhausted, when screened.
         return cls(
-            usable=torch.zeros(n_candidates, n_approaches, dtype=torch.bool),
-            next_usable=torch.full((n_candidates, n_approaches + 1), n_approaches),
-            cursor=torch.full((n_candidates,), n_approaches),
-            screened=torch.zeros(n_candidates, dtype=torch.bool),
-            status=torch.full((n_candidates,), CandidateStatus.UNDECIDED),
-            clearance_m=torch.full((n_candidates, n_approaches), float("inf")),
-            rejected=torch.zeros(n_candidates, 3, dtype=torch.int64),
+            usable=torch.zeros(n_candidates, n_approaches, dtype=torch.bool, device=device),
+            next_usable=torch.full((n_candidates, n_approaches + 1), n_approaches, device=device),
+            cursor=torch.full((n_candidates,), n_approaches, device=device),
+            screened=torch.zeros(n_candidates, dtype=torch.bool, device=device),
+            status=torch.full((n_candidates,), CandidateStatus.UNDECIDED, device=device),
+            clearance_m=torch.full((n_candidates, n_approaches), float("inf"), device=device),
+            rejected=torch.zeros(n_candidates, 3, dtype=torch.int64, device=device),
         )
 
     def apply_screens(self, rows: torch.Tensor, verdicts: ScreenVerdicts) -> None:
@@ -100,8 +100,8 @@ class CandidateSearch:
         self.clearance_m[rows] = verdicts.clearance_m[rows]
         self.rejected[rows, 0] += verdicts.hand_blocked[rows].sum(dim=1)
         self.screened[rows] = True
-        first_usable = torch.where(self.usable[rows], torch.arange(n_approaches), n_approaches)
-        first_usable = torch.cat((first_usable, torch.full((rows.numel(), 1), n_approaches)), dim=1)
+        first_usable = torch.where(self.usable[rows], torch.arange(n_approaches, device=rows.device), n_approaches)
+        first_usable = torch.cat((first_usable, torch.full((rows.numel(), 1), n_approaches, device=rows.device)), dim=1)
         self.next_usable[rows] = first_usable.flip(1).cummin(1).values.flip(1)
         self.cursor[rows] = self.next_usable[rows, 0]
         self.status[rows] = torch.where(self.cursor[rows] < n_approaches, CandidateStatus.UNDECIDED, CandidateStatus.EXHAUSTED)
