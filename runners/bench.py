@@ -2,8 +2,8 @@
 
     python -m runners.bench --json OUT.json [--objects 025_mug,003_cracker_box] [--pairs 5000,50000,500000]
         [--repeats 5] [--ik-targets 2000] [--ik-unreachable 200] [--objects-dir DIR] [--cache-dir DIR] [--threads 1[,2]]
-        [--batch-sizes 1,4,16] [--batch-objects ID,...] [--batch-pairs 5000] [--compile false,true] [--profile-stages]
-        [--compile-start]
+        [--batch-sizes 1,4,16] [--batch-objects ID,...] [--batch-pairs 5000] [--compile false,true] [--devices cpu,cuda]
+        [--profile-stages] [--compile-start]
 
 ``--threads 1,2`` times the planner and the IK at each torch thread count in turn, in one run, so
 figures for one core and for several compare on the same clouds and targets.
@@ -11,6 +11,8 @@ figures for one core and for several compare on the same clouds and targets.
 ``--compile false,true`` times the planner eager and with ``[planner] compile`` on, in turn at each
 thread count (the loop reference once per thread count); ``--compile-start`` measures, in fresh
 processes, the first plan eager, compiled with an empty inductor cache and compiled from the cache.
+``--devices cpu,cuda`` times each compile mode on each ``[planner] device`` (the clouds stay on the
+CPU: a plan's time includes moving them there and its results back, which waits for the device).
 
 ``--profile-stages`` profiles one more plan per object and pair count (and per batch comparison,
 the singles and the batch) with ``torch.profiler`` and prints, per stage, its median time, the
@@ -43,6 +45,7 @@ from sagp_batched.benchmarks.planner_speed import (
     BENCH_OBJECT_XY_M, BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud,
 )
 from sagp_batched.config import load_config
+from sagp_batched.planning.device import device_name, planning_device
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
 from sagp_batched.runtime import DEFAULT_TORCH_THREADS, configure_torch
 from sagp_batched.world.objects import embedded_ycb_dir, load_object_set
@@ -76,6 +79,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--batch-objects", default=None, help="comma-separated YCB ids the batches cycle through (default: the set's first, as many as the largest B)")
     parser.add_argument("--batch-pairs", type=int, default=5000, help="sampled pairs per cloud in the batch comparison")
     parser.add_argument("--compile", default="false", help="comma-separated [planner] compile modes (false, true), each timed in turn")
+    parser.add_argument("--devices", default="cpu", help="comma-separated [planner] devices (cpu, cuda), each timed in turn with every compile mode")
     parser.add_argument("--compile-start", action="store_true", help="first plans of fresh processes: eager, compiled cold, compiled from the cache")
     parser.add_argument("--profile-stages", action="store_true", help="per stage: operators called and their profiled time (torch.profiler)")
     _add_ray_memory_arguments(parser)
@@ -90,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     thread_counts = _thread_counts(parser, args.threads)
     batch_sizes = _batch_sizes(parser, args.batch_sizes)
     compile_modes = _compile_modes(parser, args.compile)
+    modes = [(device, compile_) for device in _devices(parser, args.devices) for compile_ in compile_modes]
 
     configure_torch(thread_counts[0])
     config = load_config(args.profile)
@@ -105,10 +110,10 @@ def main(argv: list[str] | None = None) -> int:
         profile_stages=args.profile_stages,
     )
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in args.objects.split(",")]
-    results, ik = _planner_and_ik_sections(config, settings, clouds, thread_counts, compile_modes)
+    results, ik = _planner_and_ik_sections(config, settings, clouds, thread_counts, modes)
     configure_torch(thread_counts[0])
     print(f"reference: run once per pair count (and thread count) up to {settings.reference_max_pairs} pairs; no extrapolation")
-    plan_batch_rows = _plan_batch_section(args, batch_sizes, config, object_set, settings, thread_counts, compile_modes) if batch_sizes else None
+    plan_batch_rows = _plan_batch_section(args, batch_sizes, config, object_set, settings, thread_counts, modes) if batch_sizes else None
     configure_torch(thread_counts[0])
     compile_start = _compile_start_section(args, settings, clouds[0].object_id, thread_counts[0]) if args.compile_start else None
     world = _world_section(args, config, object_set, thread_counts[0]) if args.world_runs > 0 else None
@@ -116,11 +121,12 @@ def main(argv: list[str] | None = None) -> int:
         "results": results,
         "ik": ik,
         "world": world,
-        "plan_batch": None if plan_batch_rows is None else {"threads": thread_counts, "compile": compile_modes, "rows": plan_batch_rows},
+        "plan_batch": None if plan_batch_rows is None else {"threads": thread_counts, "modes": modes, "rows": plan_batch_rows},
         "compile_start": compile_start,
         "provenance": {
             "torch": torch.__version__,
             "threads": thread_counts,
+            "devices": {device: device_name(device) for device, _ in modes},
             "git": git_revision(),
             "packages": package_versions(),
             "python": sys.version.split()[0],
@@ -133,9 +139,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _planner_and_ik_sections(
-    config, settings: BenchmarkSettings, clouds: list, thread_counts: list[int], compile_modes: list[bool]
+    config, settings: BenchmarkSettings, clouds: list, thread_counts: list[int], modes: list[tuple[str, bool]]
 ) -> tuple[list[dict], list[dict]]:
-    """At each thread count in turn, the planner in each compile mode against the loop reference
+    """At each thread count in turn, the planner in each (device, compile) mode against the loop reference
     (run in the first mode, its time shared) on every cloud (one printed line per pair count), then
     the IK unless ``settings.ik_targets`` is 0; (planner rows, IK rows)."""
     results, ik = [], []
@@ -143,9 +149,9 @@ def _planner_and_ik_sections(
         configure_torch(threads)
         for cloud in clouds:
             reference_s = {}
-            for index, compile_ in enumerate(compile_modes):
+            for index, (device, compile_) in enumerate(modes):
                 mode_settings = settings if index == 0 else dataclasses.replace(settings, reference_max_pairs=0)
-                for row in benchmark_object(cloud, config.override("planner", compile=compile_), mode_settings):
+                for row in benchmark_object(cloud, config.override("planner", compile=compile_, device=device), mode_settings):
                     row["threads"] = threads
                     reference_s.setdefault(row["pairs"], row["reference_plan_s"])
                     row["reference_plan_s"] = reference_s[row["pairs"]]
@@ -162,7 +168,7 @@ def _print_planner_row(row: dict) -> None:
     reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
     stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
     print(
-        f"{row['object']:>22} pairs={row['pairs']:>7} compile={'on' if row['compile'] else 'off'} threads={row['threads']} "
+        f"{row['object']:>22} pairs={row['pairs']:>7} device={row['device']} compile={'on' if row['compile'] else 'off'} threads={row['threads']} "
         f"plan={row['batched_plan_s']:.3f} s ({row['candidates_per_s']:.0f} pairs/s, first {row['first_plan_s']:.2f} s) "
         f"reference={reference} | {stages} | {row['counts_last_repeat']}",
         flush=True,
@@ -179,6 +185,9 @@ def _print_stage_table(profile: dict, seconds: dict, items: dict, per: int = 1) 
         stage_ms = "" if seconds.get(stage) is None else f"{seconds[stage] * 1e3:.1f}"
         stage_items = "" if items.get(stage) is None else f"{items[stage]}"
         print(f"{'':>8}{stage:<14}{stage_ms:>8}{profiled['ops'] // per:>8}{profiled['op_s'] * 1e3 / per:>11.1f}{stage_items:>9}")
+    total_ms = "" if any(seconds.get(stage) is None for stage in profile) else f"{sum(seconds[stage] for stage in profile) * 1e3:.1f}"
+    total_ops, total_op_ms = sum(p["ops"] for p in profile.values()) // per, sum(p["op_s"] for p in profile.values()) * 1e3 / per
+    print(f"{'':>8}{'plan':<14}{total_ms:>8}{total_ops:>8}{total_op_ms:>11.1f}")
 
 
 def _world_section(args: argparse.Namespace, config, object_set, threads: int) -> dict:
@@ -265,19 +274,19 @@ def _thread_counts(parser: argparse.ArgumentParser, text: str) -> list[int]:
 
 def _plan_batch_section(
     args: argparse.Namespace, batch_sizes: list[int], config, object_set, settings: BenchmarkSettings, thread_counts: list[int],
-    compile_modes: list[bool],
+    modes: list[tuple[str, bool]],
 ) -> list[dict]:
-    """``benchmark_plan_batch`` on the --batch-objects clouds at each thread count and compile mode,
+    """``benchmark_plan_batch`` on the --batch-objects clouds at each thread count and (device, compile) mode,
     one printed line per batch size (and with --profile-stages, the per-cloud stage tables)."""
     batch_ids = args.batch_objects.split(",") if args.batch_objects else list(object_set.ids)[: max(batch_sizes)]
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in batch_ids]
     rows = []
     for threads in thread_counts:
         configure_torch(threads)
-        for compile_ in compile_modes:
-            batch_config = config.override("planner", n_pairs=args.batch_pairs, compile=compile_)
+        for device, compile_ in modes:
+            batch_config = config.override("planner", n_pairs=args.batch_pairs, compile=compile_, device=device)
             for row in benchmark_plan_batch(clouds, batch_config, tuple(batch_sizes), args.repeats, settings.profile_stages):
-                rows.append({**row, "threads": threads, "compile": compile_})
+                rows.append({**row, "threads": threads, "device": device, "compile": compile_})
                 _print_plan_batch_row(rows[-1])
     return rows
 
@@ -288,7 +297,8 @@ def _print_plan_batch_row(row: dict) -> None:
         for stage in row["singles_stage_per_cloud_s"]
     )
     print(
-        f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} threads={row['threads']} compile={'on' if row['compile'] else 'off'}: "
+        f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} device={row['device']} threads={row['threads']} "
+        f"compile={'on' if row['compile'] else 'off'}: "
         f"singles {row['singles_per_cloud_s'] * 1e3:.1f} ms/cloud, batch {row['batch_per_cloud_s'] * 1e3:.1f} ms/cloud, "
         f"ratio {row['ratio']:.2f} | per cloud, singles/batch: {stages}",
         flush=True,
@@ -316,6 +326,19 @@ def _compile_modes(parser: argparse.ArgumentParser, text: str) -> list[bool]:
     if not parts or any(part not in modes for part in parts):
         parser.error(f"--compile takes false and/or true separated by commas, got {text!r}")
     return [modes[part] for part in parts]
+
+
+def _devices(parser: argparse.ArgumentParser, text: str) -> list[str]:
+    """The --devices list, each checked before any plan: a device this machine lacks is one error line."""
+    devices = [part.strip() for part in text.split(",") if part.strip()]
+    if not devices:
+        parser.error(f"--devices takes torch devices (cpu, cuda, cuda:N) separated by commas, got {text!r}")
+    for device in devices:
+        try:
+            planning_device(load_config(None).override("planner", device=device).planner)
+        except ValueError as exc:
+            parser.error(f"--devices: {exc}")
+    return devices
 
 
 def _batch_sizes(parser: argparse.ArgumentParser, text: str) -> list[int]:

@@ -98,7 +98,7 @@ def test_bench_compares_single_plans_with_one_plan_batch_per_batch_size(tmp_path
     )
     assert done.returncode == 0, done.stderr[-2000:]
     section = json.loads(out.read_text())["plan_batch"]
-    assert section["threads"] == [1] and section["compile"] == [False]
+    assert section["threads"] == [1] and section["modes"] == [["cpu", False]] and section["rows"][0]["device"] == "cpu"
     assert [row["batch_size"] for row in section["rows"]] == [1, 2]
     assert section["rows"][1]["objects"] == ["003_cracker_box", "005_tomato_soup_can"] and section["rows"][1]["pairs"] == 200
     for row in section["rows"]:
@@ -122,9 +122,13 @@ def test_bench_profiles_each_stage_with_its_operators_and_work(tmp_path, ycb_dir
     report = json.loads(out.read_text())
     (row,) = report["results"]
     stages = ("sampling", "antipodal", "frames_volume", "hand_sweep", "ik", "motion", "search")
-    assert row["compile"] is False and row["first_plan_s"] > 0 and tuple(row["stage_profile"]) == stages
+    assert row["compile"] is False and row["device"] == "cpu" and row["first_plan_s"] > 0 and tuple(row["stage_profile"]) == stages
     assert all(row["stage_profile"][stage]["ops"] > 0 and row["stage_profile"][stage]["op_s"] > 0 for stage in stages)
     assert row["stage_items_last_repeat"]["sampling"] == 300 and row["stage_items_last_repeat"]["frames_volume"] > 0
+    # The stage table ends with the whole plan: its milliseconds and every stage's operators summed.
+    plan_line = next(line.split() for line in done.stdout.splitlines() if line.split()[:1] == ["plan"])
+    assert int(plan_line[2]) == sum(row["stage_profile"][stage]["ops"] for stage in stages)
+    assert report["provenance"]["devices"]["cpu"]
     (batch,) = report["plan_batch"]["rows"]
     assert tuple(batch["singles_profile"]) == stages and tuple(batch["batch_profile"]) == stages
     # One batch calls fewer operators than its clouds planned one by one.

@@ -114,6 +114,7 @@ def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkS
             {
                 "object": cloud.object_id,
                 "pairs": n_pairs,
+                "device": pair_config.planner.device,
                 "compile": pair_config.planner.compile,
                 "first_plan_s": first_plan_s,
                 "batched_plan_s": batched_s,

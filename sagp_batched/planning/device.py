@@ -1,6 +1,8 @@
 """The torch device a plan runs on (``[planner] device``), checked before any tensor moves there."""
 from __future__ import annotations
 
+import platform
+
 import torch
 
 from ..config import PlannerConfig
@@ -15,3 +17,15 @@ def planning_device(planner: PlannerConfig) -> torch.device:
         if device.index is not None and device.index >= torch.cuda.device_count():
             raise ValueError(f"planner.device {planner.device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)")
     return device
+
+
+def device_name(device: str) -> str:
+    """What runs a plan on ``device`` (``planning_device``'s), in words: the GPU's name or the CPU's
+    model, so a benchmark's figures say what they were measured on (these machines are not all alike)."""
+    if torch.device(device).type == "cuda":
+        return torch.cuda.get_device_name(torch.device(device))
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            return next((line.split(":", 1)[1].strip() for line in cpuinfo if line.startswith("model name")), platform.machine())
+    except OSError:
+        return platform.machine()
