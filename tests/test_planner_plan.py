@@ -8,6 +8,7 @@ import torch
 from planner_clouds import box_surface, cylinder_surface, make_cloud
 from sagp_batched.config import Config
 from sagp_batched.planning import plan, plan_batch, sample_inputs, screen_candidates
+from sagp_batched.planning import block_search
 from sagp_batched.robot.description import load_robot
 from sagp_batched.robot.ik import panda_ik
 
@@ -116,3 +117,20 @@ def test_loop_reference_gives_the_same_candidates_and_mostly_agrees_on_ik(box_cl
         agreement = (batched_feasible == np.array([t["feasible"] for t in poses])).mean()
         print(f"{cloud.object_id}: IK feasibility agreement {agreement:.1%} over {len(poses)} poses")
         assert agreement > 0.75
+
+
+@pytest.mark.parametrize("first_block, max_block", [(512, 4096), (16, 64)])
+def test_the_block_search_finds_the_lookahead_searchs_grasps_and_counts(box_cloud, can_cloud, monkeypatch, first_block, max_block):
+    """Blocks of every verdict at once, or rounds sized by survival: the same first feasible approach
+    of the same candidates, the same counts; with small blocks, over many blocks of growing size."""
+    monkeypatch.setattr(block_search, "FIRST_BLOCK_CANDIDATES", first_block)
+    monkeypatch.setattr(block_search, "MAX_BLOCK_CANDIDATES", max_block)
+    blocks = CONFIG.override("planner", search="blocks")
+    for seeds in ([0, 1], [5, 6]):
+        expected = plan_batch([box_cloud, can_cloud], CONFIG, seeds)
+        got = plan_batch([box_cloud, can_cloud], blocks, seeds)
+        for want, result in zip(expected, got):
+            assert result.counts == want.counts and want.counts.ik_feasible > 0
+            assert max_block > 64 or want.counts.antipodal > 2 * max_block  # small blocks: many, growing
+            for name in ("contacts", "approach", "ik_solution", "joint_path", "s_reach", "hand_clearance_m"):
+                assert torch.equal(getattr(result.candidates, name), getattr(want.candidates, name)), name

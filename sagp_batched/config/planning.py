@@ -11,6 +11,10 @@ from .settings import ConfigError, _Section, setting
 MAX_PAIRS = 5_000_000
 # How planner.pair_sampling draws the method's contact pairs: uniformly, or antipodally guided.
 PAIR_SAMPLING_MODES = ("uniform", "guided")
+# How a plan searches its candidates for each one's first executable approach: in rounds sized by
+# the survival seen so far (few wasted checks, many small calls), or in blocks of a few fixed sizes
+# (every verdict of a block at once, a few call shapes). The same grasps either way.
+PLANNER_SEARCHES = ("lookahead", "blocks")
 # The torch devices a plan may run on: the CPU, or a CUDA device (``cuda`` is the current one).
 PLANNER_DEVICE_PATTERN = re.compile(r"cpu|cuda(:\d+)?")
 
@@ -68,6 +72,9 @@ class PlannerConfig(_Section):
     #: bounds) with torch.compile (inductor): the same verdicts. Off by default: see the README's
     #: planner benchmark for what it costs and buys on a CPU.
     compile: bool = False
+    #: ``lookahead`` or ``blocks`` (``PLANNER_SEARCHES``): which search finds each candidate's first
+    #: executable approach; both give the same grasps and counts.
+    search: str = setting("lookahead", choices=PLANNER_SEARCHES)
     #: Where the plan's tensors live: ``cpu`` or ``cuda`` (``cuda:N``). Clouds are moved there and the
     #: results come back to the clouds' own device; the random draws stay on a CPU generator, so a
     #: seed draws the same pairs on every device.

@@ -3,7 +3,7 @@ each object's best ``max_candidates`` returned with what the plan counted and wh
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -14,6 +14,7 @@ from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
 from ..types import PerceivedCloud
 from .lookahead import MotionVerdicts, ScreenVerdicts, window_with_verdicts
+from .block_search import search_in_blocks
 from .device import planning_device
 from .motion_check import MotionCheck, check_motions
 from .sampling import check_cloud
@@ -110,7 +111,6 @@ def plan_batch(
     clock = StageClock()
     screened = screen_candidates(clouds, config, seeds, clock)
     ik = panda_ik(config)
-    search = CandidateSearch.start(screened.n_candidates, planner.n_approaches, screened.object_index.device)
     verdicts = ScreenVerdicts(screened, tuning)
     motions = MotionVerdicts(screened.n_candidates, planner.n_approaches, waypoint_count(config.motion), len(ik.robot.arm_joints),
                              planner.max_candidates, tuning, screened.object_index.device)
@@ -118,8 +118,25 @@ def plan_batch(
     def check(rows: torch.Tensor, slots: torch.Tensor) -> MotionCheck:
         return check_motions(screened.centre_world[rows], *screened.frames(rows, slots), ik, config, clock)
 
+    if planner.search == "blocks":
+        search = search_in_blocks(verdicts, motions, planner.max_candidates, check)
+    else:
+        search = _search_with_lookahead(screened, verdicts, motions, planner.max_candidates, check)
+    times = PlanStageTimes.of(clock)
+    candidates = _planned_candidates(screened, search, motions, config)
+    counts = _plan_counts(screened, search, planner.n_pairs)
+    return [PlanResult(c.to(home), object_counts, times) for c, object_counts in zip(candidates, counts)]
+
+
+def _search_with_lookahead(
+    screened: ScreenedCandidates, verdicts: ScreenVerdicts, motions: MotionVerdicts, max_candidates: int,
+    check: Callable[[torch.Tensor, torch.Tensor], MotionCheck],
+) -> CandidateSearch:
+    """The lookahead search (``search``, ``lookahead``): the window's screens applied, then each
+    undecided candidate's next approach checked, round after round, until every object's window is decided."""
+    search = CandidateSearch.start(screened.n_candidates, screened.planner.n_approaches, screened.object_index.device)
     while True:
-        in_window = window_with_verdicts(search, verdicts, motions, planner.max_candidates)
+        in_window = window_with_verdicts(search, verdicts, motions, max_candidates)
         undecided = in_window & (search.status == CandidateStatus.UNDECIDED)
         to_screen = (undecided & ~search.screened).nonzero().squeeze(1)
         if to_screen.numel():
@@ -131,10 +148,7 @@ def plan_batch(
         slots = search.cursor[pending]
         motions.ensure(pending, slots, search, verdicts, check)
         search.apply_motions(pending, slots, *motions.verdicts(pending, slots))
-    times = PlanStageTimes.of(clock)
-    candidates = _planned_candidates(screened, search, motions, config)
-    counts = _plan_counts(screened, search, planner.n_pairs)
-    return [PlanResult(c.to(home), object_counts, times) for c, object_counts in zip(candidates, counts)]
+    return search
 
 
 def plan(cloud: PerceivedCloud, config: Config, seed: int | None = None) -> PlanResult:
