@@ -59,7 +59,8 @@ def search_in_blocks(
             break
         rows = torch.cat([torch.arange(bounds[index] + spans[index][block][0], bounds[index] + spans[index][block][1], device=device)
                           for index in objects])
-        screens.compute(rows)
+        for part in rows.split(torch.unique_consecutive(object_index[rows], return_counts=True)[1].tolist()):
+            screens.record(part, *screened.block_verdicts(part))
         _check_motions_of_block(rows, screens, motions, check)
         block_found = torch.bincount(object_index[rows], weights=(screens.usable[rows] & motions.feasible[rows]).any(dim=1).to(torch.float32),
                                      minlength=n_objects)

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import functools
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
+from sagp_batched_kernels.block_screens import POSE_SLICE, gripper_point_counts, hand_probe, lowest_hand_height
+from sagp_batched_kernels.compiled import compiled
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
+from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance, scene_extents
 from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 from sagp_batched_kernels.table_penetration import table_cover, table_penetration
 
@@ -23,6 +25,12 @@ from .gripper import gripper_geometry, hand_geometry, jaw_width_limit
 from .sampling import sample_inputs
 from .stages import StageClock
 
+# The fewest poses a block's fixed-shape passes take at once (padded up to it): smaller counts
+# would each be one more shape to compile for little work.
+MIN_BUCKET_POSES = 64
+# Probes of a block's swept hand per pose (``block_screens.hand_probe``): the least-bound point of
+# each of this many runs of the scene's points, as ``hand_clearance`` probes its coarse subset.
+HAND_PROBE_RUNS = 16
 # Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
 # the table and the arm most often, so they are the prior's first choice.
 WORLD_DOWN = torch.tensor([0.0, 0.0, -1.0])
@@ -137,6 +145,47 @@ class ScreenedCandidates:
             DOP_DIRECTIONS.to(low.device), low, high, self.planner.hand_clearance_margin_m, self.memory.hand_check_chunk_elements, self.planner.compile,
         )
 
+    def block_verdicts(self, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The screens of every approach of candidates ``rows`` (R,), all of one cloud, by the
+        fixed-shape passes of ``block_screens``: (R, K) bool clear of the table and under the volume
+        limit, (R, K) bool the swept hand blocked there, and (R, K) its clearance (inf where the
+        table or the volume failed). The table is checked on every pose, the volume on those clear
+        of it, the swept hand's probes (``hand_probe``) on those under the volume limit, each pass
+        padded to a power-of-two count of poses so that a plan calls it in a few shapes; the poses
+        its probes do not block are swept again over every point by ``hand_clearance``, for the
+        verdict and the exact clearance."""
+        planner, scene, clock = self.planner, int(self.object_index[rows[0]]), self.clock
+        n_rows, n_approaches = rows.numel(), planner.n_approaches
+        with clock.stage("frames_volume", n_rows * n_approaches):
+            rotation = self.frames(rows)[1]
+            (fingers, _), (rest, _) = _table_check_points(self.robot, rows.device)
+            centre_z, retreat, table_z = self.centre_world[rows, 2], self.pregrasp_offset_m, self.table_top_z_m
+            clear = (lowest_hand_height(centre_z, rotation, fingers, retreat) >= table_z + planner.finger_table_clearance_m) & (
+                lowest_hand_height(centre_z, rotation, rest, retreat) >= table_z + planner.arm_table_clearance_m
+            ) & (self.width_m[rows] <= jaw_width_limit(self.robot, planner))[:, None]
+            centre = self.centre_world[rows].repeat_interleave(n_approaches, dim=0)
+            frames = rotation.reshape(-1, 3, 3)
+            finger_y_min = (self.width_m[rows] / 2 + planner.contact_clearance_m).repeat_interleave(n_approaches)
+            occupancy, geometry = self.occupancy_points[scene].T.contiguous(), gripper_geometry(self.robot, planner)
+            clear = clear.view(-1)
+            poses, n_poses = _bucketed(clear)
+            counts = _in_slices(gripper_point_counts, planner.compile, occupancy, (centre[poses], frames[poses], finger_y_min[poses]),
+                                (geometry,))[:n_poses]
+            clear[poses[:n_poses]] = counts <= planner.occupancy_max_fraction * self.occupancy_total[scene]
+        with clock.stage("hand_sweep", n_rows * n_approaches):
+            hand_points = _padded_to_runs(self.hand_check_points[scene], HAND_PROBE_RUNS).T.contiguous()
+            low, high = _swept_hand(self.robot, self.pregrasp_offset_m, rows.device)
+            poses, n_poses = _bucketed(clear)
+            clearance = torch.full((n_rows * n_approaches,), float("inf"), device=rows.device)
+            clearance[poses[:n_poses]] = _in_slices(hand_probe, planner.compile, hand_points, (centre[poses], frames[poses]),
+                                                    (DOP_DIRECTIONS.to(rows.device), low, high, HAND_PROBE_RUNS))[:n_poses]
+            margin = planner.hand_clearance_margin_m
+            swept_again = (clear & (clearance >= margin)).nonzero().squeeze(1)
+            if swept_again.numel():
+                clearance[swept_again] = self.hand_clearance(rows[swept_again // n_approaches], swept_again % n_approaches).clearance_m
+        clear, clearance = clear.view(n_rows, n_approaches), clearance.view(n_rows, n_approaches)
+        return clear, clear & (clearance < margin), clearance
+
     @property
     def usable(self) -> torch.Tensor:
         """(A, K) bool: the published screen (table, 12 % volume) on every candidate, eagerly (for
@@ -236,6 +285,32 @@ def _table_check_points(robot: RobotDescription, device: torch.device) -> tuple[
         return vertices.to(device), (cover.to(device), reach)
 
     return on_device(fingers), on_device(rest)
+
+
+def _bucketed(flags: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """The indices of ``flags`` (P,) that are set, padded by repeating the last to the next power of
+    two (at least ``MIN_BUCKET_POSES``; none set: index 0), and how many are real: a pass over them
+    comes in a few shapes per plan, which a compiler specialises once each."""
+    chosen = flags.nonzero().squeeze(1)
+    bucket = max(MIN_BUCKET_POSES, 1 << max(0, chosen.numel() - 1).bit_length())
+    last = chosen[-1:] if chosen.numel() else flags.new_zeros(1, dtype=torch.int64)
+    return torch.cat((chosen, last.expand(bucket - chosen.numel()))), chosen.numel()
+
+
+def _in_slices(function: Callable[..., torch.Tensor], compile: bool, columns: torch.Tensor, per_pose: tuple, shared: tuple) -> torch.Tensor:
+    """``function(columns, *per_pose, *shared)``: the scene's point ``columns``, tensors of one row
+    per pose and arguments shared by all. Compiled, one fused call; eager, slices of ``POSE_SLICE``
+    poses, whose (pose, point) temporaries stay in cache."""
+    if compile:
+        return compiled(function)(columns, *per_pose, *shared)
+    return torch.cat([function(columns, *(value[first : first + POSE_SLICE] for value in per_pose), *shared)
+                      for first in range(0, per_pose[0].shape[0], POSE_SLICE)])
+
+
+def _padded_to_runs(points: torch.Tensor, runs: int) -> torch.Tensor:
+    """(N', 3) ``points`` (NaN-padded rows) up to their last real one, padded with NaN rows to a multiple of ``runs``."""
+    extent = max(1, int(scene_extents(points[None])[0]))
+    return torch.nn.functional.pad(points[:extent], (0, 0, 0, -extent % runs), value=float("nan"))
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
