@@ -12,7 +12,8 @@ figures for one core and for several compare on the same clouds and targets.
 thread count (the loop reference once per thread count); ``--compile-start`` measures, in fresh
 processes, the first plan eager, compiled with an empty inductor cache and compiled from the cache.
 ``--devices cpu,cuda`` times each compile mode on each ``[planner] device`` (the clouds stay on the
-CPU: a plan's time includes moving them there and its results back, which waits for the device).
+CPU: a plan's time includes moving them there and its results back, which waits for the device);
+``--searches lookahead,blocks`` each ``[planner] search`` likewise.
 
 ``--profile-stages`` profiles one more plan per object and pair count (and per batch comparison,
 the singles and the batch) with ``torch.profiler`` and prints, per stage, its median time, the
@@ -45,7 +46,7 @@ from sagp_batched.benchmarks.verdict_agreement import screen_agreement, unseen_s
 from sagp_batched.benchmarks.planner_speed import (
     BENCH_OBJECT_XY_M, BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud,
 )
-from sagp_batched.config import load_config
+from sagp_batched.config import PLANNER_SEARCHES, load_config
 from sagp_batched.planning.device import device_name, planning_device
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
 from sagp_batched.runtime import DEFAULT_TORCH_THREADS, configure_torch
@@ -81,6 +82,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--batch-pairs", type=int, default=5000, help="sampled pairs per cloud in the batch comparison")
     parser.add_argument("--compile", default="false", help="comma-separated [planner] compile modes (false, true), each timed in turn")
     parser.add_argument("--devices", default="cpu", help="comma-separated [planner] devices (cpu, cuda), each timed in turn with every compile mode")
+    parser.add_argument("--searches", default="lookahead", help="comma-separated [planner] searches (lookahead, blocks), each timed in turn")
     parser.add_argument("--compile-start", action="store_true", help="first plans of fresh processes: eager, compiled cold, compiled from the cache")
     parser.add_argument("--profile-stages", action="store_true", help="per stage: operators called and their profiled time (torch.profiler)")
     parser.add_argument("--verdict-agreement", type=int, default=0, metavar="N",
@@ -97,7 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     thread_counts = _thread_counts(parser, args.threads)
     batch_sizes = _batch_sizes(parser, args.batch_sizes)
     compile_modes = _compile_modes(parser, args.compile)
-    modes = [(device, compile_) for device in _devices(parser, args.devices) for compile_ in compile_modes]
+    searches = _searches(parser, args.searches)
+    # Each planner mode is a set of [planner] settings, timed in turn: device, search, compile.
+    modes = [{"device": device, "search": search, "compile": compile_}
+             for device in _devices(parser, args.devices) for search in searches for compile_ in compile_modes]
 
     configure_torch(thread_counts[0])
     config = load_config(args.profile)
@@ -131,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         "provenance": {
             "torch": torch.__version__,
             "threads": thread_counts,
-            "devices": {device: device_name(device) for device, _ in modes},
+            "devices": {mode["device"]: device_name(mode["device"]) for mode in modes},
             "git": git_revision(),
             "packages": package_versions(),
             "python": sys.version.split()[0],
@@ -144,9 +149,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _planner_and_ik_sections(
-    config, settings: BenchmarkSettings, clouds: list, thread_counts: list[int], modes: list[tuple[str, bool]]
+    config, settings: BenchmarkSettings, clouds: list, thread_counts: list[int], modes: list[dict]
 ) -> tuple[list[dict], list[dict]]:
-    """At each thread count in turn, the planner in each (device, compile) mode against the loop reference
+    """At each thread count in turn, the planner in each mode (its [planner] settings) against the loop reference
     (run in the first mode, its time shared) on every cloud (one printed line per pair count), then
     the IK unless ``settings.ik_targets`` is 0; (planner rows, IK rows)."""
     results, ik = [], []
@@ -154,9 +159,9 @@ def _planner_and_ik_sections(
         configure_torch(threads)
         for cloud in clouds:
             reference_s = {}
-            for index, (device, compile_) in enumerate(modes):
+            for index, mode in enumerate(modes):
                 mode_settings = settings if index == 0 else dataclasses.replace(settings, reference_max_pairs=0)
-                for row in benchmark_object(cloud, config.override("planner", compile=compile_, device=device), mode_settings):
+                for row in benchmark_object(cloud, config.override("planner", **mode), mode_settings):
                     row["threads"] = threads
                     reference_s.setdefault(row["pairs"], row["reference_plan_s"])
                     row["reference_plan_s"] = reference_s[row["pairs"]]
@@ -173,7 +178,8 @@ def _print_planner_row(row: dict) -> None:
     reference = "not run" if row["reference_plan_s"] is None else f"{row['reference_plan_s']:.3f} s (x{row['speedup']:.1f})"
     stages = " ".join(f"{k}={v * 1e3:.1f}ms" for k, v in row["stage_median_s"].items())
     print(
-        f"{row['object']:>22} pairs={row['pairs']:>7} device={row['device']} compile={'on' if row['compile'] else 'off'} threads={row['threads']} "
+        f"{row['object']:>22} pairs={row['pairs']:>7} device={row['device']} search={row['search']} compile={'on' if row['compile'] else 'off'} "
+        f"threads={row['threads']} "
         f"plan={row['batched_plan_s']:.3f} s ({row['candidates_per_s']:.0f} pairs/s, first {row['first_plan_s']:.2f} s) "
         f"reference={reference} | {stages} | {row['counts_last_repeat']}",
         flush=True,
@@ -293,19 +299,19 @@ def _thread_counts(parser: argparse.ArgumentParser, text: str) -> list[int]:
 
 def _plan_batch_section(
     args: argparse.Namespace, batch_sizes: list[int], config, object_set, settings: BenchmarkSettings, thread_counts: list[int],
-    modes: list[tuple[str, bool]],
+    modes: list[dict],
 ) -> list[dict]:
-    """``benchmark_plan_batch`` on the --batch-objects clouds at each thread count and (device, compile) mode,
+    """``benchmark_plan_batch`` on the --batch-objects clouds at each thread count and mode ([planner] settings),
     one printed line per batch size (and with --profile-stages, the per-cloud stage tables)."""
     batch_ids = args.batch_objects.split(",") if args.batch_objects else list(object_set.ids)[: max(batch_sizes)]
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in batch_ids]
     rows = []
     for threads in thread_counts:
         configure_torch(threads)
-        for device, compile_ in modes:
-            batch_config = config.override("planner", n_pairs=args.batch_pairs, compile=compile_, device=device)
+        for mode in modes:
+            batch_config = config.override("planner", n_pairs=args.batch_pairs, **mode)
             for row in benchmark_plan_batch(clouds, batch_config, tuple(batch_sizes), args.repeats, settings.profile_stages):
-                rows.append({**row, "threads": threads, "device": device, "compile": compile_})
+                rows.append({**row, "threads": threads, **mode})
                 _print_plan_batch_row(rows[-1])
     return rows
 
@@ -316,7 +322,7 @@ def _print_plan_batch_row(row: dict) -> None:
         for stage in row["singles_stage_per_cloud_s"]
     )
     print(
-        f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} device={row['device']} threads={row['threads']} "
+        f"plan_batch B={row['batch_size']:>2} pairs={row['pairs']} device={row['device']} search={row['search']} threads={row['threads']} "
         f"compile={'on' if row['compile'] else 'off'}: "
         f"singles {row['singles_per_cloud_s'] * 1e3:.1f} ms/cloud, batch {row['batch_per_cloud_s'] * 1e3:.1f} ms/cloud, "
         f"ratio {row['ratio']:.2f} | per cloud, singles/batch: {stages}",
@@ -345,6 +351,13 @@ def _compile_modes(parser: argparse.ArgumentParser, text: str) -> list[bool]:
     if not parts or any(part not in modes for part in parts):
         parser.error(f"--compile takes false and/or true separated by commas, got {text!r}")
     return [modes[part] for part in parts]
+
+
+def _searches(parser: argparse.ArgumentParser, text: str) -> list[str]:
+    searches = [part.strip() for part in text.split(",") if part.strip()]
+    if not searches or any(search not in PLANNER_SEARCHES for search in searches):
+        parser.error(f"--searches takes {' and/or '.join(PLANNER_SEARCHES)} separated by commas, got {text!r}")
+    return searches
 
 
 def _devices(parser: argparse.ArgumentParser, text: str) -> list[str]:

@@ -98,7 +98,7 @@ def test_bench_compares_single_plans_with_one_plan_batch_per_batch_size(tmp_path
     )
     assert done.returncode == 0, done.stderr[-2000:]
     section = json.loads(out.read_text())["plan_batch"]
-    assert section["threads"] == [1] and section["modes"] == [["cpu", False]] and section["rows"][0]["device"] == "cpu"
+    assert section["threads"] == [1] and section["modes"] == [{"device": "cpu", "search": "lookahead", "compile": False}]
     assert [row["batch_size"] for row in section["rows"]] == [1, 2]
     assert section["rows"][1]["objects"] == ["003_cracker_box", "005_tomato_soup_can"] and section["rows"][1]["pairs"] == 200
     for row in section["rows"]:

@@ -115,6 +115,7 @@ def benchmark_object(cloud: PerceivedCloud, config: Config, settings: BenchmarkS
                 "object": cloud.object_id,
                 "pairs": n_pairs,
                 "device": pair_config.planner.device,
+                "search": pair_config.planner.search,
                 "compile": pair_config.planner.compile,
                 "first_plan_s": first_plan_s,
                 "batched_plan_s": batched_s,

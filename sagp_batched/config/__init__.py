@@ -14,7 +14,7 @@ The machinery is in ``settings``; the sections by concept in ``world`` (scene, c
 """
 from .execution import ExecutionConfig, LabellingConfig, MuJoCoConfig, ShakeConfig, TaskConfig
 from .motion import MotionConfig
-from .planning import GEOMETRY_ONLY_WEIGHTS, MAX_PAIRS, PAIR_SAMPLING_MODES, IKConfig, MemoryConfig, PlannerConfig, ScoreWeights
+from .planning import GEOMETRY_ONLY_WEIGHTS, MAX_PAIRS, PAIR_SAMPLING_MODES, PLANNER_SEARCHES, IKConfig, MemoryConfig, PlannerConfig, ScoreWeights
 from .profiles import PROFILES_PACKAGE, Config, load_config, named_profiles, resolve_profile_path
 from .run import MAX_TRIALS, MAX_WORKERS, RUN_BACKENDS, DatasetConfig, RunConfig
 from .semantics import PROTRUSION_RULES, RATING_BACKENDS, RatingConfig, ZonesConfig
@@ -23,7 +23,7 @@ from .world import MAX_IMAGE_SIDE_PX, NORMAL_ORIENTATIONS, CameraConfig, Percept
 
 __all__ = [
     "GEOMETRY_ONLY_WEIGHTS", "MAX_IMAGE_SIDE_PX", "MAX_PAIRS", "MAX_TRIALS", "MAX_WORKERS", "NORMAL_ORIENTATIONS",
-    "PAIR_SAMPLING_MODES", "PROFILES_PACKAGE", "PROTRUSION_RULES", "RATING_BACKENDS", "RUN_BACKENDS", "Allowed",
+    "PAIR_SAMPLING_MODES", "PLANNER_SEARCHES", "PROFILES_PACKAGE", "PROTRUSION_RULES", "RATING_BACKENDS", "RUN_BACKENDS", "Allowed",
     "CameraConfig", "Config", "ConfigError", "DatasetConfig", "ExecutionConfig", "IKConfig", "LabellingConfig",
     "MemoryConfig", "MotionConfig", "MuJoCoConfig", "PerceptionConfig", "PlannerConfig", "RatingConfig", "RunConfig", "SceneConfig", "ScoreWeights", "ShakeConfig",
     "TaskConfig", "ZonesConfig", "load_config", "named_profiles", "resolve_profile_path", "setting",
