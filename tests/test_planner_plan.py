@@ -122,8 +122,9 @@ def test_loop_reference_gives_the_same_candidates_and_mostly_agrees_on_ik(box_cl
 @pytest.mark.parametrize("first_block, max_block", [(512, 4096), (16, 64)])
 def test_the_block_search_finds_the_lookahead_searchs_grasps_and_counts(box_cloud, can_cloud, monkeypatch, first_block, max_block):
     """Blocks of every verdict at once, or rounds sized by survival: the same first feasible approach
-    of the same candidates, the same counts; with small blocks, over many blocks of growing size."""
+    of the same candidates, the same counts; with small blocks, over many blocks of several sizes."""
     monkeypatch.setattr(block_search, "FIRST_BLOCK_CANDIDATES", first_block)
+    monkeypatch.setattr(block_search, "MIN_BLOCK_CANDIDATES", min(first_block, 256))
     monkeypatch.setattr(block_search, "MAX_BLOCK_CANDIDATES", max_block)
     blocks = CONFIG.override("planner", search="blocks")
     for seeds in ([0, 1], [5, 6]):
@@ -134,3 +135,12 @@ def test_the_block_search_finds_the_lookahead_searchs_grasps_and_counts(box_clou
             assert max_block > 64 or want.counts.antipodal > 2 * max_block  # small blocks: many, growing
             for name in ("contacts", "approach", "ik_solution", "joint_path", "s_reach", "hand_clearance_m"):
                 assert torch.equal(getattr(result.candidates, name), getattr(want.candidates, name)), name
+
+
+def test_block_sizes_follow_the_yield_in_powers_of_two():
+    assert block_search.next_block_size(0, 0, 200) == block_search.FIRST_BLOCK_CANDIDATES
+    # 512 searched gave 125 of 200: 75 more at that yield, 1.25 times over, is 384 -> 512.
+    assert block_search.next_block_size(512, 125, 200) == 512
+    assert block_search.next_block_size(512, 199, 200) == block_search.MIN_BLOCK_CANDIDATES
+    assert block_search.next_block_size(512, 0, 200) == 1024
+    assert block_search.next_block_size(8192, 1, 200) == block_search.MAX_BLOCK_CANDIDATES

@@ -2,10 +2,9 @@
 
 The lookahead search (``lookahead``) reaches each object's first ``max_candidates`` executable
 candidates in rounds sized by the survival seen so far: few wasted checks, but many small calls
-whose shapes follow the data. Here each object's candidates are taken in blocks of a few fixed
-sizes (``FIRST_BLOCK_CANDIDATES``, doubling, at most ``MAX_BLOCK_CANDIDATES``); a block gets the
-screens on every approach and the motion check on every approach the screens leave usable, one
-call each. The answer is the lookahead's: a candidate is feasible at its first approach in prior
+whose shapes follow the data. Here each object's candidates are taken in blocks of a few sizes,
+powers of two (``next_block_size``); a block gets the screens on every approach and the motion
+check on every approach the screens leave usable, in a few calls. The answer is the lookahead's: a candidate is feasible at its first approach in prior
 order that passes every check, an object keeps its first ``max_candidates`` feasible candidates in
 S_geom order, and the counts are those of the candidates up to its last kept one. A block checks
 more grasps (every usable approach, not only those up to the first feasible one; the candidates of
@@ -13,6 +12,7 @@ its block past the last kept one) in fewer, larger calls of a few shapes.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import torch
@@ -25,19 +25,25 @@ from .search import CandidateSearch, CandidateStatus, segment_exclusive_cumsum
 # ranked ones, the cracker box's within 819 (YCB clouds at 5,000 pairs), so one or two blocks reach
 # most objects' last kept candidate.
 FIRST_BLOCK_CANDIDATES = 512
-# Blocks double up to this size: an object whose candidates mostly fail (a mug's, 16 feasible in
-# 3,772) is screened in a few calls, not dozens, while a block's (candidate, approach, point)
-# work stays within the screens' memory bounds.
+# The smallest and largest later blocks: below the first, a block's calls cost more than its
+# checks; above the last, an object whose candidates mostly fail (a mug's, 16 feasible in 3,772)
+# is still screened in a few calls while a block's work stays within the screens' memory bounds.
+MIN_BLOCK_CANDIDATES = 256
 MAX_BLOCK_CANDIDATES = 4096
+# Expected losses taken this many times over, so that one more block usually suffices.
+BLOCK_MARGIN = 1.25
 
 
-def block_spans(n_candidates: int) -> list[tuple[int, int]]:
-    """(first, end) ranks of the blocks an object of ``n_candidates`` ranked candidates is searched in."""
-    spans, first, size = [], 0, FIRST_BLOCK_CANDIDATES
-    while first < n_candidates:
-        spans.append((first, min(first + size, n_candidates)))
-        first, size = first + size, min(2 * size, MAX_BLOCK_CANDIDATES)
-    return spans
+def next_block_size(searched: int, found: int, wanted: int) -> int:
+    """Candidates in an object's next block, once ``searched`` of them gave ``found`` feasible ones of
+    the ``wanted`` it keeps: the first block ``FIRST_BLOCK_CANDIDATES``; then those the yield so far
+    says are still needed, ``BLOCK_MARGIN`` times over, rounded up to a power of two (so a plan's
+    blocks come in a few sizes) within [``MIN_BLOCK_CANDIDATES``, ``MAX_BLOCK_CANDIDATES``]; an
+    object with none found yet doubles what it searched."""
+    if searched == 0:
+        return FIRST_BLOCK_CANDIDATES
+    needed = BLOCK_MARGIN * (wanted - found) * searched / found if found else 2 * searched
+    return min(MAX_BLOCK_CANDIDATES, max(MIN_BLOCK_CANDIDATES, 1 << max(0, math.ceil(needed) - 1).bit_length()))
 
 
 def search_in_blocks(
@@ -51,14 +57,18 @@ def search_in_blocks(
     object_index, n_objects = screened.object_index, screened.n_objects
     device = object_index.device
     bounds = torch.searchsorted(object_index, torch.arange(n_objects + 1, device=device)).tolist()
-    spans = [block_spans(end - first) for first, end in zip(bounds[:-1], bounds[1:])]
-    found = [0] * n_objects
-    for block in range(max(map(len, spans), default=0)):
-        objects = [index for index in range(n_objects) if found[index] < max_candidates and block < len(spans[index])]
+    searched, found = [0] * n_objects, [0] * n_objects
+    while True:
+        objects = [index for index in range(n_objects) if found[index] < max_candidates and bounds[index] + searched[index] < bounds[index + 1]]
         if not objects:
             break
-        rows = torch.cat([torch.arange(bounds[index] + spans[index][block][0], bounds[index] + spans[index][block][1], device=device)
-                          for index in objects])
+        spans = []
+        for index in objects:
+            first = bounds[index] + searched[index]
+            end = min(first + next_block_size(searched[index], found[index], max_candidates), bounds[index + 1])
+            spans.append((first, end))
+            searched[index] += end - first
+        rows = torch.cat([torch.arange(first, end, device=device) for first, end in spans])
         for part in rows.split(torch.unique_consecutive(object_index[rows], return_counts=True)[1].tolist()):
             screens.record(part, *screened.block_verdicts(part))
         _check_motions_of_block(rows, screens, motions, check)
