@@ -1,93 +1,66 @@
-"""The block search's fixed-shape screens against the exhaustive computations: the gripper's point
-counts and the hand's lowest height as the exhaustive checks find them, and the swept hand's probes
-an upper bound of its least separation that finds the blocked poses."""
+"""The block search's fixed-shape swept-hand pass against the exhaustive separations: every pose's
+least separation from the points it is given, as the exhaustive computation finds it."""
 import pytest
 import torch
 
 from planner_clouds import box_surface, cylinder_surface
 from sagp_batched.config import Config
-from sagp_batched.planning import gripper_geometry
-from sagp_batched.planning.screens import _padded_to_runs, _swept_hand, _table_check_points
+from sagp_batched.planning.screens import _swept_hand
 from sagp_batched.robot.description import load_robot
 from sagp_batched.robot.hand import DOP_DIRECTIONS
 from sagp_batched_kernels.antipodal import antipodal_pairs
-from sagp_batched_kernels.block_screens import gripper_point_counts, hand_probe, lowest_hand_height
+from sagp_batched_kernels.block_screens import least_separation
 from sagp_batched_kernels.compiled import compiled
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
 from sagp_batched_kernels.hand_clearance import _separation
-from sagp_batched_kernels.sampling import sample_pair_indices
+from sagp_batched_kernels.sampling import sample_pair_indices, voxel_representatives
 
 ROBOT = load_robot()
 PLANNER = Config().planner
-GEOMETRY = gripper_geometry(ROBOT, PLANNER)
 
 
-def _poses(points, normals, seed, count=300):
-    pairs = sample_pair_indices(len(points), 4000, torch.Generator().manual_seed(seed))
-    result = antipodal_pairs(points, normals, pairs, PLANNER.min_width_m, PLANNER.max_width_m, PLANNER.max_contact_angle_deg)
+def _poses_and_scene(seed, count=300):
+    box, box_normals = (torch.as_tensor(a, dtype=torch.float32) for a in box_surface((0.06, 0.05, 0.15), (0.55, 0.0, 0.075)))
+    can = torch.as_tensor(cylinder_surface(0.035, 0.1, (0.55, 0.09, 0.0))[0], dtype=torch.float32)
+    pairs = sample_pair_indices(len(box), 4000, torch.Generator().manual_seed(seed))
+    result = antipodal_pairs(box, box_normals, pairs, PLANNER.min_width_m, PLANNER.max_width_m, PLANNER.max_contact_angle_deg)
     keep = result["antipodal"].nonzero().squeeze(1)[:count]
     axis = result["closing_axis"][keep]
     rotation = grasp_rotations(axis[:, None, :], approach_directions(axis, 8, torch.tensor([0.0, 0.0, -1.0])))
-    return points[pairs[keep]].mean(dim=1), rotation, result["width_m"][keep]
+    scene = torch.cat((box, can))
+    return box[pairs[keep]].mean(dim=1).repeat_interleave(8, 0), rotation.reshape(-1, 3, 3), scene
 
 
-def _scene():
-    box, box_normals = box_surface((0.06, 0.05, 0.15), (0.55, 0.0, 0.075))
-    can, can_normals = cylinder_surface(0.035, 0.1, (0.55, 0.09, 0.0))
-    points = torch.as_tensor(box, dtype=torch.float32)
-    return points, torch.as_tensor(box_normals, dtype=torch.float32), torch.cat((points, torch.as_tensor(can, dtype=torch.float32)))
-
-
-def test_gripper_point_counts_are_the_exhaustive_counts():
-    points, normals, scene = _scene()
-    centre, rotation, width = _poses(points, normals, seed=0)
-    exhaustive = gripper_occupancy(scene[None], torch.zeros(len(centre), dtype=torch.int64), centre, rotation, width, GEOMETRY, 1 << 22).total
-    counts = gripper_point_counts(scene.T.contiguous(), centre.repeat_interleave(8, 0), rotation.reshape(-1, 3, 3),
-                                  (width / 2 + PLANNER.contact_clearance_m).repeat_interleave(8), GEOMETRY)
-    assert exhaustive.sum() > 0 and (exhaustive == 0).any()
-    assert torch.equal(counts.view(-1, 8), exhaustive.to(torch.float32))
-
-
-def test_the_lowest_hand_height_is_every_vertex_placed_at_the_grasp_and_the_pregrasp():
-    points, normals, _ = _scene()
-    centre, rotation, _ = _poses(points, normals, seed=1)
-    (fingers, _), _ = _table_check_points(ROBOT, torch.device("cpu"))
-    height = lowest_hand_height(centre[:, 2], rotation, fingers, 0.1)
-    placed = centre[:, None, None, :] + torch.einsum("ckij,vj->ckvi", rotation, fingers)
-    pregrasp = placed - 0.1 * rotation[..., None, :, 2]
-    expected = torch.minimum(placed[..., 2].amin(dim=-1), pregrasp[..., 2].amin(dim=-1))
-    assert torch.allclose(height, expected, atol=1e-6)
-
-
-def test_the_hand_probe_bounds_the_least_separation_from_above_and_finds_the_blocked_poses():
-    points, normals, scene = _scene()
-    centre, rotation, _ = _poses(points, normals, seed=2)
-    low, high = _swept_hand(ROBOT, 0.1, torch.device("cpu"))
-    frames = rotation.reshape(-1, 3, 3)
-    centres = centre.repeat_interleave(8, 0)
-    columns = _padded_to_runs(scene, 16).T.contiguous()
-    probe = hand_probe(columns, centres, frames, DOP_DIRECTIONS, low, high, 16)
+def _exhaustive(points, centres, frames, low, high):
     axes = DOP_DIRECTIONS @ frames.transpose(1, 2)
     middle, half = ((low + high) / 2)[:, :, None, None], ((high - low) / 2)[:, :, None, None]
-    exact = _separation(scene[None] - centres[:, None, :], axes, middle, half, compile=False).amin(dim=1)
-    margin = PLANNER.hand_clearance_margin_m
-    assert (probe >= exact - 1e-6).all()
-    blocked = exact < margin
+    return _separation(points[None] - centres[:, None, :], axes, middle, half, compile=False).amin(dim=1)
+
+
+@pytest.mark.parametrize("voxel_m", [0.006, 0.02])
+def test_the_least_separation_is_the_exhaustive_one(voxel_m):
+    centres, frames, scene = _poses_and_scene(seed=2)
+    points = scene[voxel_representatives(scene, voxel_m)]
+    low, high = _swept_hand(ROBOT, 0.1, torch.device("cpu"))
+    least = least_separation(points.T.contiguous(), centres, frames, DOP_DIRECTIONS, low, high)
+    exact = _exhaustive(points, centres, frames, low, high)
+    blocked = exact < PLANNER.hand_clearance_margin_m
     assert blocked.any() and (~blocked).any()
-    found = (probe < margin) & blocked
-    assert found.sum() >= 0.95 * blocked.sum()
+    assert torch.allclose(least, exact, atol=1e-6)
+
+
+def test_nan_padding_is_never_near():
+    centres, frames, scene = _poses_and_scene(seed=3, count=20)
+    low, high = _swept_hand(ROBOT, 0.1, torch.device("cpu"))
+    padded = torch.cat((scene, torch.full((5, 3), float("nan")))).T.contiguous()
+    assert torch.equal(least_separation(padded, centres, frames, DOP_DIRECTIONS, low, high),
+                       least_separation(scene.T.contiguous(), centres, frames, DOP_DIRECTIONS, low, high))
 
 
 @pytest.mark.slow
-def test_the_fixed_shape_screens_compile_to_the_eager_values():
-    """Inductor's fused loops give the eager values (compiling takes tens of seconds: slow)."""
-    points, normals, scene = _scene()
-    centre, rotation, width = _poses(points, normals, seed=3)
+def test_the_fixed_shape_pass_compiles_to_the_eager_values():
+    """Inductor's fused loop gives the eager values (compiling takes tens of seconds: slow)."""
+    centres, frames, scene = _poses_and_scene(seed=4)
     low, high = _swept_hand(ROBOT, 0.1, torch.device("cpu"))
-    centres, frames = centre.repeat_interleave(8, 0), rotation.reshape(-1, 3, 3)
-    columns = _padded_to_runs(scene, 16).T.contiguous()
-    finger_y_min = (width / 2 + PLANNER.contact_clearance_m).repeat_interleave(8)
-    for function, args in ((hand_probe, (columns, centres, frames, DOP_DIRECTIONS, low, high, 16)),
-                           (gripper_point_counts, (scene.T.contiguous(), centres, frames, finger_y_min, GEOMETRY))):
-        assert torch.allclose(compiled(function)(*args), function(*args))
+    args = (scene.T.contiguous(), centres, frames, DOP_DIRECTIONS, low, high)
+    assert torch.allclose(compiled(least_separation)(*args), least_separation(*args), atol=1e-6)

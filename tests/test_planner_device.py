@@ -9,7 +9,6 @@ import torch
 from planner_clouds import box_surface, cylinder_surface, make_cloud
 from sagp_batched.config import Config, ConfigError
 from sagp_batched.planning import plan, plan_batch
-from sagp_batched.planning.screens import screen_candidates
 from sagp_batched.preflight import PreflightError, check_planner_device
 
 CONFIG = Config().override("planner", n_pairs=2000, max_candidates=16)
@@ -23,26 +22,24 @@ def clouds():
     return [box, can]
 
 
-def _screen_verdicts(clouds, config):
-    screened = screen_candidates(clouds, config, [0, 1])
-    usable = screened.usable
-    rows, slots = usable.nonzero(as_tuple=True)
-    return screened.width_m, usable, screened.hand_clearance(rows, slots).clearance_m
+def _planned(clouds, config):
+    results = plan_batch(clouds, config, [0, 1])
+    return [(result.counts, result.candidates.contacts, result.candidates.joint_path, result.candidates.hand_clearance_m) for result in results]
 
 
-@pytest.mark.parametrize("compile", [False, True])
-def test_the_screens_make_every_tensor_on_the_clouds_device(clouds, compile):
+@pytest.mark.parametrize("search, compile", [("lookahead", False), ("blocks", False), ("lookahead", True)])
+def test_a_plan_makes_every_tensor_on_the_clouds_device(clouds, search, compile):
     """With torch's default device set to ``meta``, a tensor made without naming the clouds' device
-    lands on meta and the first operation mixing it with the clouds' CPU tensors fails: the screens
-    running through, with the verdicts they give outside, show that none is made that way."""
-    config = CONFIG.override("planner", compile=compile)
-    expected = _screen_verdicts(clouds, config)  # also builds the robot's cached tensors, on the CPU
+    lands on meta and the first operation mixing it with the clouds' CPU tensors fails: whole plans
+    running through, with the grasps they give outside, show that none is made that way."""
+    config = CONFIG.override("planner", search=search, compile=compile)
+    expected = _planned(clouds, config)  # also builds the robot's cached tensors, on the CPU
     with torch.device("meta"):
-        got = _screen_verdicts(clouds, config)
-    assert expected[1].any()
-    for want, value in zip(expected, got):
-        assert value.device.type == "cpu"
-        assert torch.equal(want, value)
+        got = _planned(clouds, config)
+    for (want_counts, *want), (counts, *values) in zip(expected, got):
+        assert counts == want_counts and want_counts.ik_feasible > 0
+        for want_value, value in zip(want, values):
+            assert value.device.type == "cpu" and torch.equal(want_value, value)
 
 
 def test_a_device_that_is_not_one_is_refused_by_name():

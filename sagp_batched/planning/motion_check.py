@@ -45,9 +45,10 @@ def check_motions(
     clock = StageClock() if clock is None else clock
     n_rows = centre.shape[0]
     waypoints = motion_waypoints(centre, approach, config.motion)
-    joint_path = torch.zeros(n_rows, waypoints.shape[1], len(ik.robot.arm_joints))
-    s_reach = torch.zeros(n_rows)
-    rejected_by = torch.zeros(n_rows, len(MotionCheck.STAGES), dtype=torch.int64)
+    ik = ik.on(centre.device)
+    joint_path = torch.zeros(n_rows, waypoints.shape[1], len(ik.robot.arm_joints), device=centre.device)
+    s_reach = torch.zeros(n_rows, device=centre.device)
+    rejected_by = torch.zeros(n_rows, len(MotionCheck.STAGES), dtype=torch.int64, device=centre.device)
     with clock.stage("ik", n_rows):
         grasp = ik.solve(centre, rotation)
         reached = grasp.success & (grasp.s_reach >= config.planner.min_reach)
@@ -58,7 +59,7 @@ def check_motions(
         joints, motion_ok = _followed_motion(ik, grasp_joints, waypoints[candidates], rotation[candidates], config)
         rejected_by[candidates[~motion_ok], 1] = 1
         joint_path[candidates[motion_ok]] = joints[motion_ok]
-        feasible = torch.zeros(n_rows, dtype=torch.bool)
+        feasible = torch.zeros(n_rows, dtype=torch.bool, device=centre.device)
         feasible[candidates[motion_ok]] = True
     return MotionCheck(feasible=feasible, joint_path=joint_path, s_reach=s_reach, rejected_by=rejected_by)
 
@@ -77,8 +78,8 @@ def _followed_motion(
     takes that free answer in the held motion too. A waypoint's answer depends on it alone, so
     the free answers of every motion that may need them are one batch; the arm at the grasp
     itself is placed once."""
-    grasp_index, hulls = grasp_waypoint_index(config.motion), _arm_hulls(ik.robot)
-    others = torch.arange(waypoints.shape[1]) != grasp_index
+    grasp_index, hulls = grasp_waypoint_index(config.motion), _arm_hulls(ik.robot, waypoints.device)
+    others = torch.arange(waypoints.shape[1], device=waypoints.device) != grasp_index
     n_others = int(others.sum())
     grasp_lowest_z = ik.lowest_link_point_z(grasp_joints, hulls)
     targets = ik.waypoint_targets(grasp_joints, waypoints[:, others], rotation)
@@ -114,7 +115,7 @@ def _motion_checks(
     those tolerances, no joint moving more than ``max_waypoint_joint_step_rad`` between waypoints,
     and the arm's links clear of the table. NaN rows (no answer) pass none."""
     n_joints = grasp_joints.shape[1]
-    joints = torch.zeros(path.shape[0], others.shape[0], n_joints)
+    joints = torch.zeros(path.shape[0], others.shape[0], n_joints, device=path.device)
     joints[:, others], joints[:, ~others] = path[..., :n_joints], grasp_joints[:, None]
     steps = (joints[:, 1:] - joints[:, :-1]).abs().amax(dim=(1, 2))
     arm_lowest_z = torch.minimum(path[..., n_joints + 2].amin(dim=1), grasp_lowest_z)
@@ -129,7 +130,8 @@ def _motion_checks(
     return joints, reached_all, ok
 
 
-@functools.lru_cache(maxsize=4)
-def _arm_hulls(robot: RobotDescription) -> dict[str, torch.Tensor]:
-    """Hull vertices of the links checked against the table, in their link frames (built once per robot)."""
-    return {name: torch.tensor(vertices, dtype=torch.float32) for name, vertices in link_hulls(robot.urdf_path, robot.table_check_links).items()}
+@functools.lru_cache(maxsize=8)
+def _arm_hulls(robot: RobotDescription, device: torch.device) -> dict[str, torch.Tensor]:
+    """Hull vertices of the links checked against the table, in their link frames, on ``device`` (built once per robot and device)."""
+    hulls = link_hulls(robot.urdf_path, robot.table_check_links)
+    return {name: torch.tensor(vertices, dtype=torch.float32, device=device) for name, vertices in hulls.items()}

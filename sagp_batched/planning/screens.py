@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
-from sagp_batched_kernels.block_screens import POSE_SLICE, gripper_point_counts, hand_probe, lowest_hand_height
+from sagp_batched_kernels.block_screens import POSE_SLICE, least_separation
 from sagp_batched_kernels.compiled import compiled
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
 from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance, scene_extents
@@ -28,9 +28,6 @@ from .stages import StageClock
 # The fewest poses a block's fixed-shape passes take at once (padded up to it): smaller counts
 # would each be one more shape to compile for little work.
 MIN_BUCKET_POSES = 64
-# Probes of a block's swept hand per pose (``block_screens.hand_probe``): the least-bound point of
-# each of this many runs of the scene's points, as ``hand_clearance`` probes its coarse subset.
-HAND_PROBE_RUNS = 16
 # Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
 # the table and the arm most often, so they are the prior's first choice.
 WORLD_DOWN = torch.tensor([0.0, 0.0, -1.0])
@@ -146,39 +143,27 @@ class ScreenedCandidates:
         )
 
     def block_verdicts(self, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The screens of every approach of candidates ``rows`` (R,), all of one cloud, by the
-        fixed-shape passes of ``block_screens``: (R, K) bool clear of the table and under the volume
-        limit, (R, K) bool the swept hand blocked there, and (R, K) its clearance (inf where the
-        table or the volume failed). The table is checked on every pose, the volume on those clear
-        of it, the swept hand's probes (``hand_probe``) on those under the volume limit, each pass
-        padded to a power-of-two count of poses so that a plan calls it in a few shapes; the poses
-        its probes do not block are swept again over every point by ``hand_clearance``, for the
-        verdict and the exact clearance."""
+        """The screens of every approach of candidates ``rows`` (R,), all of one cloud: (R, K) bool
+        clear of the table and under the volume limit (``table_and_volume_ok``), (R, K) bool the
+        swept hand blocked there, and (R, K) its clearance (inf where the table or the volume
+        failed). The hand is swept first against the coarse subset on every pose the table and the
+        volume leave (``least_separation``, one fused pass over a power-of-two count of poses, so a
+        plan calls it in a few shapes), which blocks most blocked poses; the others are swept over
+        every point by ``hand_clearance``, for the verdict and the exact clearance."""
         planner, scene, clock = self.planner, int(self.object_index[rows[0]]), self.clock
         n_rows, n_approaches = rows.numel(), planner.n_approaches
         with clock.stage("frames_volume", n_rows * n_approaches):
-            rotation = self.frames(rows)[1]
-            (fingers, _), (rest, _) = _table_check_points(self.robot, rows.device)
-            centre_z, retreat, table_z = self.centre_world[rows, 2], self.pregrasp_offset_m, self.table_top_z_m
-            clear = (lowest_hand_height(centre_z, rotation, fingers, retreat) >= table_z + planner.finger_table_clearance_m) & (
-                lowest_hand_height(centre_z, rotation, rest, retreat) >= table_z + planner.arm_table_clearance_m
-            ) & (self.width_m[rows] <= jaw_width_limit(self.robot, planner))[:, None]
-            centre = self.centre_world[rows].repeat_interleave(n_approaches, dim=0)
-            frames = rotation.reshape(-1, 3, 3)
-            finger_y_min = (self.width_m[rows] / 2 + planner.contact_clearance_m).repeat_interleave(n_approaches)
-            occupancy, geometry = self.occupancy_points[scene].T.contiguous(), gripper_geometry(self.robot, planner)
-            clear = clear.view(-1)
-            poses, n_poses = _bucketed(clear)
-            counts = _in_slices(gripper_point_counts, planner.compile, occupancy, (centre[poses], frames[poses], finger_y_min[poses]),
-                                (geometry,))[:n_poses]
-            clear[poses[:n_poses]] = counts <= planner.occupancy_max_fraction * self.occupancy_total[scene]
-        with clock.stage("hand_sweep", n_rows * n_approaches):
-            hand_points = _padded_to_runs(self.hand_check_points[scene], HAND_PROBE_RUNS).T.contiguous()
+            clear = self.table_and_volume_ok(rows).view(-1)
+        with clock.stage("hand_sweep", int(clear.sum())):
+            coarse = self.hand_screen_points[scene]
+            coarse = coarse[: max(1, int(scene_extents(coarse[None])[0]))].T.contiguous()
             low, high = _swept_hand(self.robot, self.pregrasp_offset_m, rows.device)
             poses, n_poses = _bucketed(clear)
+            pose_rows, pose_slots = rows[poses // n_approaches], poses % n_approaches
+            frames = self.frames(pose_rows, pose_slots)[1]
             clearance = torch.full((n_rows * n_approaches,), float("inf"), device=rows.device)
-            clearance[poses[:n_poses]] = _in_slices(hand_probe, planner.compile, hand_points, (centre[poses], frames[poses]),
-                                                    (DOP_DIRECTIONS.to(rows.device), low, high, HAND_PROBE_RUNS))[:n_poses]
+            clearance[poses[:n_poses]] = _in_slices(least_separation, planner.compile, coarse, (self.centre_world[pose_rows], frames),
+                                                    (DOP_DIRECTIONS.to(rows.device), low, high))[:n_poses]
             margin = planner.hand_clearance_margin_m
             swept_again = (clear & (clearance >= margin)).nonzero().squeeze(1)
             if swept_again.numel():
@@ -305,12 +290,6 @@ def _in_slices(function: Callable[..., torch.Tensor], compile: bool, columns: to
         return compiled(function)(columns, *per_pose, *shared)
     return torch.cat([function(columns, *(value[first : first + POSE_SLICE] for value in per_pose), *shared)
                       for first in range(0, per_pose[0].shape[0], POSE_SLICE)])
-
-
-def _padded_to_runs(points: torch.Tensor, runs: int) -> torch.Tensor:
-    """(N', 3) ``points`` (NaN-padded rows) up to their last real one, padded with NaN rows to a multiple of ``runs``."""
-    extent = max(1, int(scene_extents(points[None])[0]))
-    return torch.nn.functional.pad(points[:extent], (0, 0, 0, -extent % runs), value=float("nan"))
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:

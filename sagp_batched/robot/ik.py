@@ -11,6 +11,7 @@ arm's link offsets are read from the same chain (``kinematics``).
 """
 from __future__ import annotations
 
+import copy
 import functools
 from dataclasses import astuple, dataclass
 
@@ -74,6 +75,20 @@ class PandaIK:
         self._q7_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_samples, dtype=torch.float64)
         self._q7_fine_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_fine_samples, dtype=torch.float64)
         self._damping = torch.eye(6) * config.damping**2  # the damped-least-squares steps' (6, 6) damping, made once
+        self.device = torch.device("cpu")
+        self._on_devices = {self.device: self}
+
+    def on(self, device: torch.device) -> PandaIK:
+        """This solver with every constant on ``device``: made once per device and kept, so a plan on a
+        GPU moves the robot there once, not per call."""
+        if device not in self._on_devices:
+            moved = copy.copy(self)
+            moved.device = device
+            moved.frames = self.frames.to(device)
+            for name in ("lower", "upper", "reference_joints", "base_xyz_world", "_link7_in_target", "_q7_grid", "_q7_fine_grid", "_damping"):
+                setattr(moved, name, getattr(self, name).to(device))
+            self._on_devices[device] = moved
+        return self._on_devices[device]
 
     def forward(self, joints: torch.Tensor) -> torch.Tensor:
         """(N, 7) arm joints -> (N, 4, 4) pose of ``panda_grasptarget`` in the world frame."""
@@ -131,7 +146,7 @@ class PandaIK:
         # clear of the limits before any near them.
         rank_key = _squared_distances(candidates, preferred) + 300.0 * near_limit
         nearest = rank_key.masked_fill(~valid, float("inf")).argmin(dim=1)
-        return candidates[torch.arange(len(candidates)), nearest], valid.any(dim=1)
+        return candidates[torch.arange(len(candidates), device=nearest.device), nearest], valid.any(dim=1)
 
     def _link7_targets(self, positions_base: torch.Tensor, rotations: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(M, 3, 3) orientation and (M, 3) position of ``panda_link7`` (float64, base frame) that put the
@@ -182,8 +197,9 @@ class PandaIK:
         if seed_joints is not None and seed_joints.shape != (n_targets, self.n_joints):
             raise ValueError(f"seed_joints must be ({n_targets}, {self.n_joints}), got {tuple(seed_joints.shape)}")
         if n_targets == 0:
-            empty = torch.zeros(0)
-            return IKResult(torch.zeros(0, self.n_joints), torch.zeros(0, dtype=torch.bool), empty, empty, empty)
+            empty = torch.zeros(0, device=positions_world.device)
+            return IKResult(torch.zeros(0, self.n_joints, device=positions_world.device), torch.zeros(0, dtype=torch.bool, device=positions_world.device),
+                            empty, empty, empty)
         positions_base = positions_world.to(torch.float32) - self.base_xyz_world
         rotations = rotations_world.to(torch.float32)
         preferred = self.preferred_joints(positions_base, seed_joints)
@@ -209,8 +225,8 @@ class PandaIK:
         coarse joint-7 grid and, for targets with none there, the fine one; and (N,) bool: one exists."""
         n_targets = positions_base.shape[0]
         rotation_link7, position_link7 = self._link7_targets(positions_base, rotations)
-        joints = torch.zeros(n_targets, self.n_joints, dtype=torch.float64)
-        found = torch.zeros(n_targets, dtype=torch.bool)
+        joints = torch.zeros(n_targets, self.n_joints, dtype=torch.float64, device=positions_base.device)
+        found = torch.zeros(n_targets, dtype=torch.bool, device=positions_base.device)
         # Targets beyond the arm's reach at every joint-7 value have no solution on either grid.
         in_reach = wrist_in_reach(rotation_link7, position_link7, self.arm_geometry).nonzero().squeeze(1)
         if in_reach.numel():
@@ -293,7 +309,7 @@ class PandaIK:
         solutions = panda_ik_closed_form(rotation_link7, position_link7, start[:, 6:].double(), self.arm_geometry, self.lower, self.upper)
         branches, valid = solutions.joints[:, 0], solutions.valid[:, 0]  # (R, 8, 7), (R, 8)
         distance = _squared_distances(branches, start.double()).masked_fill(~valid, float("inf"))
-        nearest = branches[torch.arange(len(branches)), distance.argmin(dim=1)].to(torch.float32)
+        nearest = branches[torch.arange(len(branches), device=branches.device), distance.argmin(dim=1)].to(torch.float32)
         found = valid.any(dim=1)
         return torch.where(found[:, None], torch.minimum(torch.maximum(nearest, self.lower), self.upper), start), found
 
@@ -335,7 +351,7 @@ def _squared_distances(candidates: torch.Tensor, reference: torch.Tensor) -> tor
     layout (the closed form's is joint-major): torch's sum of a row of 7 is no left-to-right sum,
     and a sum over another layout takes another order, so could round differently.
     """
-    offsets = torch.empty(candidates.shape, dtype=candidates.dtype)
+    offsets = torch.empty(candidates.shape, dtype=candidates.dtype, device=candidates.device)
     torch.sub(candidates, reference[:, None], out=offsets)
     return offsets.square_().sum(dim=-1)
 
@@ -365,7 +381,8 @@ def _rotation_error_vector(target: torch.Tensor, current: torch.Tensor) -> torch
     _, m01, m02, m10, _, m12, m20, m21, _ = matrix.reshape(-1, 9).unbind(dim=1)
     # pk's 1 +- m00 +- m11 +- m22 for all four components in one pass (each (M, 4), signed per
     # component): x - y is x + (-y) exactly.
-    signed00, signed11, signed22 = (matrix.diagonal(dim1=1, dim2=2)[:, None, :] * _QUATERNION_DIAGONAL_SIGNS).unbind(dim=2)
+    signs = _QUATERNION_DIAGONAL_SIGNS.to(matrix.device)
+    signed00, signed11, signed22 = (matrix.diagonal(dim1=1, dim2=2)[:, None, :] * signs).unbind(dim=2)
     q_abs = (1.0 + signed00 + signed11 + signed22).clamp(min=0.0).sqrt()
     quaternion = torch.stack((q_abs[:, 0] ** 2, m21 - m12, m02 - m20, m10 - m01), dim=-1) / (2.0 * q_abs[:, :1].clamp(min=0.1))
     vector = pk.quaternion_to_axis_angle(quaternion)

@@ -59,6 +59,13 @@ class ChainFrames:
             names=names, chain=serial_chain(torch.stack(offsets), joint_of_frame, axes), joint_frames=torch.tensor(joint_frames), axes=axes
         )
 
+    def to(self, device: torch.device) -> "ChainFrames":
+        """These frames with every tensor on ``device``."""
+        return ChainFrames(
+            names=self.names, chain=SerialChain(*(tensor.to(device) for tensor in self.chain)),
+            joint_frames=self.joint_frames.to(device), axes=self.axes.to(device),
+        )
+
     def poses(self, joints: torch.Tensor) -> torch.Tensor:
         """(F, 3, 4, M) every frame's pose in the chain's base frame at (M, J) ``joints``, as rows
         of M values (``serial_chain_frames``)."""

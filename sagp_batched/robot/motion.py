@@ -37,8 +37,8 @@ def motion_waypoints(position_world: torch.Tensor, approach_world: torch.Tensor,
     """
     position = position_world.to(torch.float32)
     pregrasp = position - approach_world.to(torch.float32) * motion.pregrasp_offset_m
-    descent_fractions = torch.linspace(0.0, 1.0, motion.descent_waypoints + 1)  # ends at the grasp
+    descent_fractions = torch.linspace(0.0, 1.0, motion.descent_waypoints + 1, device=position.device)  # ends at the grasp
     descent = pregrasp[:, None, :] + (position - pregrasp)[:, None, :] * descent_fractions[None, :, None]
-    lift_heights = torch.linspace(0.0, motion.lift_height_m, motion.lift_waypoints + 1)[1:]
-    lift = position[:, None, :] + lift_heights[None, :, None] * torch.tensor([0.0, 0.0, 1.0])
+    lift_heights = torch.linspace(0.0, motion.lift_height_m, motion.lift_waypoints + 1, device=position.device)[1:]
+    lift = position[:, None, :] + lift_heights[None, :, None] * position.new_tensor([0.0, 0.0, 1.0])
     return torch.cat((descent, lift), dim=1)
