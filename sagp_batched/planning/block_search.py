@@ -1,14 +1,15 @@
-"""The candidate search in blocks of fixed sizes: every verdict of a block's candidates at once.
+"""The candidate search in blocks of a few sizes: every verdict of a block's candidates at once.
 
 The lookahead search (``lookahead``) reaches each object's first ``max_candidates`` executable
-candidates in rounds sized by the survival seen so far: few wasted checks, but many small calls
-whose shapes follow the data. Here each object's candidates are taken in blocks of a few sizes,
-powers of two (``next_block_size``); a block gets the screens on every approach and the motion
-check on every approach the screens leave usable, in a few calls. The answer is the lookahead's: a candidate is feasible at its first approach in prior
-order that passes every check, an object keeps its first ``max_candidates`` feasible candidates in
-S_geom order, and the counts are those of the candidates up to its last kept one. A block checks
-more grasps (every usable approach, not only those up to the first feasible one; the candidates of
-its block past the last kept one) in fewer, larger calls of a few shapes.
+candidates in rounds sized by the survival seen so far: few wasted checks, but many small calls and
+bookkeeping whose shapes follow the data. Here each object's candidates are taken in blocks whose
+sizes are powers of two (``next_block_size``); a block gets the screens on every approach (the
+same verdict kernels, ``ScreenVerdicts.compute``) and the motion check on the approaches the
+screens leave usable, in two calls. The answer is the lookahead's: a candidate is feasible at its
+first approach in prior order that passes every check, an object keeps its first
+``max_candidates`` feasible candidates in S_geom order, and the counts are those of the candidates
+up to its last kept one. A block checks more grasps (later usable approaches of candidates whose
+first fails; the candidates of its block past the last kept one) in fewer calls of a few shapes.
 """
 from __future__ import annotations
 
@@ -69,8 +70,7 @@ def search_in_blocks(
             spans.append((first, end))
             searched[index] += end - first
         rows = torch.cat([torch.arange(first, end, device=device) for first, end in spans])
-        for part in rows.split(torch.unique_consecutive(object_index[rows], return_counts=True)[1].tolist()):
-            screens.record(part, *screened.block_verdicts(part))
+        screens.compute(rows)
         _check_motions_of_block(rows, screens, motions, check)
         block_found = torch.bincount(object_index[rows], weights=(screens.usable[rows] & motions.feasible[rows]).any(dim=1).to(torch.float32),
                                      minlength=n_objects)

@@ -61,27 +61,18 @@ class ScreenVerdicts:
     def compute(self, rows: torch.Tensor) -> None:
         clock = self.screened.clock
         with clock.stage("frames_volume", rows.numel() * self.usable.shape[1]):
-            table_and_volume = self.screened.table_and_volume_ok(rows)
+            self.usable[rows] = self.screened.table_and_volume_ok(rows)
         # The real hand on every approach still usable, so IK rounds only retry for reachability.
-        candidate, slots = table_and_volume.nonzero(as_tuple=True)
+        candidate, slots = self.usable[rows].nonzero(as_tuple=True)
         with clock.stage("hand_sweep", candidate.numel()):
             swept = self.screened.hand_clearance(rows[candidate], slots)
-            clearance_m = torch.full_like(self.clearance_m[rows], float("inf"))
-            clearance_m[candidate, slots] = swept.clearance_m
-            hand_blocked = torch.zeros_like(table_and_volume)
-            hand_blocked[candidate[swept.blocked], slots[swept.blocked]] = True
-            self.record(rows, table_and_volume, hand_blocked, clearance_m)
-
-    def record(self, rows: torch.Tensor, table_and_volume: torch.Tensor, hand_blocked: torch.Tensor, clearance_m: torch.Tensor) -> None:
-        """The verdicts of candidates ``rows``, (R, K) each: table and volume clear, the swept hand
-        blocked, and its clearance (inf where the table or the volume failed)."""
-        self.usable[rows] = table_and_volume & ~hand_blocked
-        self.hand_blocked[rows] = hand_blocked
-        self.clearance_m[rows] = clearance_m
-        self.any_usable[rows] = self.usable[rows].any(dim=1)
-        self.usable_rows = torch.cat((self.usable_rows, rows[self.any_usable[rows]])).sort().values
-        self.computed.index_add_(0, self.screened.object_index[rows], torch.ones_like(rows))
-        self.ready[rows] = True
+            self.clearance_m[rows[candidate], slots] = swept.clearance_m
+            self.hand_blocked[rows[candidate[swept.blocked]], slots[swept.blocked]] = True
+            self.usable[rows[candidate[swept.blocked]], slots[swept.blocked]] = False
+            self.any_usable[rows] = self.usable[rows].any(dim=1)
+            self.usable_rows = torch.cat((self.usable_rows, rows[self.any_usable[rows]])).sort().values
+            self.computed.index_add_(0, self.screened.object_index[rows], torch.ones_like(rows))
+            self.ready[rows] = True
 
 
 class MotionVerdicts:

@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import functools
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
-from sagp_batched_kernels.block_screens import POSE_SLICE, least_separation
-from sagp_batched_kernels.compiled import compiled
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
-from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance, scene_extents
+from sagp_batched_kernels.hand_clearance import HandClearance, hand_clearance
 from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 from sagp_batched_kernels.table_penetration import table_cover, table_penetration
 
@@ -25,9 +23,6 @@ from .gripper import gripper_geometry, hand_geometry, jaw_width_limit
 from .sampling import sample_inputs
 from .stages import StageClock
 
-# The fewest poses a block's fixed-shape passes take at once (padded up to it): smaller counts
-# would each be one more shape to compile for little work.
-MIN_BUCKET_POSES = 64
 # Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
 # the table and the arm most often, so they are the prior's first choice.
 WORLD_DOWN = torch.tensor([0.0, 0.0, -1.0])
@@ -142,35 +137,6 @@ class ScreenedCandidates:
             DOP_DIRECTIONS.to(low.device), low, high, self.planner.hand_clearance_margin_m, self.memory.hand_check_chunk_elements, self.planner.compile,
         )
 
-    def block_verdicts(self, rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The screens of every approach of candidates ``rows`` (R,), all of one cloud: (R, K) bool
-        clear of the table and under the volume limit (``table_and_volume_ok``), (R, K) bool the
-        swept hand blocked there, and (R, K) its clearance (inf where the table or the volume
-        failed). The hand is swept first against the coarse subset on every pose the table and the
-        volume leave (``least_separation``, one fused pass over a power-of-two count of poses, so a
-        plan calls it in a few shapes), which blocks most blocked poses; the others are swept over
-        every point by ``hand_clearance``, for the verdict and the exact clearance."""
-        planner, scene, clock = self.planner, int(self.object_index[rows[0]]), self.clock
-        n_rows, n_approaches = rows.numel(), planner.n_approaches
-        with clock.stage("frames_volume", n_rows * n_approaches):
-            clear = self.table_and_volume_ok(rows).view(-1)
-        with clock.stage("hand_sweep", int(clear.sum())):
-            coarse = self.hand_screen_points[scene]
-            coarse = coarse[: max(1, int(scene_extents(coarse[None])[0]))].T.contiguous()
-            low, high = _swept_hand(self.robot, self.pregrasp_offset_m, rows.device)
-            poses, n_poses = _bucketed(clear)
-            pose_rows, pose_slots = rows[poses // n_approaches], poses % n_approaches
-            frames = self.frames(pose_rows, pose_slots)[1]
-            clearance = torch.full((n_rows * n_approaches,), float("inf"), device=rows.device)
-            clearance[poses[:n_poses]] = _in_slices(least_separation, planner.compile, coarse, (self.centre_world[pose_rows], frames),
-                                                    (DOP_DIRECTIONS.to(rows.device), low, high))[:n_poses]
-            margin = planner.hand_clearance_margin_m
-            swept_again = (clear & (clearance >= margin)).nonzero().squeeze(1)
-            if swept_again.numel():
-                clearance[swept_again] = self.hand_clearance(rows[swept_again // n_approaches], swept_again % n_approaches).clearance_m
-        clear, clearance = clear.view(n_rows, n_approaches), clearance.view(n_rows, n_approaches)
-        return clear, clear & (clearance < margin), clearance
-
     @property
     def usable(self) -> torch.Tensor:
         """(A, K) bool: the published screen (table, 12 % volume) on every candidate, eagerly (for
@@ -270,26 +236,6 @@ def _table_check_points(robot: RobotDescription, device: torch.device) -> tuple[
         return vertices.to(device), (cover.to(device), reach)
 
     return on_device(fingers), on_device(rest)
-
-
-def _bucketed(flags: torch.Tensor) -> tuple[torch.Tensor, int]:
-    """The indices of ``flags`` (P,) that are set, padded by repeating the last to the next power of
-    two (at least ``MIN_BUCKET_POSES``; none set: index 0), and how many are real: a pass over them
-    comes in a few shapes per plan, which a compiler specialises once each."""
-    chosen = flags.nonzero().squeeze(1)
-    bucket = max(MIN_BUCKET_POSES, 1 << max(0, chosen.numel() - 1).bit_length())
-    last = chosen[-1:] if chosen.numel() else flags.new_zeros(1, dtype=torch.int64)
-    return torch.cat((chosen, last.expand(bucket - chosen.numel()))), chosen.numel()
-
-
-def _in_slices(function: Callable[..., torch.Tensor], compile: bool, columns: torch.Tensor, per_pose: tuple, shared: tuple) -> torch.Tensor:
-    """``function(columns, *per_pose, *shared)``: the scene's point ``columns``, tensors of one row
-    per pose and arguments shared by all. Compiled, one fused call; eager, slices of ``POSE_SLICE``
-    poses, whose (pose, point) temporaries stay in cache."""
-    if compile:
-        return compiled(function)(columns, *per_pose, *shared)
-    return torch.cat([function(columns, *(value[first : first + POSE_SLICE] for value in per_pose), *shared)
-                      for first in range(0, per_pose[0].shape[0], POSE_SLICE)])
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:
