@@ -42,7 +42,7 @@ import torch
 
 from sagp_batched.benchmarks.ik_speed import benchmark_ik
 from sagp_batched.benchmarks.compile_start import compile_start_costs
-from sagp_batched.benchmarks.verdict_agreement import screen_agreement, unseen_shape_clouds
+from sagp_batched.benchmarks.verdict_agreement import agreement_report, unseen_shape_clouds
 from sagp_batched.benchmarks.planner_speed import (
     BENCH_OBJECT_XY_M, BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud,
 )
@@ -125,7 +125,9 @@ def main(argv: list[str] | None = None) -> int:
     configure_torch(thread_counts[0])
     compile_start = _compile_start_section(args, settings, clouds[0].object_id, thread_counts[0]) if args.compile_start else None
     world = _world_section(args, config, object_set, thread_counts[0]) if args.world_runs > 0 else None
-    agreement = _agreement_section(args, config, clouds) if args.verdict_agreement > 0 else None
+    agreement = None
+    if args.verdict_agreement > 0:
+        agreement = agreement_report(clouds + unseen_shape_clouds(config, args.verdict_agreement, args.cloud_points, BENCH_OBJECT_XY_M), config)
     report = {
         "results": results,
         "ik": ik,
@@ -199,20 +201,6 @@ def _print_stage_table(profile: dict, seconds: dict, items: dict, per: int = 1) 
     total_ms = "" if any(seconds.get(stage) is None for stage in profile) else f"{sum(seconds[stage] for stage in profile) * 1e3:.1f}"
     total_ops, total_op_ms = sum(p["ops"] for p in profile.values()) // per, sum(p["op_s"] for p in profile.values()) * 1e3 / per
     print(f"{'':>8}{'plan':<14}{total_ms:>8}{total_ops:>8}{total_op_ms:>11.1f}")
-
-
-def _agreement_section(args: argparse.Namespace, config, clouds: list) -> dict:
-    """``screen_agreement`` on the benchmark clouds and ``--verdict-agreement`` unseen shapes, a line per check."""
-    unseen = unseen_shape_clouds(config, args.verdict_agreement, args.cloud_points, BENCH_OBJECT_XY_M)
-    every = clouds + unseen
-    agreement = screen_agreement(every, config, [0] * len(every))
-    report = {"objects": [cloud.object_id for cloud in every], "checks": {}}
-    for check, tally in agreement.items():
-        worst = max((abs(d["reference_margin"]) for d in tally.disagreements), default=None)
-        report["checks"][check] = {"poses": tally.poses, "agree": tally.agree, "share": tally.share, "disagreements": tally.disagreements}
-        print(f"verdicts, {check}: {tally.agree}/{tally.poses} poses agree with the exhaustive reference ({100 * tally.share:.3f} %)"
-              + ("" if worst is None else f", the farthest disagreement {worst:.3g} from the limit"), flush=True)
-    return report
 
 
 def _world_section(args: argparse.Namespace, config, object_set, threads: int) -> dict:

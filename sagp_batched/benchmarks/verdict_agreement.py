@@ -151,3 +151,15 @@ def _hand_reference_clearance(screened, rows: torch.Tensor, frames: torch.Tensor
         relative = points[None] - screened.centre_world[rows[start : start + block], None, :]
         clearance.append(_separation(relative, axes[start : start + block], middle, half, compile=False).amin(dim=1))
     return torch.cat(clearance)
+
+
+def agreement_report(clouds: Sequence[PerceivedCloud], config: Config) -> dict[str, Any]:
+    """``screen_agreement`` of ``clouds`` (seed 0 each) as a JSON-ready report, a printed line per check."""
+    agreement = screen_agreement(clouds, config, [0] * len(clouds))
+    report: dict[str, Any] = {"objects": [cloud.object_id for cloud in clouds], "checks": {}}
+    for check, tally in agreement.items():
+        farthest = max((abs(d["reference_margin"]) for d in tally.disagreements), default=None)
+        report["checks"][check] = {"poses": tally.poses, "agree": tally.agree, "share": tally.share, "disagreements": tally.disagreements}
+        print(f"verdicts, {check}: {tally.agree}/{tally.poses} poses agree with the exhaustive reference ({100 * tally.share:.3f} %)"
+              + ("" if farthest is None else f", the farthest disagreement {farthest:.3g} from the limit"), flush=True)
+    return report
