@@ -5,6 +5,8 @@
         [--batch-sizes 1,4,16] [--batch-objects ID,...] [--batch-pairs 5000] [--compile false,true] [--profile-stages]
         [--compile-start]
 
+    python -m runners.bench --json OUT.json --collision-designs [--objects ...] [--pairs 5000] [--repeats 5]
+
 ``--threads 1,2`` times the planner and the IK at each torch thread count in turn, in one run, so
 figures for one core and for several compare on the same clouds and targets.
 
@@ -22,6 +24,10 @@ same B clouds (at the first thread count), per cloud and per stage; 0 or empty (
     python -m runners.bench --json OUT.json --ray-address HOST:PORT [--study-trials 500] [--study-object ID]
         [--workers 2] [--profile ci] [--study-out DIR]
 
+``--collision-designs`` measures instead the volume and swept-hand checks on one plan's screened
+poses per object (at the first pair count and thread count): the exact passes against a scene field
+built once per cloud and queried per pose (``collision_designs``), printed as a table.
+
 ``--ray-address`` measures Ray workers instead: a study of ``--study-trials`` trials (one object, t1,
 Geometry-Only) through the study's Ray backend on that cluster, then each worker's resident memory at
 its 50th unit and at its last, and the units per second.
@@ -38,6 +44,7 @@ from pathlib import Path
 import torch
 
 from sagp_batched.benchmarks.ik_speed import benchmark_ik
+from sagp_batched.benchmarks.collision_designs import collision_designs, print_designs
 from sagp_batched.benchmarks.compile_start import compile_start_costs
 from sagp_batched.benchmarks.planner_speed import (
     BENCH_OBJECT_XY_M, BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud,
@@ -78,6 +85,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--compile", default="false", help="comma-separated [planner] compile modes (false, true), each timed in turn")
     parser.add_argument("--compile-start", action="store_true", help="first plans of fresh processes: eager, compiled cold, compiled from the cache")
     parser.add_argument("--profile-stages", action="store_true", help="per stage: operators called and their profiled time (torch.profiler)")
+    parser.add_argument("--collision-designs", action="store_true", help="measure the collision checks' designs on the screened poses instead")
     _add_ray_memory_arguments(parser)
     return parser
 
@@ -94,6 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     configure_torch(thread_counts[0])
     config = load_config(args.profile)
     object_set = load_object_set(_ycb_dir(args.objects_dir))
+    if args.collision_designs:
+        return _collision_designs_section(args, config, object_set, thread_counts[0])
     settings = BenchmarkSettings(
         pairs=tuple(int(p) for p in args.pairs.split(",")),
         repeats=args.repeats,
@@ -127,6 +137,23 @@ def main(argv: list[str] | None = None) -> int:
             "settings": dataclasses.asdict(settings),
         },
     }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2, default=str))
+    return 0
+
+
+def _collision_designs_section(args: argparse.Namespace, config, object_set, threads: int) -> int:
+    """``collision_designs`` of each object's cloud at the first pair count, printed and written to --json."""
+    n_pairs = int(args.pairs.split(",")[0])
+    settings = BenchmarkSettings(pairs=(n_pairs,), repeats=args.repeats, reference_max_pairs=0, cloud_points=args.cloud_points,
+                                 object_xy_m=BENCH_OBJECT_XY_M, ik_targets=0)
+    pair_config = config.override("planner", n_pairs=n_pairs)
+    rows = [row for object_id in args.objects.split(",")
+            for row in collision_designs(mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir), pair_config, args.repeats)]
+    print(f"collision designs, {n_pairs} pairs, {threads} threads, medians of {args.repeats}; ms; exact+ = the exact check on the undecided poses, eager/compiled")
+    print_designs(rows)
+    report = {"collision_designs": rows, "provenance": {"torch": torch.__version__, "threads": threads, "pairs": n_pairs, "git": git_revision(),
+                                                         "packages": package_versions(), "python": sys.version.split()[0]}}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2, default=str))
     return 0
