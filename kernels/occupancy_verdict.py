@@ -293,10 +293,7 @@ def _compiled_pose_bounds(
     """``_pose_bounds``' (R,) bounds of R poses (scenes (R,) ``scene``, sorted; (R, 3) ``centre``,
     (R, 3, 3) ``frames``, (R,) ``width_m``) of (B, N, 3) ``points``, by the compiled
     ``_fused_count_bounds``, one call per scene over its points up to its last real one."""
-    rows = _frame_rows(frames, centre, geometry)
-    axes, offset = rows[..., :3].contiguous(), rows[..., 3].contiguous()
-    finger_y_min = width_m / 2 + geometry.contact_clearance_m
-    finger_y = torch.stack(((finger_y_min + geometry.finger_y_max) / 2, (geometry.finger_y_max - finger_y_min) / 2), dim=1)
+    axes, offset, finger_y = pose_rows(frames, centre, width_m, geometry)
     maybe, surely = centre.new_empty(scene.shape[0]), centre.new_empty(scene.shape[0])
     run_scene, run_length = torch.unique_consecutive(scene, return_counts=True)
     extents = scene_extents(points)
@@ -319,6 +316,28 @@ def _fused_count_bounds(
     as rows, (R, 3) ``offset`` their offsets (z measured from the finger slabs' middle), (R, 2)
     ``finger_y`` the finger slabs' middle and half extent along |y|."""
     raise_m = geometry.finger_width_m / 2
+    excess = gripper_excess(columns, axes, offset, finger_y, geometry)
+    surely = (excess < raise_m - VOLUME_SLACK_M).sum(dim=1, dtype=torch.float32)
+    return (excess <= raise_m + VOLUME_SLACK_M).sum(dim=1, dtype=torch.float32) * 2 - surely, surely
+
+
+def pose_rows(frames: torch.Tensor, centre: torch.Tensor, width_m: torch.Tensor, geometry: GripperGeometry) -> tuple[torch.Tensor, ...]:
+    """``gripper_excess``' pose inputs of R poses ((R, 3, 3) grasp -> world ``frames``, (R, 3)
+    ``centre``, (R,) jaw ``width_m``): (R, 3, 3) grasp axes as rows, (R, 3) their offsets (``_frame_rows``)
+    and (R, 2) the finger slabs' middle and half extent along |y|, contiguous."""
+    rows = _frame_rows(frames, centre, geometry)
+    finger_y_min = width_m / 2 + geometry.contact_clearance_m
+    finger_y = torch.stack(((finger_y_min + geometry.finger_y_max) / 2, (geometry.finger_y_max - finger_y_min) / 2), dim=1)
+    return rows[..., :3].contiguous(), rows[..., 3].contiguous(), finger_y
+
+
+def gripper_excess(columns: torch.Tensor, axes: torch.Tensor, offset: torch.Tensor, finger_y: torch.Tensor, geometry: GripperGeometry) -> torch.Tensor:
+    """(R, N) each point's excess over the gripper's boxes (> 0 outside, <= 0 inside), raised by the
+    finger slabs' half width, element by element as ``_count_bounds`` takes it: (3, N) ``columns``
+    the points' world x, y and z rows, (R, 3, 3) ``axes``, (R, 3) ``offset`` and (R, 2) ``finger_y``
+    from ``pose_rows``. Metres; 1-Lipschitz in the point (maxima and minima of distances to planes),
+    which is what lets a ball of points be bounded by its centre's excess."""
+    raise_m = geometry.finger_width_m / 2
     x, y, z = (((axes[:, a, 0, None] * columns[0] + axes[:, a, 1, None] * columns[1]) + axes[:, a, 2, None] * columns[2]) + offset[:, a, None]
                for a in range(3))
     abs_x, abs_y = x.abs(), y.abs()
@@ -326,9 +345,7 @@ def _fused_count_bounds(
     finger = torch.maximum(torch.maximum(abs_x, finger_y_excess), z.abs() - (geometry.finger_length_m / 2 - raise_m))
     palm_z = (z + (geometry.finger_length_m + geometry.palm_depth_m) / 2).abs() - (geometry.palm_depth_m / 2 - raise_m)
     palm = torch.maximum(torch.maximum(abs_x - (geometry.palm_width_m / 2 - raise_m), abs_y - (geometry.palm_span_m / 2 - raise_m)), palm_z)
-    excess = torch.minimum(finger, palm)
-    surely = (excess < raise_m - VOLUME_SLACK_M).sum(dim=1, dtype=torch.float32)
-    return (excess <= raise_m + VOLUME_SLACK_M).sum(dim=1, dtype=torch.float32) * 2 - surely, surely
+    return torch.minimum(finger, palm)
 
 
 def _counted_where_undecided(

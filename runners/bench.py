@@ -5,6 +5,8 @@
         [--batch-sizes 1,4,16] [--batch-objects ID,...] [--batch-pairs 5000] [--compile false,true] [--devices cpu,cuda]
         [--profile-stages] [--compile-start]
 
+    python -m runners.bench --json OUT.json --collision-designs [--objects ...] [--pairs 5000] [--repeats 5]
+
 ``--threads 1,2`` times the planner and the IK at each torch thread count in turn, in one run, so
 figures for one core and for several compare on the same clouds and targets.
 
@@ -25,6 +27,10 @@ same B clouds (at the first thread count), per cloud and per stage; 0 or empty (
     python -m runners.bench --json OUT.json --ray-address HOST:PORT [--study-trials 500] [--study-object ID]
         [--workers 2] [--profile ci] [--study-out DIR]
 
+``--collision-designs`` measures instead the volume and swept-hand checks on one plan's screened
+poses per object (at the first pair count and thread count): the exact passes against a scene field
+built once per cloud and queried per pose (``collision_designs``), printed as a table.
+
 ``--ray-address`` measures Ray workers instead: a study of ``--study-trials`` trials (one object, t1,
 Geometry-Only) through the study's Ray backend on that cluster, then each worker's resident memory at
 its 50th unit and at its last, and the units per second.
@@ -41,6 +47,7 @@ from pathlib import Path
 import torch
 
 from sagp_batched.benchmarks.ik_speed import benchmark_ik
+from sagp_batched.benchmarks.collision_designs import collision_designs_report
 from sagp_batched.benchmarks.compile_start import compile_start_costs
 from sagp_batched.benchmarks.verdict_agreement import agreement_report, unseen_shape_clouds
 from sagp_batched.benchmarks.planner_speed import (
@@ -87,6 +94,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--profile-stages", action="store_true", help="per stage: operators called and their profiled time (torch.profiler)")
     parser.add_argument("--verdict-agreement", type=int, default=0, metavar="N",
                         help="the screens' verdicts against their exhaustive references on the --objects clouds and N unseen shapes; 0 skips")
+    parser.add_argument("--collision-designs", action="store_true", help="measure the collision checks' designs on the screened poses instead")
     _add_ray_memory_arguments(parser)
     return parser
 
@@ -98,8 +106,8 @@ def main(argv: list[str] | None = None) -> int:
         return _ray_worker_memory(args)
     thread_counts = _thread_counts(parser, args.threads)
     batch_sizes = _batch_sizes(parser, args.batch_sizes)
-    compile_modes = _compile_modes(parser, args.compile)
-    searches = _searches(parser, args.searches)
+    compile_modes = [mode == "true" for mode in _listed(parser, "--compile", args.compile, ("false", "true"))]
+    searches = _listed(parser, "--searches", args.searches, PLANNER_SEARCHES)
     # Each planner mode is a set of [planner] settings, timed in turn: device, search, compile.
     modes = [{"device": device, "search": search, "compile": compile_}
              for device in _devices(parser, args.devices) for search in searches for compile_ in compile_modes]
@@ -118,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
         profile_stages=args.profile_stages,
     )
     clouds = [mesh_cloud(object_set.get(object_id.strip()), config, settings, args.cache_dir) for object_id in args.objects.split(",")]
+    if args.collision_designs:
+        report = collision_designs_report(clouds, config.override("planner", n_pairs=settings.pairs[0]), args.repeats)
+        return _written(args.json, {**report, "provenance": _provenance(thread_counts, modes, settings)})
     results, ik = _planner_and_ik_sections(config, settings, clouds, thread_counts, modes)
     configure_torch(thread_counts[0])
     print(f"reference: run once per pair count (and thread count) up to {settings.reference_max_pairs} pairs; no extrapolation")
@@ -135,18 +146,21 @@ def main(argv: list[str] | None = None) -> int:
         "plan_batch": None if plan_batch_rows is None else {"threads": thread_counts, "modes": modes, "rows": plan_batch_rows},
         "compile_start": compile_start,
         "verdict_agreement": agreement,
-        "provenance": {
-            "torch": torch.__version__,
-            "threads": thread_counts,
-            "devices": {mode["device"]: device_name(mode["device"]) for mode in modes},
-            "git": git_revision(),
-            "packages": package_versions(),
-            "python": sys.version.split()[0],
-            "settings": dataclasses.asdict(settings),
-        },
+        "provenance": _provenance(thread_counts, modes, settings),
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(report, indent=2, default=str))
+    return _written(args.json, report)
+
+
+def _provenance(thread_counts: list[int], modes: list[dict], settings: BenchmarkSettings) -> dict:
+    return {
+        "torch": torch.__version__, "threads": thread_counts, "devices": {mode["device"]: device_name(mode["device"]) for mode in modes},
+        "git": git_revision(), "packages": package_versions(), "python": sys.version.split()[0], "settings": dataclasses.asdict(settings),
+    }
+
+
+def _written(path: Path, report: dict) -> int:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(report, indent=2, default=str))
     return 0
 
 
@@ -333,19 +347,12 @@ def _compile_start_section(args: argparse.Namespace, settings: BenchmarkSettings
     return {"object": object_id, "pairs": pairs, "threads": threads, **costs}
 
 
-def _compile_modes(parser: argparse.ArgumentParser, text: str) -> list[bool]:
-    modes = {"false": False, "true": True}
-    parts = [part.strip().lower() for part in text.split(",")]
-    if not parts or any(part not in modes for part in parts):
-        parser.error(f"--compile takes false and/or true separated by commas, got {text!r}")
-    return [modes[part] for part in parts]
-
-
-def _searches(parser: argparse.ArgumentParser, text: str) -> list[str]:
-    searches = [part.strip() for part in text.split(",") if part.strip()]
-    if not searches or any(search not in PLANNER_SEARCHES for search in searches):
-        parser.error(f"--searches takes {' and/or '.join(PLANNER_SEARCHES)} separated by commas, got {text!r}")
-    return searches
+def _listed(parser: argparse.ArgumentParser, flag: str, text: str, known: tuple[str, ...]) -> list[str]:
+    """The comma list ``text`` of ``flag``, each entry one of ``known``; anything else is one error line."""
+    parts = [part.strip().lower() for part in text.split(",") if part.strip()]
+    if not parts or any(part not in known for part in parts):
+        parser.error(f"{flag} takes {' and/or '.join(known)} separated by commas, got {text!r}")
+    return parts
 
 
 def _devices(parser: argparse.ArgumentParser, text: str) -> list[str]:
