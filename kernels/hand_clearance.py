@@ -82,7 +82,7 @@ def _fused_least_excess(projection: torch.Tensor, middle: torch.Tensor, half: to
     return torch.nan_to_num(least, nan=float("inf"))
 
 
-def _separation(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, compile: bool) -> torch.Tensor:
+def separation(relative: torch.Tensor, axes: torch.Tensor, middle: torch.Tensor, half: torch.Tensor, compile: bool) -> torch.Tensor:
     """(c, n) separation s(p) of points ``relative`` (c, n, 3) from the polytopes, NaN rows -> inf."""
     n_points = relative.shape[1]
     if n_points < MIN_GEMM_COLUMNS:
@@ -129,7 +129,7 @@ def _compacted(points: torch.Tensor, scene: torch.Tensor, centre: torch.Tensor, 
     return compact
 
 
-def _coordinate_scale(*tensors: torch.Tensor) -> float:
+def coordinate_scale(*tensors: torch.Tensor) -> float:
     """The largest coordinate magnitude in ``tensors``, NaN padding ignored."""
     return max((float(t.nan_to_num().abs().amax()) for t in tensors if t.numel()), default=0.0)
 
@@ -220,7 +220,7 @@ def hand_clearance(
     half = ((high - low) / 2)[:, :, None, None]
     axes = directions @ rotation.transpose(-1, -2)  # (C, D, 3): u_d^T R^T
     clearance = _probe_clearance(probe_points, object_index, centre, axes, middle, half, chunk_elements, compile)
-    slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
+    slack_m = BOUND_SLACK_M + RAW_ROUNDING_EPS * coordinate_scale(points, centre, low, high)
     clearance = _lowered_by_points(points, object_index, centre, axes, middle, half, clearance, margin_m, slack_m, chunk_elements, compile)
     return HandClearance(clearance < margin_m, clearance)
 
@@ -253,7 +253,7 @@ def _probe_clearance(
         # evaluated, and each evaluated probe's separation is exact whichever are picked.
         picked = _least_per_run(_bound_from_world(block_probes, axes[block, :3], centre[block], middle, half, compile), n_runs)
         probe = block_probes[picked] - centre[block, None, :]  # (c, runs, 3)
-        clearance[block] = _separation(probe, axes[block], middle, half, compile).amin(dim=1)
+        clearance[block] = separation(probe, axes[block], middle, half, compile).amin(dim=1)
     return clearance
 
 
@@ -284,7 +284,7 @@ def _lowered_by_points(
         by_count = per_row.argsort()
         for bucket in by_count[per_row[by_count] > 0].split(SEPARATION_BUCKET_ROWS):
             compact = _compacted(block_points, scene[bucket], centre[rows[bucket]], candidates[bucket], per_row[bucket])
-            found = _separation(compact, row_axes[bucket], middle, half, compile).amin(dim=1)
+            found = separation(compact, row_axes[bucket], middle, half, compile).amin(dim=1)
             clearance[rows[bucket]] = torch.minimum(clearance[rows[bucket]], found)
     return clearance
 

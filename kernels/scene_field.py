@@ -29,7 +29,7 @@ import torch
 
 from .compiled import compiled, padded_rows
 from .gripper_occupancy import GripperGeometry
-from .hand_clearance import BOUND_SLACK_M, RAW_ROUNDING_EPS, _coordinate_scale
+from .hand_clearance import BOUND_SLACK_M, RAW_ROUNDING_EPS, coordinate_scale
 from .occupancy_verdict import VOLUME_SLACK_M, gripper_excess, pose_rows
 
 # (pose, cell or ball) elements of one query block: eager temporaries of ~4 MB each.
@@ -274,4 +274,4 @@ def _fused_least_separation(columns: torch.Tensor, axes: torch.Tensor, offset: t
 def exact_pass_slack(points: torch.Tensor, centre: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> float:
     """Metres by which ``least_separation`` and ``hand_clearance_bounds``' world positions may round
     unlike ``hand_clearance``'s exact separations: its bound for coordinates of this scale."""
-    return BOUND_SLACK_M + RAW_ROUNDING_EPS * _coordinate_scale(points, centre, low, high)
+    return BOUND_SLACK_M + RAW_ROUNDING_EPS * coordinate_scale(points, centre, low, high)

@@ -5,7 +5,7 @@ from planner_clouds import box_surface, cylinder_surface
 
 from sagp_batched.config import load_config
 from sagp_batched.planning.gripper import gripper_geometry
-from sagp_batched.planning.screens import _swept_hand
+from sagp_batched.planning.screens import swept_hand
 from sagp_batched.robot.description import robot_of
 from sagp_batched.robot.hand import DOP_DIRECTIONS
 from sagp_batched_kernels import scene_field
@@ -37,7 +37,7 @@ def _poses(points, n_poses, seed):
 def robot_parts():
     config = load_config(None)
     robot = robot_of(config)
-    return gripper_geometry(robot, config.planner), _swept_hand(robot, config.motion.pregrasp_offset_m, torch.device("cpu"))
+    return gripper_geometry(robot, config.planner), swept_hand(robot, config.motion.pregrasp_offset_m, torch.device("cpu"))
 
 
 @pytest.mark.parametrize("shape", ["box", "cylinder"])

@@ -29,7 +29,7 @@ def _top_down(centre, closing=(0.0, 1.0, 0.0)):
     return torch.tensor([centre], dtype=torch.float32), rotation
 
 
-def _swept_hand(points, centre, rotation, descent_m=DESCENT_M):
+def swept_hand(points, centre, rotation, descent_m=DESCENT_M):
     low, high = hand_geometry(ROBOT).swept((0.0, 0.0, -descent_m))
     points = torch.as_tensor(points, dtype=torch.float32)
     return hand_clearance(points[None], points[None], torch.tensor([0]), centre, rotation[:, 0], DOP_DIRECTIONS, low, high,
@@ -56,7 +56,7 @@ def test_fingers_that_would_strike_the_mug_rim_on_the_way_down_are_caught():
     # The SPEC's 12 % proxy alone accepts this grasp...
     assert occupancy.total.item() <= PLANNER.occupancy_max_fraction * len(cup)
     # ...the swept hand does not, and its clearance says it goes through the wall.
-    swept = _swept_hand(cup, centre, rotation)
+    swept = swept_hand(cup, centre, rotation)
     assert swept.blocked.item()
     assert swept.clearance_m.item() < 0.0
 
@@ -64,7 +64,7 @@ def test_fingers_that_would_strike_the_mug_rim_on_the_way_down_are_caught():
 def test_a_box_grasped_across_has_a_clear_descent():
     box, _ = box_surface((0.05, 0.06, 0.1), (0.0, 0.0, 0.05))
     centre, rotation = _top_down((0.0, 0.0, 0.08), closing=(1.0, 0.0, 0.0))
-    swept = _swept_hand(box, centre, rotation)
+    swept = swept_hand(box, centre, rotation)
     assert not swept.blocked.item()
     # The fingers' inner faces are 4 cm from the centre, the box faces 2.5 cm: 1.5 cm of air.
     assert 0.01 < swept.clearance_m.item() < 0.02
@@ -77,8 +77,8 @@ def test_an_overhang_on_the_way_down_counts_only_with_the_descent():
     plate, _ = box_surface((0.08, 0.08, 0.004), (0.0, 0.0, 0.20))
     points = np.concatenate((box, plate))
     centre, rotation = _top_down((0.0, 0.0, 0.0), closing=(1.0, 0.0, 0.0))
-    assert _swept_hand(points, centre, rotation, descent_m=0.0).blocked.item() is False
-    assert _swept_hand(points, centre, rotation).blocked.item() is True
+    assert swept_hand(points, centre, rotation, descent_m=0.0).blocked.item() is False
+    assert swept_hand(points, centre, rotation).blocked.item() is True
 
 
 def test_planner_keeps_no_grasp_whose_descent_hits_an_overhang():

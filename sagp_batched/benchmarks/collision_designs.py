@@ -26,7 +26,7 @@ from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 
 from ..config import Config
 from ..planning.gripper import gripper_geometry
-from ..planning.screens import _swept_hand, screen_candidates
+from ..planning.screens import swept_hand, screen_candidates
 from ..robot.hand import DOP_DIRECTIONS
 from ..types import PerceivedCloud
 
@@ -64,7 +64,7 @@ class ScreenedPoses:
         self.volume_row, self.volume_slot = table_clear.nonzero(as_tuple=True)
         usable = screened.volume_within(rows, rotation, table_clear)
         self.hand_row, self.hand_slot = usable.nonzero(as_tuple=True)
-        self.low, self.high = _swept_hand(screened.robot, screened.pregrasp_offset_m, screened.width_m.device)
+        self.low, self.high = swept_hand(screened.robot, screened.pregrasp_offset_m, screened.width_m.device)
         self.margin_m = screened.planner.hand_clearance_margin_m
 
     def volume_reference(self) -> torch.Tensor:

@@ -24,11 +24,11 @@ import torch
 import trimesh
 
 from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
-from sagp_batched_kernels.hand_clearance import _separation
+from sagp_batched_kernels.hand_clearance import separation
 
 from ..config import Config
 from ..planning.gripper import gripper_geometry, jaw_width_limit
-from ..planning.screens import _swept_hand, _table_check_points, screen_candidates
+from ..planning.screens import swept_hand, table_check_points, screen_candidates
 from ..robot.hand import DOP_DIRECTIONS
 from ..types import PerceivedCloud
 
@@ -108,9 +108,9 @@ def screen_agreement(clouds: Sequence[PerceivedCloud], config: Config, seeds: Se
         pose_rows, pose_slots = (clear & within).nonzero(as_tuple=True)
         if pose_rows.numel():
             blocked = screened.hand_clearance(pose_rows, pose_slots).blocked
-            separation = _hand_reference_clearance(screened, pose_rows, rotation[pose_rows, pose_slots])
+            reference_clearance = _hand_reference_clearance(screened, pose_rows, rotation[pose_rows, pose_slots])
             margin = screened.planner.hand_clearance_margin_m
-            _tally(agreement["hand"], ~blocked, separation >= margin, separation - margin, cloud.object_id)
+            _tally(agreement["hand"], ~blocked, reference_clearance >= margin, reference_clearance - margin, cloud.object_id)
     return agreement
 
 
@@ -128,7 +128,7 @@ def _table_reference_height(screened, rows: torch.Tensor, rotation: torch.Tensor
     above the table), every vertex placed by its own product: >= 0 where the hand clears the table."""
     planner, table_z = screened.planner, screened.table_top_z_m
     heights = []
-    for (vertices, _), clearance in zip(_table_check_points(screened.robot, rows.device),
+    for (vertices, _), clearance in zip(table_check_points(screened.robot, rows.device),
                                         (planner.finger_table_clearance_m, planner.arm_table_clearance_m)):
         at_grasp = screened.centre_world[rows, 2, None, None] + (rotation[..., 2, None, :] * vertices).sum(dim=-1)  # (R, K, V)
         lowest = at_grasp.amin(dim=-1)
@@ -140,7 +140,7 @@ def _table_reference_height(screened, rows: torch.Tensor, rotation: torch.Tensor
 def _hand_reference_clearance(screened, rows: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
     """(P,) the least k-DOP separation of every scene point from the swept hand of P poses (candidate
     ``rows``, (P, 3, 3) ``frames``): every point of the cloud's hand-check set evaluated exactly."""
-    low, high = _swept_hand(screened.robot, screened.pregrasp_offset_m, rows.device)
+    low, high = swept_hand(screened.robot, screened.pregrasp_offset_m, rows.device)
     middle, half = ((low + high) / 2)[:, :, None, None], ((high - low) / 2)[:, :, None, None]
     points = screened.hand_check_points[0]
     points = points[~points.isnan().any(dim=1)]
@@ -149,7 +149,7 @@ def _hand_reference_clearance(screened, rows: torch.Tensor, frames: torch.Tensor
     clearance = []
     for start in range(0, rows.numel(), block):
         relative = points[None] - screened.centre_world[rows[start : start + block], None, :]
-        clearance.append(_separation(relative, axes[start : start + block], middle, half, compile=False).amin(dim=1))
+        clearance.append(separation(relative, axes[start : start + block], middle, half, compile=False).amin(dim=1))
     return torch.cat(clearance)
 
 

@@ -102,7 +102,7 @@ class ScreenedCandidates:
         ``rotation``: their (R, K, 3, 3) frames, where the caller has them (default: ``frames``).
         """
         planner = self.planner
-        (fingers, fingers_cover), (rest, rest_cover) = _table_check_points(self.robot, self.width_m.device)
+        (fingers, fingers_cover), (rest, rest_cover) = table_check_points(self.robot, self.width_m.device)
         centre = self.centre_world[rows]
         rotation = self.frames(rows)[1] if rotation is None else rotation
         through_table = table_penetration(
@@ -131,7 +131,7 @@ class ScreenedCandidates:
         with approaches ``slots`` comes within the margin of the scene's object and obstacle points,
         and its clearance from them (exact where not blocked). The coarse subset is probed first:
         most blocked grasps (a mug's) strike one of its points."""
-        low, high = _swept_hand(self.robot, self.pregrasp_offset_m, self.width_m.device)
+        low, high = swept_hand(self.robot, self.pregrasp_offset_m, self.width_m.device)
         return hand_clearance(
             self.hand_check_points, self.hand_screen_points, self.object_index[rows], self.centre_world[rows], self.frames(rows, slots)[1],
             DOP_DIRECTIONS.to(low.device), low, high, self.planner.hand_clearance_margin_m, self.memory.hand_check_chunk_elements, self.planner.compile,
@@ -216,7 +216,7 @@ def use_compile_cache() -> None:
 
 
 @functools.lru_cache(maxsize=8)
-def _swept_hand(robot: RobotDescription, pregrasp_offset_m: float, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+def swept_hand(robot: RobotDescription, pregrasp_offset_m: float, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
     """The hand's hulls' k-DOP extents (low, high) swept from the pre-grasp to the grasp, on ``device``:
     built once per robot, motion and device, not on every block of candidates."""
     low, high = hand_geometry(robot).swept((0.0, 0.0, -pregrasp_offset_m))
@@ -224,7 +224,7 @@ def _swept_hand(robot: RobotDescription, pregrasp_offset_m: float, device: torch
 
 
 @functools.lru_cache(maxsize=8)
-def _table_check_points(robot: RobotDescription, device: torch.device) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
+def table_check_points(robot: RobotDescription, device: torch.device) -> tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]:
     """The fingers' and the other links' hull vertices (grasp frame) the table check tests, each
     with its ``table_cover``, on ``device``: built once per robot and device, not on every block of candidates."""
     hand = hand_geometry(robot)
