@@ -167,3 +167,23 @@ def test_bench_names_an_unreachable_ray_address_in_one_line(tmp_path):
     errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
     assert done.returncode == 2 and len(errors) == 1 and "--ray-address 127.0.0.1:9: cannot reach the Ray cluster" in errors[0]
     assert "Traceback" not in done.stderr and not (tmp_path / "bench.json").exists()
+
+
+@pytest.mark.slow
+def test_bench_measures_the_collision_designs_each_deciding_every_pose_as_the_reference(tmp_path, ycb_dir):
+    """Compiles each design's query (about a minute from a cold inductor cache: slow)."""
+    out = tmp_path / "designs.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench", "--json", str(out), "--collision-designs", "--objects", "005_tomato_soup_can",
+         "--pairs", "300", "--repeats", "1", "--threads", "1", "--objects-dir", str(ycb_dir), "--cache-dir", str(tmp_path / "clouds")],
+        cwd=REPO, capture_output=True, text=True, timeout=900,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads(out.read_text())
+    rows = report["collision_designs"]
+    assert report["pairs"] == 300 and report["provenance"]["git"]
+    assert {(row["check"], row["design"].split()[0]) for row in rows} >= {("volume", "exact:"), ("volume", "cell"), ("hand", "exact:"),
+                                                                          ("hand", "field"), ("hand", "fused")}
+    for row in rows:
+        assert row["poses"] > 0 and row["query_eager_s"] > 0 and row["decided_disagreements"] == 0 and row["agreement_after_exact"] == 1.0
+    assert "collision designs, 300 pairs" in done.stdout
