@@ -20,15 +20,12 @@ from typing import Any
 import torch
 
 from sagp_batched_kernels import scene_field
-from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
-from sagp_batched_kernels.hand_clearance import hand_clearance
-from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 
 from ..config import Config
-from ..planning.gripper import gripper_geometry
-from ..planning.screens import swept_hand, screen_candidates
+from ..planning.screens import screen_candidates
 from ..robot.hand import DOP_DIRECTIONS
 from ..types import PerceivedCloud
+from .verdict_agreement import ScreenedPoses
 
 # Cell sizes (metres) of the volume's cell balls.
 VOLUME_CELLS_M = (0.008, 0.016)
@@ -46,53 +43,6 @@ def timed(function: Callable[[], Any], repeats: int) -> tuple[float, Any]:
         result = function()
         seconds.append(time.perf_counter() - start)
     return statistics.median(seconds), result
-
-
-class ScreenedPoses:
-    """One cloud's screened poses: every antipodal candidate's approaches clear of the table (the
-    volume check's poses) and those also under the volume limit (the hand sweep's)."""
-
-    def __init__(self, cloud: PerceivedCloud, config: Config):
-        screened = screen_candidates([cloud], config, [0])
-        rows = torch.arange(screened.n_candidates)
-        rotation = screened.frames(rows)[1]
-        table_clear = screened.clear_of_table(rows, rotation)
-        self.screened, self.rotation, self.table_clear = screened, rotation, table_clear
-        self.geometry = gripper_geometry(screened.robot, screened.planner)
-        self.limit = screened.planner.occupancy_max_fraction * screened.occupancy_total[screened.object_index]
-        # Volume poses, flat: candidate and approach of each.
-        self.volume_row, self.volume_slot = table_clear.nonzero(as_tuple=True)
-        usable = screened.volume_within(rows, rotation, table_clear)
-        self.hand_row, self.hand_slot = usable.nonzero(as_tuple=True)
-        self.low, self.high = swept_hand(screened.robot, screened.pregrasp_offset_m, screened.width_m.device)
-        self.margin_m = screened.planner.hand_clearance_margin_m
-
-    def volume_reference(self) -> torch.Tensor:
-        """(V,) bool the exhaustive count's verdict of each volume pose."""
-        s, row = self.screened, self.volume_row
-        counts = gripper_occupancy(s.occupancy_points, s.object_index, s.centre_world, self.rotation, s.width_m, self.geometry,
-                                   s.memory.occupancy_chunk_elements, self.table_clear).total
-        return counts[row, self.volume_slot].to(torch.float32) <= self.limit[row]
-
-    def volume_exact(self, row: torch.Tensor, slot: torch.Tensor, compile: bool) -> torch.Tensor:
-        """(len(row),) bool ``gripper_occupancy_within``'s verdicts of the given poses."""
-        s = self.screened
-        if not row.numel():
-            return torch.zeros(0, dtype=torch.bool)
-        poses = torch.zeros_like(self.table_clear)
-        poses[row, slot] = True
-        within = gripper_occupancy_within(s.occupancy_points, s.object_index, s.centre_world, self.rotation, s.width_m, self.geometry,
-                                          self.limit, s.memory.occupancy_chunk_elements, poses, compile)
-        return within[row, slot]
-
-    def hand_exact(self, index: torch.Tensor, compile: bool) -> torch.Tensor:
-        """(len(index),) bool ``hand_clearance``'s blocked verdicts of hand poses ``index``."""
-        s, row = self.screened, self.hand_row[index]
-        if not row.numel():
-            return torch.zeros(0, dtype=torch.bool)
-        return hand_clearance(s.hand_check_points, s.hand_screen_points, s.object_index[row], s.centre_world[row],
-                              self.rotation[row, self.hand_slot[index]], DOP_DIRECTIONS, self.low, self.high, self.margin_m,
-                              s.memory.hand_check_chunk_elements, compile).blocked
 
 
 def _row(check: str, design: str, build_s: float | None, eager_s: float, compiled_s: float, decided: torch.Tensor, verdict: torch.Tensor,
@@ -162,7 +112,7 @@ def hand_rows(poses: ScreenedPoses, repeats: int) -> list[dict[str, Any]]:
 
 def collision_designs(cloud: PerceivedCloud, config: Config, repeats: int) -> list[dict[str, Any]]:
     """``volume_rows`` and ``hand_rows`` of one cloud, each row tagged with its object."""
-    poses = ScreenedPoses(cloud, config)
+    poses = ScreenedPoses(screen_candidates([cloud], config, [0]))
     return [{"object": cloud.object_id, **row} for row in volume_rows(poses, repeats) + hand_rows(poses, repeats)]
 
 

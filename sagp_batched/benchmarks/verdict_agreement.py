@@ -24,11 +24,12 @@ import torch
 import trimesh
 
 from sagp_batched_kernels.gripper_occupancy import gripper_occupancy
-from sagp_batched_kernels.hand_clearance import separation
+from sagp_batched_kernels.hand_clearance import hand_clearance, separation
+from sagp_batched_kernels.occupancy_verdict import gripper_occupancy_within
 
 from ..config import Config
 from ..planning.gripper import gripper_geometry, jaw_width_limit
-from ..planning.screens import swept_hand, table_check_points, screen_candidates
+from ..planning.screens import ScreenedCandidates, screen_candidates, swept_hand, table_check_points
 from ..robot.hand import DOP_DIRECTIONS
 from ..types import PerceivedCloud
 
@@ -82,6 +83,56 @@ def unseen_shape_clouds(config: Config, count: int, n_points: int, object_xy_m: 
     return clouds
 
 
+class ScreenedPoses:
+    """One cloud's screened poses: every antipodal candidate's approaches clear of the table (the
+    volume check's poses) and those also under the volume limit (the hand sweep's)."""
+
+    def __init__(self, screened: ScreenedCandidates):
+        rows = torch.arange(screened.n_candidates)
+        rotation = screened.frames(rows)[1]
+        table_clear = screened.clear_of_table(rows, rotation)
+        self.screened, self.rotation, self.table_clear = screened, rotation, table_clear
+        self.geometry = gripper_geometry(screened.robot, screened.planner)
+        self.limit = screened.planner.occupancy_max_fraction * screened.occupancy_total[screened.object_index]
+        # Volume poses, flat: candidate and approach of each.
+        self.volume_row, self.volume_slot = table_clear.nonzero(as_tuple=True)
+        self.volume_ok = screened.volume_within(rows, rotation, table_clear)
+        self.hand_row, self.hand_slot = self.volume_ok.nonzero(as_tuple=True)
+        self.low, self.high = swept_hand(screened.robot, screened.pregrasp_offset_m, screened.width_m.device)
+        self.margin_m = screened.planner.hand_clearance_margin_m
+
+    def volume_counts(self) -> torch.Tensor:
+        """(V,) float32 the exhaustive count (``gripper_occupancy``) of each volume pose."""
+        s = self.screened
+        counts = gripper_occupancy(s.occupancy_points, s.object_index, s.centre_world, self.rotation, s.width_m, self.geometry,
+                                   s.memory.occupancy_chunk_elements, self.table_clear).total
+        return counts[self.volume_row, self.volume_slot].to(torch.float32)
+
+    def volume_reference(self) -> torch.Tensor:
+        """(V,) bool the exhaustive count's verdict of each volume pose."""
+        return self.volume_counts() <= self.limit[self.volume_row]
+
+    def volume_exact(self, row: torch.Tensor, slot: torch.Tensor, compile: bool) -> torch.Tensor:
+        """(len(row),) bool ``gripper_occupancy_within``'s verdicts of the given poses."""
+        s = self.screened
+        if not row.numel():
+            return torch.zeros(0, dtype=torch.bool)
+        poses = torch.zeros_like(self.table_clear)
+        poses[row, slot] = True
+        within = gripper_occupancy_within(s.occupancy_points, s.object_index, s.centre_world, self.rotation, s.width_m, self.geometry,
+                                          self.limit, s.memory.occupancy_chunk_elements, poses, compile)
+        return within[row, slot]
+
+    def hand_exact(self, index: torch.Tensor, compile: bool) -> torch.Tensor:
+        """(len(index),) bool ``hand_clearance``'s blocked verdicts of hand poses ``index``."""
+        s, row = self.screened, self.hand_row[index]
+        if not row.numel():
+            return torch.zeros(0, dtype=torch.bool)
+        return hand_clearance(s.hand_check_points, s.hand_screen_points, s.object_index[row], s.centre_world[row],
+                              self.rotation[row, self.hand_slot[index]], DOP_DIRECTIONS, self.low, self.high, self.margin_m,
+                              s.memory.hand_check_chunk_elements, compile).blocked
+
+
 def screen_agreement(clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int]) -> dict[str, CheckAgreement]:
     """Per check (``CHECKS``), the planner's verdicts against the exhaustive reference on every
     (candidate, approach) pose of each cloud's antipodal candidates: the table on all of them, the
@@ -92,25 +143,20 @@ def screen_agreement(clouds: Sequence[PerceivedCloud], config: Config, seeds: Se
         screened = screen_candidates([cloud], config, [seed])
         if screened.n_candidates == 0:
             continue
+        poses = ScreenedPoses(screened)
         rows = torch.arange(screened.n_candidates)
-        rotation = screened.frames(rows)[1]
-        clear = screened.clear_of_table(rows, rotation)
-        reference_height = _table_reference_height(screened, rows, rotation)
+        reference_height = _table_reference_height(screened, rows, poses.rotation)
         reference_clear = (reference_height >= 0.0) & (screened.width_m <= jaw_width_limit(screened.robot, screened.planner))[:, None]
-        _tally(agreement["table"], clear, reference_clear, reference_height, cloud.object_id)
+        _tally(agreement["table"], poses.table_clear, reference_clear, reference_height, cloud.object_id)
 
-        within = screened.volume_within(rows, rotation, clear)
-        limit = screened.planner.occupancy_max_fraction * screened.occupancy_total[0]
-        counts = gripper_occupancy(screened.occupancy_points, screened.object_index, screened.centre_world, rotation, screened.width_m,
-                                   gripper_geometry(screened.robot, screened.planner), config.memory.occupancy_chunk_elements, clear).total
-        _tally(agreement["volume"], within[clear], counts[clear] <= limit, (limit - counts[clear]).to(torch.float32), cloud.object_id)
+        limit = poses.limit[poses.volume_row]
+        counts = poses.volume_counts()
+        _tally(agreement["volume"], poses.volume_ok[poses.volume_row, poses.volume_slot], counts <= limit, limit - counts, cloud.object_id)
 
-        pose_rows, pose_slots = (clear & within).nonzero(as_tuple=True)
-        if pose_rows.numel():
-            blocked = screened.hand_clearance(pose_rows, pose_slots).blocked
-            reference_clearance = _hand_reference_clearance(screened, pose_rows, rotation[pose_rows, pose_slots])
-            margin = screened.planner.hand_clearance_margin_m
-            _tally(agreement["hand"], ~blocked, reference_clearance >= margin, reference_clearance - margin, cloud.object_id)
+        if poses.hand_row.numel():
+            blocked = poses.hand_exact(torch.arange(poses.hand_row.numel()), screened.planner.compile)
+            reference_clearance = _hand_reference_clearance(poses)
+            _tally(agreement["hand"], ~blocked, reference_clearance >= poses.margin_m, reference_clearance - poses.margin_m, cloud.object_id)
     return agreement
 
 
@@ -137,11 +183,12 @@ def _table_reference_height(screened, rows: torch.Tensor, rotation: torch.Tensor
     return torch.minimum(*heights)
 
 
-def _hand_reference_clearance(screened, rows: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
-    """(P,) the least k-DOP separation of every scene point from the swept hand of P poses (candidate
-    ``rows``, (P, 3, 3) ``frames``): every point of the cloud's hand-check set evaluated exactly."""
-    low, high = swept_hand(screened.robot, screened.pregrasp_offset_m, rows.device)
-    middle, half = ((low + high) / 2)[:, :, None, None], ((high - low) / 2)[:, :, None, None]
+def _hand_reference_clearance(poses: ScreenedPoses) -> torch.Tensor:
+    """(P,) the least k-DOP separation of every scene point from the swept hand of each of ``poses``'
+    hand poses: every point of the cloud's hand-check set evaluated exactly."""
+    screened, rows = poses.screened, poses.hand_row
+    frames = poses.rotation[rows, poses.hand_slot]
+    middle, half = ((poses.low + poses.high) / 2)[:, :, None, None], ((poses.high - poses.low) / 2)[:, :, None, None]
     points = screened.hand_check_points[0]
     points = points[~points.isnan().any(dim=1)]
     axes = DOP_DIRECTIONS.to(frames.device) @ frames.transpose(-1, -2)

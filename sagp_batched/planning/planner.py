@@ -113,7 +113,7 @@ def plan_batch(
     ik = panda_ik(config)
     verdicts = ScreenVerdicts(screened, tuning)
     motions = MotionVerdicts(screened.n_candidates, planner.n_approaches, waypoint_count(config.motion), len(ik.robot.arm_joints),
-                             planner.max_candidates, tuning, screened.object_index.device)
+                             planner.max_candidates, tuning, device)
 
     def check(rows: torch.Tensor, slots: torch.Tensor) -> MotionCheck:
         return check_motions(screened.centre_world[rows], *screened.frames(rows, slots), ik, config, clock)
@@ -121,7 +121,7 @@ def plan_batch(
     if planner.search == "blocks":
         search = search_in_blocks(verdicts, motions, planner.max_candidates, check)
     else:
-        search = _search_with_lookahead(screened, verdicts, motions, planner.max_candidates, check)
+        search = _search_with_lookahead(verdicts, motions, planner.max_candidates, check)
     times = PlanStageTimes.of(clock)
     candidates = _planned_candidates(screened, search, motions, config)
     counts = _plan_counts(screened, search, planner.n_pairs)
@@ -129,11 +129,11 @@ def plan_batch(
 
 
 def _search_with_lookahead(
-    screened: ScreenedCandidates, verdicts: ScreenVerdicts, motions: MotionVerdicts, max_candidates: int,
-    check: Callable[[torch.Tensor, torch.Tensor], MotionCheck],
+    verdicts: ScreenVerdicts, motions: MotionVerdicts, max_candidates: int, check: Callable[[torch.Tensor, torch.Tensor], MotionCheck],
 ) -> CandidateSearch:
     """The lookahead search (``search``, ``lookahead``): the window's screens applied, then each
     undecided candidate's next approach checked, round after round, until every object's window is decided."""
+    screened = verdicts.screened
     search = CandidateSearch.start(screened.n_candidates, screened.planner.n_approaches, screened.object_index.device)
     while True:
         in_window = window_with_verdicts(search, verdicts, motions, max_candidates)

@@ -75,15 +75,13 @@ class PandaIK:
         self._q7_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_samples, dtype=torch.float64)
         self._q7_fine_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_fine_samples, dtype=torch.float64)
         self._damping = torch.eye(6) * config.damping**2  # the damped-least-squares steps' (6, 6) damping, made once
-        self.device = torch.device("cpu")
-        self._on_devices = {self.device: self}
+        self._on_devices = {torch.device("cpu"): self}
 
     def on(self, device: torch.device) -> PandaIK:
         """This solver with every constant on ``device``: made once per device and kept, so a plan on a
         GPU moves the robot there once, not per call."""
         if device not in self._on_devices:
             moved = copy.copy(self)
-            moved.device = device
             moved.frames = self.frames.to(device)
             for name in ("lower", "upper", "reference_joints", "base_xyz_world", "_link7_in_target", "_q7_grid", "_q7_fine_grid", "_damping"):
                 setattr(moved, name, getattr(self, name).to(device))
