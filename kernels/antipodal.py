@@ -31,7 +31,8 @@ def antipodal_pairs(
         points: (N, 3) contact positions, metres, any frame shared with ``normals``.
         normals: (N, 3) unit outward surface normals in the same frame.
         pair_indices: (P, 2) int64 indices ``(i, j)`` into ``points``.
-        min_width_m, max_width_m: accepted contact distance |p_j - p_i|, metres (inclusive).
+        min_width_m: smallest accepted contact distance |p_j - p_i|, metres (inclusive).
+        max_width_m: largest accepted contact distance, metres (inclusive).
         max_contact_angle_deg: largest accepted angle between each inward normal and the closing
             axis, degrees.
 

@@ -35,7 +35,8 @@ def pixel_rays(height_px: int, width_px: int, intrinsics: torch.Tensor) -> torch
     """Camera-frame direction of every pixel centre, scaled so its z component is 1.
 
     Args:
-        height_px, width_px: image size H, W.
+        height_px: image height H.
+        width_px: image width W.
         intrinsics: (B, 3, 3) pinhole matrices K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels;
             pixel (u, v) has its centre at integer coordinates (u to the right, v downward).
 

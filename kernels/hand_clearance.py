@@ -193,7 +193,8 @@ def hand_clearance(
         rotation: (C, 3, 3) grasp frames (grasp -> world rotation).
         directions: (D, 3) unit k-DOP directions, grasp frame, D >= 3; the first three also
             give the lower bound that culls points (the axes, for box-like hulls).
-        low, high: (S, D) extents of S polytopes along ``directions``, metres (low <= high).
+        low: (S, D) lower extents of S polytopes along ``directions``, metres.
+        high: (S, D) upper extents, metres (low <= high).
         margin_m: a point with separation under this blocks the gripper.
         chunk_elements: bound on the (candidate, polytope, direction, point) elements held at once.
         compile: take the lower bound that picks the points evaluated exactly from

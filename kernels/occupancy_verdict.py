@@ -64,10 +64,11 @@ def gripper_occupancy_within(
     ``limit``, and those whose centre is too far out for the rounding bound, are counted by
     ``gripper_occupancy`` itself.
 
+    ``points``, ``object_index``, ``centre``, ``rotation``, ``width_m`` and ``geometry`` are as for
+    ``gripper_occupancy``.
+
     Args:
-        points, object_index, centre, rotation, width_m, geometry, chunk_elements: as for
-            ``gripper_occupancy``; ``chunk_elements`` bounds the (pose, point) pairs held at once
-            (one candidate's poses at least).
+        chunk_elements: bounds the (pose, point) pairs held at once (one candidate's poses at least).
         limit: (C,) float32 largest point count each candidate's poses may hold.
         poses: (C, K) bool, the poses to decide; the others are reported False.
         compile: take the bounds from ``_fused_count_bounds`` compiled (``compiled``) instead of

@@ -106,7 +106,8 @@ def panda_ik_closed_form(
         position_link7: (N, 3) origin of frame 7 in the base frame, metres.
         q7: (N, K) values of joint 7 to solve for per target, radians.
         geometry: the arm's link offsets.
-        lower, upper: (7,) joint limits, radians.
+        lower: (7,) lower joint limits, radians.
+        upper: (7,) upper joint limits, radians.
 
     Returns:
         ``PandaIKSolutions`` with (N, K, 8, 7) joints and an (N, K, 8) validity mask, in the

@@ -77,7 +77,8 @@ def sample_guided_pair_indices(
         normals: (N, 3) unit outward surface normals in the same frame.
         n_pairs: number of pairs P to draw, at least 0.
         n_proposals: second-point proposals K per pair, at least 1.
-        min_width_m, max_width_m: contact distances a proposal may have, metres (the gripper's reach).
+        min_width_m: the smallest contact distance a proposal may have, metres.
+        max_width_m: the largest, metres (the gripper's reach).
         generator: CPU ``torch.Generator``; the same generator state gives the same pairs. It is
             advanced by exactly P + P * K draws, whatever the geometry.
         chunk_elements: (pair, proposal) combinations evaluated at once (~80 bytes each), at least 1;

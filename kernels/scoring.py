@@ -87,7 +87,11 @@ def fused_score(
     """(C,) S = w_geom S_geom + w_reach S_reach + w_afford S_afford - w_avoid S_avoid + w_task S_task.
 
     Args:
-        s_geom, s_reach, s_afford, s_avoid, s_task: (C,) terms.
+        s_geom: (C,) geometric term.
+        s_reach: (C,) reachability term.
+        s_afford: (C,) affordance term.
+        s_avoid: (C,) avoid term, subtracted.
+        s_task: (C,) task term.
         weights: (w_geom, w_reach, w_afford, w_avoid, w_task), w_avoid entering with a minus sign.
     """
     w_geom, w_reach, w_afford, w_avoid, w_task = weights

@@ -68,7 +68,7 @@ def _ycb_dir(argument: str | None) -> Path:
     return embedded_ycb_dir()
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", required=True, type=Path, help="where to write the results")
     parser.add_argument("--objects", default="025_mug,003_cracker_box,005_tomato_soup_can", help="comma-separated YCB ids")
@@ -100,7 +100,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.ray_address is not None:
         return _ray_worker_memory(args)

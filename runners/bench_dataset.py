@@ -61,7 +61,7 @@ def _counts(parser: argparse.ArgumentParser, flag: str, text: str, minimum: int)
     return counts
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", type=Path, help="where to write the results (required but with --fidelity)")
     parser.add_argument("--profile", default="dataset")
@@ -90,7 +90,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.fidelity:
         return _fidelity_main(parser, args)

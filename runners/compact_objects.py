@@ -145,14 +145,18 @@ def compact_object(pymeshlab, source_dir: Path, out_dir: Path, target_faces: int
     return collision
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m runners.compact_objects", description=__doc__.split("\n\n")[0])
     parser.add_argument("--source", required=True, help="full-resolution YCB directory (objects.json + <id>/model.urdf)")
     parser.add_argument("--out", required=True, help="output directory (replaced object by object)")
     parser.add_argument("--target-faces", type=int, default=DEFAULT_TARGET_FACES, help="faces per visual mesh")
     parser.add_argument("--texture-size", type=int, default=DEFAULT_TEXTURE_SIZE, help="texture side in pixels")
     parser.add_argument("--jpeg-quality", type=int, default=DEFAULT_JPEG_QUALITY, help="JPEG quality of the textures")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
     try:
         import pymeshlab
     except ImportError:

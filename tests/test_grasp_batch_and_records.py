@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -178,13 +176,6 @@ def test_an_unmeasured_diagnostic_is_left_out_but_a_success_s_failed_at_is_writt
     entry = GraspAttempt(True, None, 1.0, AttemptDiagnostics(ik_source="planner", object_height_above_table_m=0.21)).record(7)
     assert entry == {"candidate": 7, "success": True, "failure_reason": None, "ik_source": "planner", "failed_at": None,
                      "object_height_above_table_m": 0.21}
-
-
-def test_the_readme_attempt_table_lists_exactly_the_schema_s_fields():
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    table = readme.split("| attempt field | unit | meaning |", 1)[1].split("\n\n", 1)[0]
-    listed = tuple(re.findall(r"^\| `(\w+)` \|", table, flags=re.MULTILINE))
-    assert listed == ATTEMPT_RECORD_FIELDS
 
 
 def test_a_failed_trial_records_why_with_every_field_present():
