@@ -16,7 +16,7 @@ import numpy as np
 
 from ..config import Config
 from ..run_directory import write_json
-from ..study.report import count_and_rate
+from ..statistics import count_and_rate
 from .cross_engine import LABEL_RULE, agreement_report_lines
 from .dataset import read_progress, split_of, write_splits
 from .verdicts import VERDICTS
