@@ -21,12 +21,12 @@ import numpy as np
 from ..config import Config
 from ..grasps import GraspCandidates
 from ..rating.types import ZoneRating, clipped, neutral_rating
-from ..records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
 from ..seeds import candidate_seed
 from ..types import GraspAttempt, PerceivedCloud, PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
 from .judging import judge_task, place_grasp
 from .methods import RankingInputs, get_method
+from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
 
 
 class TrialTimeout(RuntimeError):
