@@ -227,6 +227,7 @@ def test_two_engines_relabel_each_grasp_keep_each_label_and_measure_each_against
         reference = f["grasps/reference/object_in_gripper"][()].astype(bool)
         assert (flex == (pybullet & mujoco)).all() and (pybullet & ~mujoco).any() and not (mujoco & ~pybullet).any()
         assert {v.decode() for v in f["grasps/qualities/mujoco/failed_at"][()]} <= {"", "lift"}
+        assert f["engine"][()].decode() == "pybullet,mujoco", "the file names every engine that labelled it"
     assert result["agree"] == int((flex == reference).sum())
     assert result["by_engine"]["mujoco"]["agree"] == int((mujoco == reference).sum())
     between = result["between_engines"]

@@ -233,10 +233,10 @@ def relabel_file_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: 
         "grasps/failed_at": [label["failed_at"] for label in labels],
         "grasps/region": list(regions),
     }
-    for engine in labels[0].get("by_engine", {}) if labels else ():  # several engines: each one's own label
-        own = [label["by_engine"][engine] for label in labels]
-        datasets[f"grasps/qualities/{engine}/object_in_gripper"] = np.array([label["held"] for label in own], dtype=np.int64)
-        datasets[f"grasps/qualities/{engine}/failed_at"] = [label["failed_at"] for label in own]
+    for engine_name in labels[0].get("by_engine", {}) if labels else ():  # several engines: each one's own label
+        own = [label["by_engine"][engine_name] for label in labels]
+        datasets[f"grasps/qualities/{engine_name}/object_in_gripper"] = np.array([label["held"] for label in own], dtype=np.int64)
+        datasets[f"grasps/qualities/{engine_name}/failed_at"] = [label["failed_at"] for label in own]
     if grasp_file.width_m is not None:
         datasets["grasps/width"] = grasp_file.width_m[rows]
     datasets.update({
