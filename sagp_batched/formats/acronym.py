@@ -14,9 +14,9 @@ Keys every file holds:
 |---|---|---|
 | `grasps/transforms` | float64 (N, 4, 4) | gripper poses: in the object's link frame (trial, dataset), in the relabelled file's own frame (relabel) |
 | `grasps/panda_hand_transforms` | float64 (N, 4, 4) | the same grasps as hand poses |
-| `grasps/qualities/flex/object_in_gripper` | int (N,) | 1 the grasp held the object, 0 it dropped it; every row was simulated, never a default |
+| `grasps/qualities/flex/object_in_gripper` | int8 (trial) or int64, (N,) | 1 the grasp held the object, 0 it dropped it: an outcome, never a default (grasps not tested are kept apart) |
 | `object/file` | string | the visual mesh, relative to the mesh root the reader is given ("" for a primitive visual) |
-| `object/scale` | float64 | the mesh's uniform scale (1.0 for every YCB and imported object) |
+| `object/scale` | float64 | the mesh's uniform scale (1.0 for every YCB and imported object; a relabelled file's own) |
 | `object/mesh_to_link` | float64 (4, 4) | mesh vertices -> link frame, the scale included (`frames.mesh_reference`); a loader applying only `object/scale` gets the link frame exactly where this is a uniform scale |
 | `object/id` | string | the object's id |
 | `object/mass` | float64 | kg |
