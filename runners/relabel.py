@@ -1,6 +1,6 @@
 """Relabel another simulator's grasps with ours: ``python -m runners.relabel FILE.h5|FILE.json --mesh-root DIR --protocol floating|tabletop --out DIR``.
 
-FILE is an ACRONYM HDF5 or an ACRONYM / GraspGen JSON grasp file (``grasp_files.read_grasp_file``); its mesh
+FILE is an ACRONYM HDF5 or an ACRONYM / GraspGen JSON grasp file (``sagp_batched.formats.grasp_file.read_grasp_file``); its mesh
 (``object/file``, relative to --mesh-root) is imported as our object at the file's scale, mass and friction, its
 grasps moved into that object's link frame and labelled by our simulation in ``--protocol`` (the Panda hand
 floating with the object, or reaching it on the table). Written to --out: ``relabel.h5`` (the grasps as the file
@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from sagp_batched.config import ConfigError
-from sagp_batched.datasets.grasp_files import GraspFileError
+from sagp_batched.formats.grasp_file import GraspFileError
 from sagp_batched.datasets.relabel import CHUNKS_DIR, ENGINES, REPORT_FILE, InputError, check_inputs, relabel
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError
 

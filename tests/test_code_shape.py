@@ -70,3 +70,78 @@ def test_each_stage_package_imports_on_its_own(package):
 def test_the_public_api_is_reexported_at_the_top():
     api = importlib.import_module("sagp_batched")
     assert all(hasattr(api, name) for name in api.__all__)
+
+
+# The grasp files' formats have one home: ``formats/hdf5.py`` alone writes HDF5, and ``formats`` sits below the
+# study and the datasets, which hand it what to write.
+HDF5_WRITER = "sagp_batched/formats/hdf5.py"
+FORMATS_MUST_NOT_REACH = {"study", "datasets"}
+
+
+def _hdf5_writes(tree):
+    """The lines of ``tree`` that open an HDF5 file in a mode other than "r" or create a dataset in one."""
+    lines = []
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)):
+            continue
+        if node.func.attr == "create_dataset":
+            lines.append(node.lineno)
+        elif node.func.attr == "File" and isinstance(node.func.value, ast.Name) and node.func.value.id == "h5py":
+            modes = [node.args[1]] if len(node.args) > 1 else [k.value for k in node.keywords if k.arg == "mode"]
+            if any(not (isinstance(mode, ast.Constant) and mode.value == "r") for mode in modes):
+                lines.append(node.lineno)
+    return lines
+
+
+def test_one_module_writes_hdf5():
+    writers = {str(p.relative_to(ROOT)) for p in (ROOT / "sagp_batched").rglob("*.py") if _hdf5_writes(ast.parse(p.read_text()))}
+    assert writers == {HDF5_WRITER}
+
+
+def test_the_writer_rule_catches_a_second_writer():
+    written = "import h5py\nwith h5py.File(buffer, 'w') as f: pass\nh5py.File(path, mode='a')\nh5py.File(path, 'r')\nh5py.File(path)\n"
+    assert sorted(_hdf5_writes(ast.parse(written))) == [2, 3]
+
+
+def _package_imports():
+    """Subpackage or top-level module of sagp_batched -> those its modules import (any import, also inside
+    functions). The top package's ``__init__`` is the public facade over every stage and is left out."""
+    edges = {}
+    for path in (ROOT / "sagp_batched").rglob("*.py"):
+        parts = path.relative_to(ROOT).with_suffix("").parts
+        if parts == ("sagp_batched", "__init__"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                targets = [[*parts[: len(parts) - node.level], *(node.module.split(".") if node.module else [])]]
+            elif isinstance(node, ast.ImportFrom):
+                targets = [(node.module or "").split(".")]
+            elif isinstance(node, ast.Import):
+                targets = [alias.name.split(".") for alias in node.names]
+            else:
+                continue
+            for target in targets:
+                if target[0] == "sagp_batched" and len(target) > 1 and target[1] != parts[1]:
+                    edges.setdefault(parts[1], set()).add(target[1])
+    return edges
+
+
+def _reachable(edges, start):
+    seen, pending = set(), [start]
+    while pending:
+        for target in edges.get(pending.pop(), ()):
+            if target not in seen:
+                seen.add(target)
+                pending.append(target)
+    return seen
+
+
+def test_formats_import_nothing_of_the_study_or_the_datasets():
+    edges = _package_imports()
+    assert "formats" in edges["study"] and "formats" in edges["datasets"], "the package graph sees the callers' imports"
+    assert not _reachable(edges, "formats") & FORMATS_MUST_NOT_REACH
+
+
+def test_the_study_and_the_datasets_do_not_import_each_other_both_ways():
+    reachable = {package: _reachable(_package_imports(), package) for package in ("study", "datasets")}
+    assert not ("datasets" in reachable["study"] and "study" in reachable["datasets"])

@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from sagp_batched.datasets.dataset import (
-    LabelledGrasps, ObjectPhysics, UntestedGrasps, copy_object_mesh, read_progress, split_of, write_splits,
-)
-from sagp_batched.datasets.grasp_files import write_graspgen_file, write_object_file
+from sagp_batched.datasets.dataset import copy_object_mesh, read_progress, split_of, write_splits
+from sagp_batched.formats.acronym import write_object_file
+from sagp_batched.formats.graspgen import write_graspgen_file
+from sagp_batched.formats.object_grasps import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from sagp_batched.world.objects import load_object_set
 
 h5py = pytest.importorskip("h5py")

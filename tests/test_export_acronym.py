@@ -6,7 +6,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from sagp_batched.datasets.export import write_acronym
+from sagp_batched.formats.acronym import trial_file_bytes
 from sagp_batched.grasps import GraspCandidates
 from sagp_batched.types import GraspAttempt, PerceivedCloud
 from sagp_batched.world.objects import ObjectSpec
@@ -101,8 +101,8 @@ def test_exported_grasps_hold_both_contacts_between_the_fingers_of_acronyms_fran
     candidates, cloud, contacts_object, width = _trial(rng, 40)
     ranked = candidates.ranked_by(candidates.score)
     path = tmp_path / "box_t1_0000.h5"
-    write_acronym(path, spec, cloud, candidates, {"go": ranked},
-                  {"go": [GraspAttempt(False, "slipped", 0.0), GraspAttempt(True, None, 2.0)]})
+    path.write_bytes(trial_file_bytes(spec, cloud, candidates, {"go": ranked},
+                                      {"go": [GraspAttempt(False, "slipped", 0.0), GraspAttempt(True, None, 2.0)]}))
 
     # Every candidate's pose is under candidates/; the simulated ones are read as acronym's load_grasps and load_mesh do.
     with h5py.File(path, "r") as f:
@@ -160,7 +160,7 @@ def test_exported_ycb_mug_names_its_textured_mesh_relative_to_the_objects_root(t
     spec = ObjectSpec("025_mug", "mug", ycb_dir / index["025_mug"]["urdf"], "containers", True, 0.118, (0.117, 0.0931, 0.0813))
     candidates, cloud, _, _ = _trial(np.random.default_rng(1), 4)
     path = tmp_path / "mug.h5"
-    write_acronym(path, spec, cloud, candidates, {}, {})
+    path.write_bytes(trial_file_bytes(spec, cloud, candidates, {}, {}))
     with h5py.File(path, "r") as f:
         mesh_file, mesh_scale = f["object/file"][()].decode(), f["object/scale"][()]
     assert mesh_file == "025_mug/textured.obj" and mesh_scale == 1.0
@@ -169,7 +169,7 @@ def test_exported_ycb_mug_names_its_textured_mesh_relative_to_the_objects_root(t
 
 
 def test_acronym_poses_map_back_to_the_planners_grasp_frames():
-    from sagp_batched.datasets.export import acronym_gripper_transforms_object, grasp_poses_from_acronym
+    from sagp_batched.formats.frames import acronym_gripper_transforms_object, grasp_poses_from_acronym
 
     candidates, cloud, _, _ = _trial(np.random.default_rng(2), 12)
     in_object = candidates.transform(cloud.object_from_world, "object")

@@ -13,10 +13,10 @@ from scipy.spatial.transform import Rotation
 from sagp_batched.attempt import ATTEMPT_RECORD_FIELDS, AttemptDiagnostics, PlannerPrediction
 from sagp_batched.config import Config
 from sagp_batched.grasps import Grasp, GraspCandidates, InvalidGraspError
-from sagp_batched.records import ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
 from sagp_batched.semantics.zones import decompose
 from sagp_batched.study.judging import GraspPlacement, TaskOutcome
 from sagp_batched.study.methods import RankingInputs, get_method
+from sagp_batched.study.records import ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
 from sagp_batched.types import GraspAttempt, PerceivedCloud
 from sagp_batched.world.objects import ObjectSpec
 

@@ -8,8 +8,10 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from sagp_batched.datasets.dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
-from sagp_batched.datasets.grasp_files import GraspFileError, read_grasp_file, write_graspgen_file, write_object_file
+from sagp_batched.formats.acronym import write_object_file
+from sagp_batched.formats.grasp_file import GraspFileError, read_grasp_file
+from sagp_batched.formats.graspgen import write_graspgen_file
+from sagp_batched.formats.object_grasps import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from sagp_batched.grasps import GraspCandidates, GraspPoses
 
 h5py = pytest.importorskip("h5py")

@@ -1,7 +1,8 @@
 """Study metrics and their 95 % Wilson intervals."""
 import pytest
 
-from sagp_batched.study.metrics import per_object, summarise, wilson_interval
+from sagp_batched.statistics import wilson_interval
+from sagp_batched.study.metrics import per_object, summarise
 
 
 def test_wilson_interval_matches_the_textbook_values():

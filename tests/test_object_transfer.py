@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import trimesh
 
-from sagp_batched.datasets.export import object_mesh_reference
+from sagp_batched.formats.frames import mesh_reference
 from sagp_batched.world.mesh_settings import MeshImportSettings
 from sagp_batched.world.object_transfer import (
     ObjectTransferError, materialise, materialised_dir, pack_objects, referenced_files, transfer_dir,
@@ -51,7 +51,7 @@ def test_the_embedded_ycb_set_travels_with_its_meshes_textures_and_checksum(tmp_
     assert not any(embedded_ycb_dir().resolve() in path.parents for path in referenced_files(materialised.get("025_mug")))
     # The grasp export names each mesh relative to the set's root, so a worker's file names it as the driver's does.
     for object_id in YCB_IDS:
-        here, there = object_mesh_reference(materialised.get(object_id)), object_mesh_reference(driver.get(object_id))
+        here, there = mesh_reference(materialised.get(object_id)), mesh_reference(driver.get(object_id))
         assert here[:3] == there[:3] and (here[3] == there[3]).all()
 
 
@@ -82,7 +82,7 @@ def test_an_imported_mesh_folder_travels_with_its_metadata_and_resting_poses(tmp
     for object_id in driver.ids:
         metadata = Path(materialised.get(object_id).urdf_path).parent / "metadata.json"
         assert metadata.read_bytes() == (Path(driver.get(object_id).urdf_path).parent / "metadata.json").read_bytes()
-        assert object_mesh_reference(materialised.get(object_id))[:3] == object_mesh_reference(driver.get(object_id))[:3]
+        assert mesh_reference(materialised.get(object_id))[:3] == mesh_reference(driver.get(object_id))[:3]
 
 
 def test_pybullet_data_objects_resolve_in_the_workers_own_pybullet_data(tmp_path):

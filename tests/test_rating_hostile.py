@@ -288,7 +288,7 @@ class RaisingRater(PriorRater):
 def _unit_records(config, rater=None) -> dict[str, dict]:
     from sagp_batched.study.experiment import TrialRunner
     from sagp_batched.world.objects import load_object_set
-    from sagp_batched.records import TrialUnit
+    from sagp_batched.study.records import TrialUnit
 
     runner = TrialRunner(config, load_object_set(config.run.objects_dir))
     if rater is not None:

@@ -13,8 +13,8 @@ from sagp_batched.config import Config
 from sagp_batched.datasets import labelling
 from sagp_batched.datasets import relabel as relabelling
 from sagp_batched.datasets.agreement import grasp_regions, label_agreement
-from sagp_batched.datasets.grasp_files import read_grasp_file
 from sagp_batched.datasets.protocols import GraspLabel
+from sagp_batched.formats.grasp_file import read_grasp_file
 from sagp_batched.world.objects import CACHE_DIR_ENV, load_object_set
 
 h5py = pytest.importorskip("h5py")
@@ -227,6 +227,7 @@ def test_two_engines_relabel_each_grasp_keep_each_label_and_measure_each_against
         reference = f["grasps/reference/object_in_gripper"][()].astype(bool)
         assert (flex == (pybullet & mujoco)).all() and (pybullet & ~mujoco).any() and not (mujoco & ~pybullet).any()
         assert {v.decode() for v in f["grasps/qualities/mujoco/failed_at"][()]} <= {"", "lift"}
+        assert f["engine"][()].decode() == "pybullet,mujoco", "the file names every engine that labelled it"
     assert result["agree"] == int((flex == reference).sum())
     assert result["by_engine"]["mujoco"]["agree"] == int((mujoco == reference).sum())
     between = result["between_engines"]
@@ -257,9 +258,9 @@ def test_the_link_frame_map_is_the_imports_own_at_the_files_scale():
         import_record = ObjectImport(source_to_link=tuple(map(tuple, rigid)), scale=SCALE, com_m=(0.0, 0.0, 0.0), hull_volume_ratio=1.0,
                                      hull_max_distance_m=0.0, decomposer="coacd", collision_hulls=1, fidelity_ok=True)
 
-    assert np.allclose(relabelling.link_from_scaled_mesh(Spec(), SCALE), rigid)
+    assert np.allclose(relabelling.link_from_imported_mesh(Spec(), SCALE), rigid)
     with pytest.raises(relabelling.InputError, match="imported at scale 0.01, the file's is 0.5"):
-        relabelling.link_from_scaled_mesh(Spec(), 0.5)
+        relabelling.link_from_imported_mesh(Spec(), 0.5)
 
 
 @pytest.mark.slow
@@ -268,10 +269,11 @@ def test_our_own_file_relabelled_for_real_gets_its_own_labels_back(tmp_path, mon
     import torch
 
     from sagp_batched.config import load_config
-    from sagp_batched.datasets.dataset import LabelledGrasps, UntestedGrasps, copy_object_mesh
+    from sagp_batched.datasets.dataset import copy_object_mesh
     from sagp_batched.datasets.datagen import object_physics
-    from sagp_batched.datasets.export import acronym_gripper_transforms_object
-    from sagp_batched.datasets.grasp_files import write_object_file
+    from sagp_batched.formats.acronym import write_object_file
+    from sagp_batched.formats.frames import acronym_gripper_transforms_object
+    from sagp_batched.formats.object_grasps import LabelledGrasps, UntestedGrasps
     from sagp_batched.grasps import GraspPoses
 
     monkeypatch.setenv(CACHE_DIR_ENV, str(tmp_path / "cache"))

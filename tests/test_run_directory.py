@@ -13,12 +13,11 @@ import pytest
 
 from runners import batch
 from sagp_batched.config import load_config
-from sagp_batched.records import TrialRecord, TrialUnit, record_problem
-from sagp_batched.run_directory import (
-    REJECTED_FILE, TRIALS_FILE, RunDirectoryBusy, RunLock, TrialWriteError, TrialWriter, read_records, recover_trials_file,
-)
+from sagp_batched.run_directory import RunDirectoryBusy, RunLock
 from sagp_batched.study.experiment import UnitResult
+from sagp_batched.study.records import TrialRecord, TrialUnit, record_problem
 from sagp_batched.study.run import run_study
+from sagp_batched.study.trials_file import REJECTED_FILE, TRIALS_FILE, TrialWriteError, TrialWriter, read_records, recover_trials_file
 from sagp_batched.world.objects import load_object_set
 
 OBJECTS = load_object_set(None)  # the embedded set: every test here names it the same way

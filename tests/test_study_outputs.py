@@ -8,10 +8,11 @@ import pytest
 
 import sagp_batched.study.run as study
 from sagp_batched.config import load_config
-from sagp_batched.records import TrialRecord
-from sagp_batched.run_directory import TRIALS_FILE, WORKERS_FILE, RunDirectoryError, TrialWriter
+from sagp_batched.run_directory import WORKERS_FILE, RunDirectoryError
 from sagp_batched.runtime import resident_memory_bytes
 from sagp_batched.study.experiment import UnitResult, grasps_file
+from sagp_batched.study.records import TrialRecord
+from sagp_batched.study.trials_file import TRIALS_FILE, TrialWriter
 from sagp_batched.world.objects import load_object_set
 
 OBJECTS = load_object_set()

@@ -276,7 +276,7 @@ def _hull_cells(hull: dict[str, Any]) -> list[str]:
 
 
 def _object_cells(row: dict[str, Any]) -> list[str]:
-    from ..study.report import count_and_rate
+    from ..statistics import count_and_rate
 
     if "skipped" in row:
         return [f"skipped: {row['skipped']}"] + ["-"] * 7
@@ -297,7 +297,7 @@ def _object_cells(row: dict[str, Any]) -> list[str]:
 
 def fidelity_markdown(report: dict[str, Any]) -> str:
     """The benchmark's figures as a markdown table, one row an object, with the pooled agreements and the designed grasps."""
-    from ..study.report import count_and_rate
+    from ..statistics import count_and_rate
 
     settings, rows = report["settings"], report["objects"]
     lines = [

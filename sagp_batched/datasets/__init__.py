@@ -1,7 +1,7 @@
 """Labelled grasp datasets: which grasps an object's dataset holds (``verdicts``), their labels from
 simulation (``labelling``, in its own worlds built by ``collision_urdf``), one object's plan and
-labels (``datagen``), the run over objects (``run``), the files (``dataset``: GraspGen's layout;
-``export``: ACRONYM's), the report (``report``) and another simulator's grasp file relabelled by ours
+labels (``datagen``), the run over objects (``run``), the dataset's directory (``dataset``; its files'
+layouts are ``sagp_batched.formats``'), the report (``report``) and another simulator's grasp file relabelled by ours
 (``relabel``: ``check_relabel_inputs``, then ``relabel_grasp_file``)."""
 from .labelling import GraspLabel, ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
 from .relabel import InputError as RelabelInputError

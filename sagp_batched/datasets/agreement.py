@@ -13,8 +13,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..study.metrics import wilson_interval
-from ..study.report import count_and_rate
+from ..statistics import count_and_rate, wilson_interval
 
 REGIONS = ("bottom", "middle", "top")
 # The phase name of a disagreement where we held and the reference dropped.

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..study.report import count_and_rate
+from ..statistics import count_and_rate
 from .agreement import cohen_kappa
 from .protocols import GraspLabel
 

@@ -25,13 +25,13 @@ import numpy as np
 import torch
 
 from ..config import Config
+from ..formats.frames import acronym_gripper_transforms_object
+from ..formats.object_grasps import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from ..grasps import Grasp, GraspCandidates
 from ..seeds import capture_trial
 from ..types import PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
-from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from .cross_engine import combined_labels, engine_columns, failure_text
-from .export import acronym_gripper_transforms_object
 from .captures import DATASET_TASKS, Capture, PosePlan, plan_captures
 
 if TYPE_CHECKING:

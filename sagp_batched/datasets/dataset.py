@@ -10,130 +10,30 @@ Layout of a dataset directory::
     manifest.json               objects, counts, conventions, the rater, the settings
     objects.jsonl               one line per finished object: what a resumed run skips
 
-HDF5 keys (ACRONYM's names and dtypes: float64 arrays, int64 outcomes, UTF-8 strings):
-
-- ``grasps/transforms`` (N, 4, 4): ACRONYM's Franka gripper frame in the object's link frame
-  (z = approach, x = closing axis, origin at the gripper base 0.105 m behind the contacts), see
-  ``export.acronym_gripper_transforms_object``; ``grasps/panda_hand_transforms`` the same as
-  PyBullet ``panda_hand`` poses.
-- ``grasps/qualities/flex/object_in_gripper`` (N,): 1 held after the shake, 0 dropped. Every row of
-  ``grasps/`` was simulated; a grasp whose simulation could not run is kept under ``untested/``
-  with its reason, never here.
-- ``grasps/qualities/<engine>/{object_in_gripper, held_fraction, failure_reason}`` (N,): each engine's own
-  label (``engines`` lists them, ``[dataset] engines``); ``flex/object_in_gripper`` is held in all of them
-  (``cross_engine``).
-- ``grasps/qualities/flex/held_fraction`` (N,): the share of the grasp's simulations (its pose and its
-  perturbed copies, ``labelling``) that held; ``grasps/decided_by``: "simulation", or "geometry" where the
-  open hand already intersects the object or the table at the grasp (labelled a collision, not simulated).
-- ``grasps/qualities/flex/object_motion_during_{closing,shaking}_{linear,angular}`` (N,): metres
-  and radians, as ``labelling`` measures them.
-- ``object/{file, scale, mass, density, friction, com, inertia, volume}``, ``gripper/type``.
-- SAGP's fields: ``grasps/verdict`` (names of ``verdicts.VERDICTS``) and ``grasps/verdict_reason``,
-  ``grasps/failure_reason``, ``grasps/width``, ``grasps/contacts``, ``grasps/resting_pose``,
-  ``grasps/zone``, ``grasps/zone_rating/<task>`` (the zone's level for the task from the rater named
-  in ``rater``, "" where unrated), ``grasps/qualities/terms/{geom,reach}``, ``mode``, ``protocol``.
+The keys, dtypes, units and frames of the files are ``sagp_batched.formats``' (``formats.acronym``,
+``formats.graspgen``), which writes them.
 """
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..formats.frames import mesh_reference
 from ..world.objects import ObjectSpec, objects_root
-from .export import object_mesh_reference
 
 OBJECTS_PROGRESS_FILE = "objects.jsonl"
-
-
-@dataclass(frozen=True)
-class ObjectPhysics:
-    """What the simulator was given for an object: the values ACRONYM's ``object`` group holds."""
-
-    mass_kg: float
-    density_kg_m3: float
-    friction: float
-    com_m: tuple[float, float, float]  # in the link frame
-    inertia_kg_m2: tuple[tuple[float, float, float], ...]  # (3, 3) about the COM, link axes
-    volume_m3: float
-
-
-@dataclass
-class LabelledGrasps:
-    """One object's simulated grasps, in its link frame: N rows of arrays, one per grasp."""
-
-    transforms: np.ndarray  # (N, 4, 4) ACRONYM gripper poses
-    width_m: np.ndarray  # (N,)
-    contacts: np.ndarray  # (N, 2, 3)
-    resting_pose: np.ndarray  # (N,) int64 which resting pose (and capture) the grasp was planned on
-    verdict: list[str]  # planner verdict names
-    verdict_reason: list[str]
-    held: np.ndarray  # (N,) bool
-    # (N,) share of the grasp's simulations (its pose and its perturbed copies) that held; 0 where geometry decided
-    held_fraction: np.ndarray
-    decided_by: list[str]  # "simulation", or "geometry" where the open hand intersects the object or the table at the grasp
-    failure_reason: list[str]  # "" where held
-    motion_closing_linear_m: np.ndarray
-    motion_closing_angular_rad: np.ndarray
-    motion_shaking_linear_m: np.ndarray
-    motion_shaking_angular_rad: np.ndarray
-    s_geom: np.ndarray
-    s_reach: np.ndarray
-    zone: list[str]
-    zone_rating: dict[str, list[str]]  # task -> per-grasp level ("" unrated)
-    # Per engine that labelled the grasps (``cross_engine``): its own held, held fraction and failure ("" held).
-    engine_held: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
-    engine_held_fraction: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
-    engine_failure: dict[str, list[str]] = dataclasses.field(default_factory=dict)
-
-    def __len__(self) -> int:
-        return len(self.held)
-
-    @classmethod
-    def empty(cls, tasks: tuple[str, ...], engines: tuple[str, ...] = ()) -> "LabelledGrasps":
-        """No grasps (an object none of whose captures could be labelled), with every field's shape."""
-        none = np.zeros(0)
-        return cls(np.zeros((0, 4, 4)), none, np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64), [], [], np.zeros(0, dtype=bool), none, [], [],
-                   none, none, none, none, none, none, [], {task: [] for task in tasks},
-                   {engine: np.zeros(0, dtype=bool) for engine in engines}, {engine: none for engine in engines}, {engine: [] for engine in engines})
-
-    @classmethod
-    def concatenate(cls, parts: list["LabelledGrasps"]) -> "LabelledGrasps":
-        values = {}
-        for item in dataclasses.fields(cls):
-            pieces = [getattr(part, item.name) for part in parts]
-            if isinstance(pieces[0] if pieces else None, dict):  # per task or engine: joined key by key
-                values[item.name] = {key: _joined([p[key] for p in pieces]) for key in pieces[0]}
-            else:
-                values[item.name] = _joined(pieces)
-        return cls(**values)
-
-
-def _joined(pieces: list) -> Any:
-    """Lists joined end to end, arrays concatenated."""
-    if pieces and isinstance(pieces[0], list):
-        return sum(pieces, [])
-    return np.concatenate(pieces) if pieces else np.zeros(0)
-
-
-@dataclass(frozen=True)
-class UntestedGrasps:
-    """Grasps chosen for labelling whose simulation could not run: kept apart, never as labels."""
-
-    transforms: np.ndarray  # (U, 4, 4)
-    reason: list[str]
 
 
 def copy_object_mesh(spec: ObjectSpec, meshes_dir: Path) -> tuple[str, float, np.ndarray]:
     """Copy the object's visual mesh to ``meshes_dir/<object>/``: its path there, its scale and its
     (4, 4) mesh-to-link transform (identity for YCB and imported objects)."""
-    mesh_file, _, scale, mesh_to_link = object_mesh_reference(spec)
+    mesh_file, _, scale, mesh_to_link = mesh_reference(spec)
     source = objects_root(Path(spec.urdf_path).resolve()) / mesh_file  # an absolute mesh_file stays itself
     target = meshes_dir / spec.id / source.name
     target.parent.mkdir(parents=True, exist_ok=True)

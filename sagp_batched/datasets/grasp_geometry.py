@@ -23,13 +23,13 @@ import numpy as np
 import torch
 from scipy.spatial import ConvexHull
 
+from ..formats.frames import mesh_reference
 from ..grasps import GraspPoses
 from ..robot.description import RobotDescription
 from ..robot.hand import DOP_DIRECTIONS, load_hand_geometry
 from ..types import PerceivedCloud
 from ..world.objects import ObjectSpec, objects_root
 from ..world.perception import voxel_downsample
-from .export import object_mesh_reference
 
 # Surface points are spread this far apart: well under a finger's 14 mm thinnest side, so a wall
 # crossing a finger always leaves points inside it.
@@ -65,7 +65,7 @@ def object_mesh_link(spec: ObjectSpec):
     (``solid_surface``)."""
     import trimesh
 
-    mesh_file, _, _, mesh_to_link = object_mesh_reference(spec)
+    mesh_file, _, _, mesh_to_link = mesh_reference(spec)
     if not mesh_file:
         raise ValueError(f"object '{spec.id}' has no visual mesh to test grasps against")
     path = objects_root(Path(spec.urdf_path).resolve()) / mesh_file

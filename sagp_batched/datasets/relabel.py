@@ -1,8 +1,8 @@
 """Another simulator's grasps relabelled by ours (``runners.relabel`` is its command line).
 
-A grasp file (``grasp_files.read_grasp_file``) is checked with its mesh (``check_inputs``), the mesh imported as our
+A grasp file (``formats.grasp_file.read_grasp_file``) is checked with its mesh (``check_inputs``), the mesh imported as our
 object at the file's scale, mass and friction (``import_object``), the file's grasps moved into that object's link
-frame (``link_from_scaled_mesh``) and labelled in chunks kept as each finishes (``label_pending``), so that a second
+frame (``link_from_imported_mesh``) and labelled in chunks kept as each finishes (``label_pending``), so that a second
 ``relabel`` into the same directory resumes; the agreement of the file's labels and ours is written with them.
 """
 from __future__ import annotations
@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from ..config import Config
+from ..formats.grasp_file import GraspFile, read_grasp_file
 from ..world.objects import ObjectSpec, load_object_set
 from .engines import ENGINES
-from .grasp_files import GraspFile, read_grasp_file
 
 RELABEL_FILE = "relabel.h5"
 AGREEMENT_FILE = "agreement.json"
@@ -175,9 +175,13 @@ def import_object(inputs: Inputs, out_dir: Path, finger_lateral_friction: float)
     return objects, objects.get(inputs.object_id)
 
 
-def link_from_scaled_mesh(spec: ObjectSpec, scale: float) -> np.ndarray:
+def link_from_imported_mesh(spec: ObjectSpec, scale: float) -> np.ndarray:
     """(4, 4) rigid map from the file's frame (its mesh scaled by ``scale``) into the object's link frame: the
-    import's own map from the mesh at its import scale, which must be the file's."""
+    import's own map from the mesh at its import scale, which must be the file's.
+
+    The import recorded this map when it built the object (``world.mesh_import``); taking it from there, rather than
+    rebuilding it from a mesh-to-link and the scale (``formats.frames.link_from_scaled_mesh``), keeps the exact
+    values the object was built with: the rebuilt map differs in the last bits."""
     record = spec.import_record
     if record is None:
         raise InputError(f"object '{spec.id}' was not imported from a mesh, so its mesh frame is unknown")
@@ -204,7 +208,7 @@ def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarra
     values: held where every engine held (``cross_engine.combined_labels``), each engine's own under "by_engine"."""
     from ..config import load_config
     from .cross_engine import combined_labels
-    from .export import grasp_poses_from_acronym
+    from ..formats.frames import grasp_poses_from_acronym
     from .labelling import label_object_grasps
 
     if isinstance(config, dict):  # in a worker process: the config travels as its dict
@@ -278,10 +282,10 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
     relabel of other inputs or an object whose frame cannot take the file's grasps, and the object set's and run
     directory's own errors."""
     from .. import provenance
+    from ..formats.acronym import relabel_file_bytes
+    from ..formats.frames import grasp_poses_from_acronym
     from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_file_atomically, write_json
     from .agreement import agreement_markdown, grasp_regions, label_agreement
-    from .export import grasp_poses_from_acronym
-    from .grasp_files import relabel_bytes
 
     record = input_record(inputs)
     with RunLock(out_dir):
@@ -295,7 +299,7 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
         write_json(out_dir / PROVENANCE_FILE, provenance.collect(
             config.to_dict(), relabel=record, objects={"source": objects.source, "checksum": checksum, "ids": [spec.id]}))
         write_json(out_dir / INPUT_FILE, record)
-        link_from_file = link_from_scaled_mesh(spec, inputs.grasp_file.scale)
+        link_from_file = link_from_imported_mesh(spec, inputs.grasp_file.scale)
         transforms_link = link_from_file @ inputs.grasp_file.transforms[inputs.selection]
         widths = None if inputs.grasp_file.width_m is None else inputs.grasp_file.width_m[inputs.selection]
         labels = label_pending(spec, transforms_link, widths, inputs, config, out_dir,
@@ -306,7 +310,7 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
         result.update(file=record["file"], protocol=inputs.protocol, engine=inputs.engine, object_id=spec.id)
         if len(inputs.engines) > 1:
             result.update(_engine_agreements(inputs.grasp_file.labels[inputs.selection], labels, regions, inputs.engines))
-        write_file_atomically(out_dir / RELABEL_FILE, relabel_bytes(
+        write_file_atomically(out_dir / RELABEL_FILE, relabel_file_bytes(
             inputs.grasp_file, inputs.selection, link_from_file, labels, regions, object_id=spec.id, mass_kg=spec.mass_kg,
             protocol=inputs.protocol, engine=inputs.engine))
         write_json(out_dir / AGREEMENT_FILE, result)

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..config import Config
 from ..run_directory import write_json
-from ..study.report import count_and_rate
+from ..statistics import count_and_rate
 from .cross_engine import LABEL_RULE, agreement_report_lines
 from .dataset import read_progress, split_of, write_splits
 from .verdicts import VERDICTS
@@ -104,7 +104,7 @@ def write_dataset_report(out_dir: Path, config: Config, objects, object_ids: lis
     splits = write_splits(out_dir, {e["object"]: e["mesh"] for e in entries}, valid_fraction)
     summary = _summary(entries)
     manifest = {
-        "format": {"grasps": "grasps/<object>.h5 (ACRONYM layout, see sagp_batched/datasets/dataset.py)",
+        "format": {"grasps": "grasps/<object>.h5 (ACRONYM layout, see sagp_batched/formats/acronym.py)",
                    "graspgen": "graspgen/<object>.json", "meshes": "meshes/", "splits": "splits/{train,valid}.txt"},
         "conventions": {
             "frame": "object link frame; ACRONYM Franka gripper: z approach, x closing axis, origin 0.105 m behind the contacts",

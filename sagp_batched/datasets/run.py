@@ -20,11 +20,11 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from ..config import Config
+from ..formats.frames import grasp_poses_from_acronym
 from ..run_directory import WorkerReport
 from ..runtime import ray_worker_stopped
 from ..world.objects import ObjectSet
 from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
-from .export import grasp_poses_from_acronym
 
 # The report's coverage figure: grasps closer than this, and turned less, count as one.
 DISTINCT_TRANSLATION_M = 0.01
@@ -247,7 +247,8 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol
 
     from .cross_engine import object_engine_agreement
     from .dataset import append_progress, copy_object_mesh
-    from .grasp_files import write_graspgen_file, write_object_file
+    from ..formats.acronym import write_object_file
+    from ..formats.graspgen import write_graspgen_file
 
     clock = time.perf_counter()
     for sub in ("grasps", "graspgen", "meshes"):

@@ -1,6 +1,6 @@
 """The study: the loop over objects x tasks x trials (``run``), one trial (``experiment``), the
-methods' rankings (``methods``), the task judgement (``judging``), the summary (``metrics``) and its
-report (``report``)."""
+methods' rankings (``methods``), the task judgement (``judging``), a trial's record (``records``) and the
+file of them (``trials_file``), the summary (``metrics``) and its report (``report``)."""
 from .run import StudyResult, run_study
 
 __all__ = ["StudyResult", "run_study"]

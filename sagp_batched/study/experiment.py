@@ -21,12 +21,12 @@ import numpy as np
 from ..config import Config
 from ..grasps import GraspCandidates
 from ..rating.types import ZoneRating, clipped, neutral_rating
-from ..records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
 from ..seeds import candidate_seed
 from ..types import GraspAttempt, PerceivedCloud, PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
 from .judging import judge_task, place_grasp
 from .methods import RankingInputs, get_method
+from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
 
 
 class TrialTimeout(RuntimeError):
@@ -181,9 +181,9 @@ class TrialRunner:
             attempts_by_method[method] = executed_grasps.attempts
             emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=executed_grasps))
         if config.run.export_grasps:
-            from ..datasets.export import acronym_bytes
+            from ..formats.acronym import trial_file_bytes
 
-            result.files[grasps_file(spec.id, unit.task, unit.trial)] = acronym_bytes(
+            result.files[grasps_file(spec.id, unit.task, unit.trial)] = trial_file_bytes(
                 spec, cloud, candidates, ranked_by_method, attempts_by_method)
 
     def _rate(self, spec: ObjectSpec, unit: TrialUnit, cloud: PerceivedCloud, decomposition) -> tuple[ZoneRating, tuple[str, str] | None, float]:

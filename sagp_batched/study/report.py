@@ -5,6 +5,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ..statistics import count_and_rate
 from ..world.functional_regions import load_regions
 from .methods import REGISTRY
 from .metrics import per_object
@@ -80,11 +81,6 @@ def _failure_table(summary: dict[str, Any], task: str, methods: list[str]) -> li
 def _failures_list(metrics: dict[str, Any]) -> str:
     """'collision@descent×2, slipped@lift×1': compact enough for one cell per object and method."""
     return ", ".join(f"{key}×{count}" for key, count in metrics["attempt_failures"].items()) or "-"
-
-
-def count_and_rate(k: int, n: int) -> str:
-    """'3/4 (75.0 %)', or '-' where there is nothing to count."""
-    return f"{k}/{n} ({100 * k / n:.1f} %)" if n else "-"
 
 
 def _count_and_rate(metrics: dict[str, Any] | None, name: str) -> str:

@@ -24,17 +24,17 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from .. import provenance
 from ..config import Config, ConfigError, load_config
-from ..records import TrialRecord, TrialUnit, record_key
 from ..run_directory import (
-    CONFIG_FILE, PROVENANCE_FILE, TRIALS_FILE, WORKERS_FILE, RunDirectoryError, RunLock, TrialsFile, TrialWriter, WorkerReport,
-    append_json_line, check_same_run, read_records,
-    recover_trials_file, run_file_path, write_file_atomically, write_json,
+    CONFIG_FILE, PROVENANCE_FILE, WORKERS_FILE, RunDirectoryError, RunLock, WorkerReport, append_json_line, check_same_run, run_file_path,
+    write_file_atomically, write_json,
 )
 from ..seeds import candidate_seed, scene_seed
 from ..types import METHODS, TASKS
 from ..world.objects import ObjectSet, load_object_set
 from .experiment import TrialRunner, UnitResult
 from .metrics import summarise
+from .records import TrialRecord, TrialUnit, record_key
+from .trials_file import TRIALS_FILE, TrialsFile, TrialWriter, read_records, recover_trials_file
 
 if TYPE_CHECKING:
     from ..world.object_transfer import PackedObjects

@@ -11,12 +11,12 @@ from typing import Any
 
 import math
 
-from .config import Config
-from .grasps import Grasp
-from .seeds import candidate_seed, scene_seed
-from .study.judging import GraspPlacement, TaskOutcome
-from .types import METHODS, TASKS, GraspAttempt
-from .world.objects import ObjectSpec
+from ..config import Config
+from ..grasps import Grasp
+from ..seeds import candidate_seed, scene_seed
+from ..types import METHODS, TASKS, GraspAttempt
+from ..world.objects import ObjectSpec
+from .judging import GraspPlacement, TaskOutcome
 
 PLAN_COUNTS: tuple[str, ...] = ("sampled", "antipodal", "collision_free", "ik_feasible")
 STAGE_TIMES: tuple[str, ...] = ("perception", "geometry", "rating", "total_plan")

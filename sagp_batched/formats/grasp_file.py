@@ -1,42 +1,31 @@
-"""Grasp files in the layouts grasp-learning code reads, read and written here: ACRONYM's HDF5 and GraspGen's JSON.
+"""The one reader of grasp files: ACRONYM's HDF5 and JSON, GraspGen's JSON, ours and those the projects publish.
 
-Reading accepts the files those projects publish, not only ours:
+What is read (all grasps in ACRONYM's Franka gripper frame, ``frames``):
 
-- ACRONYM HDF5 (what ``acronym_tools.load_grasps`` / ``load_mesh`` read): ``grasps/transforms`` (N, 4, 4) Franka
-  gripper poses in the frame of the mesh ``object/file`` scaled by ``object/scale``;
-  ``grasps/qualities/flex/object_in_gripper`` (N,) 1 held, 0 dropped; optionally ``object/{mass, friction,
-  density, com}`` (the COM in the scaled mesh's frame). Our files (``write_object_file``) hold their grasps in
-  the object's URDF link frame instead, with ``object/mesh_to_link`` (mesh vertices -> link frame) beside them:
-  the reader moves those grasps into the scaled mesh's frame, so every ``GraspFile`` means the same frame.
+- ACRONYM HDF5 (what ``acronym_tools.load_grasps`` / ``load_mesh`` read): ``grasps/transforms`` (N, 4, 4) gripper
+  poses in the frame of the mesh ``object/file`` scaled by ``object/scale``; ``grasps/qualities/flex/object_in_gripper``
+  (N,) 1 held, 0 dropped; optionally ``object/{mass, friction, density, com}`` (the COM in the scaled mesh's frame)
+  and our ``grasps/width``. Our files (``acronym``) hold their grasps in the object's URDF link frame instead, with
+  ``object/mesh_to_link`` beside them: the reader moves those grasps into the scaled mesh's frame
+  (``frames.link_from_scaled_mesh``), so every ``GraspFile`` means the same frame.
 - ACRONYM JSON (the same loaders' other branch): ``object``, ``object_scale``, ``transforms``,
   ``quality_flex_object_in_gripper`` at the top level.
-- GraspGen JSON: ``object.file``, ``object.scale``, ``grasps.transforms``, ``grasps.object_in_gripper`` (booleans).
-  GraspGen's files name no gripper; its Franka gripper's frame is ACRONYM's (fingers along x, 0.0584 m up z).
+- GraspGen JSON (``graspgen``): ``object.file``, ``object.scale``, ``grasps.transforms``, ``grasps.object_in_gripper``
+  (booleans). GraspGen's files name no gripper; its Franka gripper's frame is ACRONYM's.
 
 Bad input raises ``GraspFileError``, one line naming the file and what is wrong.
-
-Writing: one object's labelled grasps in our layout (``write_object_file``, the keys listed in ``dataset``) and in
-GraspGen's (``write_graspgen_file``); a relabelled file's grasps with the file's label and ours (``relabel_bytes``).
 """
 from __future__ import annotations
 
-import io
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from .export import panda_hand_transforms_object
+from .frames import ROTATION_TOLERANCE, link_from_scaled_mesh
 
-if TYPE_CHECKING:
-    from .dataset import LabelledGrasps, ObjectPhysics, UntestedGrasps
-
-GRIPPER_TYPE = "franka_panda"
-# Rotation blocks further than this from orthonormal are refused: a pose that is not one cannot be simulated.
-ROTATION_TOLERANCE = 1e-4
 FLEX = "grasps/qualities/flex/object_in_gripper"
 
 
@@ -108,7 +97,10 @@ def _read_hdf5(path: Path) -> GraspFile:
     com = _vector(path, "object/com", values.get("object/com"), (3,))
     mesh_to_link = _vector(path, "object/mesh_to_link", values.get("object/mesh_to_link"), (4, 4))
     if mesh_to_link is not None:
-        scaled_to_link = _scaled_mesh_to_link(path, mesh_to_link, scale)
+        try:
+            scaled_to_link = link_from_scaled_mesh(mesh_to_link, scale)
+        except ValueError as exc:
+            raise GraspFileError(f"{path}: {exc}") from None
         transforms = np.linalg.inv(scaled_to_link) @ transforms
         com = None if com is None else (np.linalg.inv(scaled_to_link) @ np.append(com, 1.0))[:3]
     width = values.get("grasps/width")
@@ -125,16 +117,6 @@ def _read_hdf5(path: Path) -> GraspFile:
 
 _HDF5_KEYS = ("grasps/transforms", FLEX, "grasps/width", "object/file", "object/scale", "object/mass", "object/friction",
               "object/density", "object/com", "object/mesh_to_link")
-
-
-def _scaled_mesh_to_link(path: Path, mesh_to_link: np.ndarray, scale: float) -> np.ndarray:
-    """The rigid transform from the scaled mesh's frame to the link frame: ``mesh_to_link`` less the scale."""
-    scaled_to_link = mesh_to_link @ np.diag([1.0 / scale] * 3 + [1.0])
-    rotation = scaled_to_link[:3, :3]
-    if not (np.allclose(rotation @ rotation.T, np.eye(3), atol=ROTATION_TOLERANCE) and np.allclose(scaled_to_link[3], [0, 0, 0, 1])):
-        # A per-axis mesh scale: no frame of the mesh at one scale holds these grasps rigidly.
-        raise GraspFileError(f"{path}: object/mesh_to_link is not a rigid transform times object/scale {scale:g}")
-    return scaled_to_link
 
 
 # -- JSON ----------------------------------------------------------------------------------------------------------
@@ -234,125 +216,3 @@ def _vector(path: Path, key: str, value: Any, shape: tuple[int, ...]) -> np.ndar
     if array.shape != shape or not np.isfinite(array).all():
         raise GraspFileError(f"{path}: {key} must hold {shape} finite numbers, got shape {array.shape}")
     return array
-
-
-# -- writing -------------------------------------------------------------------------------------------------------
-def string_dataset(group, name: str, values: list[str]) -> None:
-    """``values`` as a UTF-8 string dataset ``name`` of an HDF5 group, the dtype ACRONYM's strings read as."""
-    import h5py
-
-    group.create_dataset(name, data=np.array(values, dtype=object), dtype=h5py.string_dtype())
-
-
-def write_object_file(
-    path: Path,
-    object_id: str,
-    mesh_file: str,
-    mesh_scale: float,
-    mesh_to_link: np.ndarray,
-    physics: ObjectPhysics,
-    grasps: LabelledGrasps,
-    untested: UntestedGrasps,
-    mode: str,
-    protocol: str,
-    rater: str,
-) -> None:
-    """One object's grasps as an ACRONYM-layout HDF5 file, replaced atomically."""
-    import h5py
-
-    tmp = path.with_name(path.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
-        f["grasps/transforms"] = grasps.transforms.astype(np.float64)
-        f["grasps/panda_hand_transforms"] = panda_hand_transforms_object(grasps.transforms.astype(np.float64))
-        flex = "grasps/qualities/flex"
-        f[f"{flex}/object_in_gripper"] = grasps.held.astype(np.int64)
-        f[f"{flex}/held_fraction"] = grasps.held_fraction.astype(np.float64)
-        f[f"{flex}/object_motion_during_closing_linear"] = grasps.motion_closing_linear_m.astype(np.float64)
-        f[f"{flex}/object_motion_during_closing_angular"] = grasps.motion_closing_angular_rad.astype(np.float64)
-        f[f"{flex}/object_motion_during_shaking_linear"] = grasps.motion_shaking_linear_m.astype(np.float64)
-        f[f"{flex}/object_motion_during_shaking_angular"] = grasps.motion_shaking_angular_rad.astype(np.float64)
-        for engine, held in grasps.engine_held.items():
-            f[f"grasps/qualities/{engine}/object_in_gripper"] = held.astype(np.int64)
-            f[f"grasps/qualities/{engine}/held_fraction"] = grasps.engine_held_fraction[engine].astype(np.float64)
-            string_dataset(f, f"grasps/qualities/{engine}/failure_reason", grasps.engine_failure[engine])
-        string_dataset(f, "engines", list(grasps.engine_held))
-        f["grasps/qualities/terms/geom"] = grasps.s_geom.astype(np.float64)
-        f["grasps/qualities/terms/reach"] = grasps.s_reach.astype(np.float64)
-        f["grasps/width"] = grasps.width_m.astype(np.float64)
-        f["grasps/contacts"] = grasps.contacts.astype(np.float64)
-        f["grasps/resting_pose"] = grasps.resting_pose.astype(np.int64)
-        for name in ("verdict", "verdict_reason", "failure_reason", "decided_by", "zone"):
-            string_dataset(f, f"grasps/{name}", getattr(grasps, name))
-        for task, levels in grasps.zone_rating.items():
-            string_dataset(f, f"grasps/zone_rating/{task}", levels)
-        f["untested/transforms"] = untested.transforms.astype(np.float64).reshape(-1, 4, 4)
-        string_dataset(f, "untested/reason", untested.reason)
-        f["object/file"] = mesh_file
-        f["object/scale"] = float(mesh_scale)
-        f["object/mesh_to_link"] = np.asarray(mesh_to_link, dtype=np.float64)
-        f["object/id"] = object_id
-        f["object/mass"] = float(physics.mass_kg)
-        f["object/density"] = float(physics.density_kg_m3)
-        f["object/friction"] = float(physics.friction)
-        f["object/com"] = np.asarray(physics.com_m, dtype=np.float64)
-        f["object/inertia"] = np.asarray(physics.inertia_kg_m2, dtype=np.float64)
-        f["object/volume"] = float(physics.volume_m3)
-        f["gripper/type"] = GRIPPER_TYPE
-        f["mode"] = mode
-        f["protocol"] = protocol
-        f["rater"] = rater
-    os.replace(tmp, path)
-
-
-def write_graspgen_file(path: Path, mesh_file: str, mesh_scale: float, grasps: LabelledGrasps) -> None:
-    """The same grasps in GraspGen's JSON layout, replaced atomically."""
-    document = {
-        "object": {"file": mesh_file, "scale": float(mesh_scale)},
-        "grasps": {"transforms": grasps.transforms.tolist(), "object_in_gripper": [bool(h) for h in grasps.held]},
-    }
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(document), encoding="utf-8")
-    os.replace(tmp, path)
-
-
-
-
-def relabel_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: np.ndarray, labels: list[dict[str, Any]], regions: list[str],
-                  *, object_id: str, mass_kg: float, protocol: str, engine: str) -> bytes:
-    """A relabelled file's rows ``rows`` as HDF5 bytes: the grasps as the file gives them (its mesh, scale and frame, so
-    ACRONYM's loaders and ``read_grasp_file`` read them as they read the file), our label as ``object_in_gripper`` and
-    the file's under ``grasps/reference/``; ``labels`` hold held, held_fraction, simulated, failure_reason, failed_at, and
-    with several engines each one's under "by_engine" (written to ``grasps/qualities/<engine>/``)."""
-    import h5py
-
-    transforms = grasp_file.transforms[rows]
-    buffer = io.BytesIO()
-    with h5py.File(buffer, "w") as f:
-        f["grasps/transforms"] = transforms
-        f["grasps/panda_hand_transforms"] = panda_hand_transforms_object(transforms)
-        f["grasps/link_transforms"] = link_from_file @ transforms  # what our simulation ran, in the object's link frame
-        f["grasps/source_index"] = np.asarray(rows, dtype=np.int64)
-        f[FLEX] = np.array([label["held"] for label in labels], dtype=np.int64)
-        f["grasps/reference/object_in_gripper"] = grasp_file.labels[rows].astype(np.int64)
-        f["grasps/held_fraction"] = np.array([label["held_fraction"] for label in labels], dtype=np.float64)
-        f["grasps/simulated"] = np.array([label["simulated"] for label in labels], dtype=np.int64)
-        for name in ("failure_reason", "failed_at"):
-            string_dataset(f, f"grasps/{name}", [label[name] for label in labels])
-        string_dataset(f, "grasps/region", regions)
-        for engine in labels[0].get("by_engine", {}) if labels else ():  # several engines: each one's own label
-            f[f"grasps/qualities/{engine}/object_in_gripper"] = np.array([label["by_engine"][engine]["held"] for label in labels], dtype=np.int64)
-            string_dataset(f, f"grasps/qualities/{engine}/failed_at", [label["by_engine"][engine]["failed_at"] for label in labels])
-        if grasp_file.width_m is not None:
-            f["grasps/width"] = grasp_file.width_m[rows]
-        f["object/file"] = grasp_file.mesh_file
-        f["object/scale"] = grasp_file.scale
-        f["object/mesh_to_link"] = np.diag([grasp_file.scale] * 3 + [1.0])  # the file's frame is the scaled mesh's
-        f["object/link_from_file"] = link_from_file
-        f["object/id"] = object_id
-        f["object/mass"] = float(mass_kg)
-        f["gripper/type"] = GRIPPER_TYPE
-        f["protocol"] = protocol
-        f["engine"] = engine
-        f["reference/file"] = str(grasp_file.path)
-        f["reference/format"] = grasp_file.format
-    return buffer.getvalue()
