@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from sagp_batched.attempt import ATTEMPT_RECORD_FIELDS
-from sagp_batched.records import OPTIONAL_RECORD_FIELDS, RECORD_FIELDS
+from sagp_batched.study.records import OPTIONAL_RECORD_FIELDS, RECORD_FIELDS
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
