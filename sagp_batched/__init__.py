@@ -9,19 +9,20 @@ The public API: build a scene, perceive, plan, zone, rate, score, execute::
     grasps = plan(capture(scene, config), config, seed=0).candidates   # GraspCandidates, ranked by S_geom
     attempt = execute_grasp(scene, config, grasps[0])      # grasps[0] is the best Grasp
 """
-from .attempt import AttemptDiagnostics
-from .config import GEOMETRY_ONLY_WEIGHTS, Config, ConfigError, ScoreWeights, load_config
-from .execution.pick import execute_grasp, execute_ranked
-from .grasps import Grasp, GraspCandidates, GraspPoses
-from .planning import PlanResult, plan, plan_batch
-from .rating import ZoneRating, get_rater
-from .semantics.scoring import score_candidates
-from .semantics.zones import ZoneDecomposition, assign_zones
-from .study.run import run_study
-from .types import CameraData, GraspAttempt, PerceivedCloud, PerceptionFailure
-from .world.objects import ObjectSet, ObjectSpec, load_object_set
-from .world.perception import capture
-from .world.scene import Scene
+from .lazy_exports import lazy_exports
+
+# Each public name and its module, imported on first use (``lazy_exports``).
+_PUBLIC = {
+    "AttemptDiagnostics": "attempt", "GEOMETRY_ONLY_WEIGHTS": "config", "Config": "config", "ConfigError": "config",
+    "ScoreWeights": "config", "load_config": "config", "execute_grasp": "execution.pick", "execute_ranked": "execution.pick",
+    "Grasp": "grasps", "GraspCandidates": "grasps", "GraspPoses": "grasps", "PlanResult": "planning", "plan": "planning",
+    "plan_batch": "planning", "ZoneRating": "rating", "get_rater": "rating", "score_candidates": "semantics.scoring",
+    "ZoneDecomposition": "semantics.zones", "assign_zones": "semantics.zones", "run_study": "study.run",
+    "CameraData": "types", "GraspAttempt": "types", "PerceivedCloud": "types", "PerceptionFailure": "types",
+    "ObjectSet": "world.objects", "ObjectSpec": "world.objects", "load_object_set": "world.objects",
+    "capture": "world.perception", "Scene": "world.scene",
+}
+__getattr__ = lazy_exports(__name__, _PUBLIC)
 
 __version__ = "0.1.0"
 

@@ -3,12 +3,15 @@ simulation (``labelling``, in its own worlds built by ``collision_urdf``), one o
 labels (``datagen``), the run over objects (``run``), the files (``dataset``: GraspGen's layout;
 ``export``: ACRONYM's), the report (``report``) and another simulator's grasp file relabelled by ours
 (``relabel``: ``check_relabel_inputs``, then ``relabel_grasp_file``)."""
-from .labelling import GraspLabel, ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
-from .relabel import InputError as RelabelInputError
-from .relabel import Inputs as RelabelInputs
-from .relabel import check_inputs as check_relabel_inputs
-from .relabel import relabel as relabel_grasp_file
-from .run import DatasetResult, generate_dataset
+from ..lazy_exports import lazy_exports
 
-__all__ = ["DatasetResult", "GraspLabel", "ObjectPlacement", "RelabelInputError", "RelabelInputs", "check_relabel_inputs", "generate_dataset",
-           "grasps_from_poses", "label_grasps_arm", "label_grasps_hand", "relabel_grasp_file"]
+# Imported on first use, so that one engine's modules load without the other's simulator.
+_PUBLIC = {
+    "GraspLabel": "labelling", "ObjectPlacement": "labelling", "grasps_from_poses": "labelling", "label_grasps_arm": "labelling",
+    "label_grasps_hand": "labelling", "RelabelInputError": "relabel:InputError", "RelabelInputs": "relabel:Inputs",
+    "check_relabel_inputs": "relabel:check_inputs", "relabel_grasp_file": "relabel:relabel", "DatasetResult": "run",
+    "generate_dataset": "run",
+}
+
+__all__ = sorted(_PUBLIC)
+__getattr__ = lazy_exports(__name__, _PUBLIC)

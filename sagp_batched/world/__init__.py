@@ -3,8 +3,10 @@
 ``mesh_settings``; sent to workers by ``object_transfer``), their annotated functional parts
 (``functional_regions``), the PyBullet scene (``scene``) and the cameras' perceived cloud
 (``perception``)."""
-from .objects import ObjectSet, ObjectSpec, load_object_set
-from .perception import capture
-from .scene import Scene
+from ..lazy_exports import lazy_exports
 
-__all__ = ["ObjectSet", "ObjectSpec", "Scene", "capture", "load_object_set"]
+# Imported on first use: the objects are read by engines without PyBullet too.
+_PUBLIC = {"ObjectSet": "objects", "ObjectSpec": "objects", "load_object_set": "objects", "capture": "perception", "Scene": "scene"}
+
+__all__ = sorted(_PUBLIC)
+__getattr__ = lazy_exports(__name__, _PUBLIC)
