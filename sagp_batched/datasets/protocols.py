@@ -181,12 +181,14 @@ class LabelProtocol:
 
     ``table``: the study's table is in the world (and the dataset's grasps come from the table's
     captures); without it the object floats alone and grasps are taken from all around it.
-    ``approaches``: the hand starts at the pre-grasp and moves along the study's approach to the grasp;
+    ``geometry_verdicts``: the planner's verdicts whose grasps geometry alone mostly fails, of which a
+    dataset takes few, since a learner gains little from many. ``approaches``: the hand starts at the pre-grasp and moves along the study's approach to the grasp;
     else it appears at the grasp. ``placement_type``: where a ``simulate`` call's object is
     (``ObjectPlacement``, ``FloatingPlacement``)."""
 
     name: ClassVar[str]
     table: ClassVar[bool]
+    geometry_verdicts: ClassVar[tuple[str, ...]]
     approaches: ClassVar[bool]
     placement_type: ClassVar[type]
 
@@ -246,6 +248,8 @@ class Tabletop(LabelProtocol):
     """The object where it settled on the study's table, the hand approaching from the pre-grasp."""
 
     name, table, approaches, placement_type = "tabletop", True, True, ObjectPlacement
+    # The open hand through the table or in the object's points.
+    geometry_verdicts = ("table", "volume")
 
     def start(self, placement: ObjectPlacement, target: HandTarget) -> WorldStart:
         object_pose = (placement.com_position_world, placement.com_quat_xyzw)
@@ -275,6 +279,8 @@ class Floating(LabelProtocol):
     """The object alone with gravity off, the open hand at the grasp; close, then gravity, lift, hold, shake."""
 
     name, table, approaches, placement_type = "floating", False, False, FloatingPlacement
+    # No descent, but the hand's sweep ends in the hand at the grasp.
+    geometry_verdicts = ("volume", "hand_sweep")
 
     def start(self, placement: FloatingPlacement, target: HandTarget) -> WorldStart:
         object_pose = (placement.link_position_world, placement.link_quat_xyzw)
