@@ -92,9 +92,15 @@ class ObjectPlacement:
         position, quat = scene.centre_of_mass(scene.target_id)
         return cls(scene.target_spec, tuple(float(v) for v in position), tuple(float(v) for v in quat))
 
+    frame: ClassVar[str] = "com"  # the object's frame ``pose`` places
+
+    @property
+    def pose(self) -> Pose:
+        return self.com_position_world, self.com_quat_xyzw
+
     def link_pose_world(self) -> np.ndarray:
         """(4, 4) the object's link frame in the world."""
-        return pose_matrix(self.com_position_world, self.com_quat_xyzw) @ np.linalg.inv(com_in_link(self.spec))
+        return pose_matrix(*self.pose) @ np.linalg.inv(com_in_link(self.spec))
 
 
 @dataclass(frozen=True)
@@ -106,9 +112,15 @@ class FloatingPlacement:
     link_position_world: tuple[float, float, float] = (0.0, 0.0, 0.0)
     link_quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
 
+    frame: ClassVar[str] = "link"  # the object's frame ``pose`` places
+
+    @property
+    def pose(self) -> Pose:
+        return self.link_position_world, self.link_quat_xyzw
+
     def link_pose_world(self) -> np.ndarray:
         """(4, 4) the object's link frame in the world."""
-        return pose_matrix(self.link_position_world, self.link_quat_xyzw)
+        return pose_matrix(*self.pose)
 
 
 Placement = ObjectPlacement | FloatingPlacement
@@ -193,7 +205,10 @@ class LabelProtocol:
     placement_type: ClassVar[type]
 
     def start(self, placement: Placement, target: HandTarget) -> WorldStart:
-        raise NotImplementedError
+        """The world a simulation starts from: the object where ``placement`` has it, the hand at the
+        pre-grasp where it ``approaches``, else at the grasp; gravity on from the start where there is a table."""
+        hand_position = target.start if self.approaches else target.grasp
+        return WorldStart(placement.spec, placement.pose, placement.frame, hand_position, target.quat, table=self.table, gravity=self.table)
 
     def simulate(self, engine: HandEngine, placement: Placement, target: HandTarget, config: Config) -> GraspLabel:
         raise NotImplementedError
@@ -251,10 +266,6 @@ class Tabletop(LabelProtocol):
     # The open hand through the table or in the object's points.
     geometry_verdicts = ("table", "volume")
 
-    def start(self, placement: ObjectPlacement, target: HandTarget) -> WorldStart:
-        object_pose = (placement.com_position_world, placement.com_quat_xyzw)
-        return WorldStart(placement.spec, object_pose, "com", target.start, target.quat, table=True, gravity=True)
-
     def simulate(self, engine: HandEngine, placement: ObjectPlacement, target: HandTarget, config: Config) -> GraspLabel:
         """Approach, close, lift, hold, shake, with the object on the table."""
         execution, labelling = config.execution, config.labelling
@@ -281,10 +292,6 @@ class Floating(LabelProtocol):
     name, table, approaches, placement_type = "floating", False, False, FloatingPlacement
     # No descent, but the hand's sweep ends in the hand at the grasp.
     geometry_verdicts = ("volume", "hand_sweep")
-
-    def start(self, placement: FloatingPlacement, target: HandTarget) -> WorldStart:
-        object_pose = (placement.link_position_world, placement.link_quat_xyzw)
-        return WorldStart(placement.spec, object_pose, "link", target.grasp, target.quat, table=False, gravity=False)
 
     def simulate(self, engine: HandEngine, placement: FloatingPlacement, target: HandTarget, config: Config) -> GraspLabel:
         engine.build(self.start(placement, target))

@@ -1,9 +1,9 @@
-"""The study loop: units over objects x tasks x trials, run locally, in processes, or on Ray.
+"""The study loop: units over objects x tasks x trials, run here, in processes, or on Ray (``workers.WorkerPool``).
 
 Long runs lose nothing: each finished record is appended to ``trials.jsonl`` and synced at once
 (``run_directory``); a re-run into the same directory skips finished records and runs again the
 trials whose line was torn or invalid, and those that ended in an error unless ``run.keep_errors``;
-a unit that raises or times out is recorded with its error.
+a unit that raises or times out is recorded with its error, and so is each unit of a worker process that died.
 
 Only the driver writes the run directory, whichever backend runs the units: a unit comes back with
 its records and the contents of the files they name, and the driver writes the files (whole, by
