@@ -22,6 +22,7 @@ close in the world (the hand holds still), during the shake in the hand's (grasp
 """
 from __future__ import annotations
 
+import abc
 import functools
 import math
 import xml.etree.ElementTree as ElementTree
@@ -186,7 +187,7 @@ def _checkpoints(steps: int, count: int) -> set[int]:
     return {round(steps * (k + 1) / count) for k in range(count)}
 
 
-class LabelProtocol:
+class LabelProtocol(abc.ABC):
     """One way of labelling a grasp by simulation. ``start`` says what is placed where, ``simulate``
     moves the hand from there and ``held`` judges; after the close every protocol here lifts, holds and
     shakes (``_close_lift_shake``), a protocol with another motion overrides ``simulate``.
@@ -194,9 +195,9 @@ class LabelProtocol:
     ``table``: the study's table is in the world (and the dataset's grasps come from the table's
     captures); without it the object floats alone and grasps are taken from all around it.
     ``geometry_verdicts``: the planner's verdicts whose grasps geometry alone mostly fails, of which a
-    dataset takes few, since a learner gains little from many. ``approaches``: the hand starts at the pre-grasp and moves along the study's approach to the grasp;
-    else it appears at the grasp. ``placement_type``: where a ``simulate`` call's object is
-    (``ObjectPlacement``, ``FloatingPlacement``)."""
+    dataset takes few, since a learner gains little from many. ``approaches``: the hand starts at the
+    pre-grasp and moves along the study's approach to the grasp; else it appears at the grasp.
+    ``placement_type``: where a ``simulate`` call's object is (``ObjectPlacement``, ``FloatingPlacement``)."""
 
     name: ClassVar[str]
     table: ClassVar[bool]
@@ -210,8 +211,9 @@ class LabelProtocol:
         hand_position = target.start if self.approaches else target.grasp
         return WorldStart(placement.spec, placement.pose, placement.frame, hand_position, target.quat, table=self.table, gravity=self.table)
 
+    @abc.abstractmethod
     def simulate(self, engine: HandEngine, placement: Placement, target: HandTarget, config: Config) -> GraspLabel:
-        raise NotImplementedError
+        """The label of one simulation of a grasp, in a world ``engine`` builds from nothing."""
 
     def held(self, engine: HandEngine, config: Config) -> bool:
         """The study's test (``object_held``) on what the engine measures, the table where there is one."""
