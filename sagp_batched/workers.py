@@ -27,7 +27,8 @@ from typing import Any, Callable, Protocol
 
 from .config import ConfigError
 from .run_directory import WorkerReport
-from .runtime import configure_torch, ray_session, ray_worker_stopped, resident_memory_bytes
+from . import runtime
+from .runtime import configure_torch, ray_worker_stopped, resident_memory_bytes
 
 
 class Worker(Protocol):
@@ -135,7 +136,8 @@ class _Processes:
 class _RayActors:
     def __init__(self, recipe: Recipe, workers: int, ray_address: str | None):
         self.session = contextlib.ExitStack()
-        self.session.enter_context(ray_session(ray_address, workers))
+        # Looked up when the pool starts, so a test can stand in for the session.
+        self.session.enter_context(runtime.ray_session(ray_address, workers))
         import ray
 
         self.ray = ray
