@@ -82,7 +82,9 @@ def _run_in_process(unit: Any) -> tuple[Any, WorkerReport]:
 Finished = tuple[Any, Any, "WorkerReport | None"]  # (unit, result, the worker's report; None for a unit run here)
 
 
-class _Here:
+class _InThisProcess:
+    """One worker, made on the first unit, running units in the order submitted."""
+
     def __init__(self, make: Callable[[], Worker]):
         self.make, self.worker = make, None
         self.queue: collections.deque = collections.deque()
@@ -104,7 +106,9 @@ class _Here:
             self.worker.close()
 
 
-class _Processes:
+class _SpawnedProcesses:
+    """Each worker a spawned process, made by its pool's initializer and kept for the whole run."""
+
     def __init__(self, recipe: Recipe, workers: int, on_worker_death: Callable[[Any, BaseException], Any] | None):
         self.pool = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                                            initializer=_host_in_process, initargs=(recipe,))
@@ -134,6 +138,8 @@ class _Processes:
 
 
 class _RayActors:
+    """Each worker a Ray actor, given one unit at a time, the rest waiting here in order."""
+
     def __init__(self, recipe: Recipe, workers: int, ray_address: str | None):
         self.session = contextlib.ExitStack()
         # Looked up when the pool starts, so a test can stand in for the session.
@@ -193,9 +199,9 @@ class WorkerPool:
         if backend == "ray":
             self._start = lambda: _RayActors(on_ray, workers, ray_address)
         elif workers > 1:
-            self._start = lambda: _Processes(in_process, workers, on_worker_death)
+            self._start = lambda: _SpawnedProcesses(in_process, workers, on_worker_death)
         else:
-            self._start = lambda: _Here(here)
+            self._start = lambda: _InThisProcess(here)
         self._runner: Any = None
 
     def submit(self, unit: Any) -> None:
