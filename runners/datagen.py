@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from sagp_batched.config import ConfigError
+from sagp_batched.config.run import LABEL_PROTOCOLS
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
@@ -56,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--objects", type=_csv, help="comma list of object ids, or 'all' (default)")
     parser.add_argument("--grasps-per-object", type=int, help="labelled grasps per object")
     parser.add_argument("--mode", choices=("hand", "arm"), help="hand: the Panda hand alone; arm: the Panda executes the planned motion")
-    parser.add_argument("--protocol", choices=("tabletop", "floating"),
+    parser.add_argument("--protocol", choices=LABEL_PROTOCOLS,
                         help="hand mode: tabletop (the object on the table, the hand approaching) or floating "
                              "(ACRONYM's: the object alone, grasps all around it)")
     parser.add_argument("--engines", type=_csv,

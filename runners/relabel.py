@@ -17,6 +17,7 @@ from pathlib import Path
 
 from sagp_batched.config import ConfigError
 from sagp_batched.formats.grasp_file import GraspFileError
+from sagp_batched.config.run import LABEL_PROTOCOLS
 from sagp_batched.datasets.relabel import CHUNKS_DIR, ENGINES, REPORT_FILE, InputError, check_inputs, relabel
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError
 
@@ -29,7 +30,6 @@ SETTING_FLAGS = {
     "--grasps-per-chunk": ("grasps_per_chunk", "dataset", "grasps_per_chunk"),
     "--protocol": ("protocol", "dataset", "protocol"),
 }
-PROTOCOLS = ("floating", "tabletop")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("grasp_file", metavar="FILE", help="an ACRONYM .h5 or an ACRONYM / GraspGen .json grasp file")
     parser.add_argument("--mesh-root", required=True, help="the folder the file's object/file is relative to")
-    parser.add_argument("--protocol", required=True, choices=PROTOCOLS, help="floating: the hand and the object alone; tabletop: the object on the table")
+    parser.add_argument("--protocol", required=True, choices=LABEL_PROTOCOLS, help="floating: the hand and the object alone; tabletop: the object on the table")
     parser.add_argument("--out", required=True, help="output directory (re-running into it resumes)")
     parser.add_argument("--engine", default="pybullet",
                         help=f"the simulator that labels ({', '.join(ENGINES)}; default pybullet), or a comma list of them: "

@@ -53,21 +53,21 @@ def test_agreement_counts_the_simulated_grasps_per_verdict_and_names_who_dropped
     assert "agreement 2/4 (50.0 %)" in lines and "| a | 2/4 (50.0 %) | 0.00 | 1 | 1 | 1 | 1 |" in lines
 
 
-def test_a_robust_label_stops_once_its_majority_is_decided(monkeypatch):
+def test_a_robust_label_stops_once_its_majority_is_decided():
     runs = []
 
-    def simulate(engine, placement, target, config):
-        runs.append(target)
-        return _label("pybullet", held=len(runs) != 2)  # every simulation holds but the second
+    class Protocol:
+        def simulate(self, engine, placement, target, config):
+            runs.append(target)
+            return _label("pybullet", held=len(runs) != 2)  # every simulation holds but the second
 
-    monkeypatch.setattr(labelling, "_simulate", simulate)
     config = load_config("dataset")
     targets = [object()] * 5
-    outcomes = labelling._decisive_outcomes(None, None, targets, [None] * 5, config)
+    outcomes = labelling._decisive_outcomes(Protocol(), None, None, targets, [None] * 5, config)
     assert len(outcomes) == 4 and labelling._majority(outcomes).held_fraction == 0.75  # H, D, H, H: three of five held
     runs.clear()
     dropped = [_label("pybullet", False)] * 2  # two decided by geometry
-    outcomes = labelling._decisive_outcomes(None, None, targets, dropped + [None] * 3, config)
+    outcomes = labelling._decisive_outcomes(Protocol(), None, None, targets, dropped + [None] * 3, config)
     assert [o.held for o in outcomes] == [False, False, True, False]  # the 4th simulation (2nd run) drops: three of five dropped
     assert len(runs) == 2 and not labelling._majority(outcomes).held
 

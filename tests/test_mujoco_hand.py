@@ -12,7 +12,7 @@ from sagp_batched.benchmarks.label_fidelity import designed_box_grasps
 from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.datasets.engines import ENGINES, hand_engine
 from sagp_batched.datasets.labelling import FloatingPlacement, label_object_grasps
-from sagp_batched.datasets.protocols import run_floating
+from sagp_batched.datasets.protocols import FLOATING, HandTarget, WorldStart
 from sagp_batched.grasps import GraspPoses
 from sagp_batched.robot.description import robot_of
 
@@ -64,11 +64,40 @@ def test_the_same_simulation_twice_in_one_engine_gives_the_same_label_to_the_las
     config = load_config(None, ONE_SIMULATION)
     grasp = designed_box_grasps(designed_box)
     position, quat = grasp.position[0].numpy(), Rotation.from_matrix(grasp.rotation[0].numpy()).as_quat()
+    placement, moved = FloatingPlacement(designed_box), position + [0.01, 0, 0]
     with MuJoCoHand(config) as engine:
-        first = run_floating(engine, designed_box, ((0, 0, 0), (0, 0, 0, 1)), position, quat, config)
-        run_floating(engine, designed_box, ((0, 0, 0), (0, 0, 0, 1)), position + [0.01, 0, 0], quat, config)
-        again = run_floating(engine, designed_box, ((0, 0, 0), (0, 0, 0, 1)), position, quat, config)
+        first = FLOATING.simulate(engine, placement, HandTarget(position, position, quat), config)
+        FLOATING.simulate(engine, placement, HandTarget(moved, moved, quat), config)
+        again = FLOATING.simulate(engine, placement, HandTarget(position, position, quat), config)
     assert first == again and first.held
+
+
+# Run with PyBullet made unimportable: any import of it on the way fails the script.
+WITHOUT_PYBULLET = """
+import pickle, sys
+sys.modules["pybullet"] = None
+from sagp_batched.config import Config
+from sagp_batched.datasets.mujoco_hand import MuJoCoHand
+from sagp_batched.datasets.protocols import FLOATING, FloatingPlacement, HandTarget
+spec, position, quat = pickle.loads(sys.stdin.buffer.read())
+config = Config()
+with MuJoCoHand(config) as engine:
+    label = FLOATING.simulate(engine, FloatingPlacement(spec), HandTarget(position, position, quat), config)
+print(label.held)
+"""
+
+
+def test_the_mujoco_engine_imports_and_labels_without_pybullet(designed_box):
+    import pickle
+    import subprocess
+    import sys
+
+    grasp = designed_box_grasps(designed_box)
+    position, quat = grasp.position[0].numpy(), Rotation.from_matrix(grasp.rotation[0].numpy()).as_quat()
+    done = subprocess.run([sys.executable, "-c", WITHOUT_PYBULLET], input=pickle.dumps((designed_box, position, quat)),
+                          capture_output=True, timeout=600)
+    assert done.returncode == 0, done.stderr.decode()[-3000:]
+    assert done.stdout.decode().split()[-1] == "True", "the designed grasp across the box is held, as with PyBullet there"
 
 
 def test_the_hand_is_the_robot_description_s_open_hand_at_the_commanded_grasp(designed_box):
@@ -76,7 +105,8 @@ def test_the_hand_is_the_robot_description_s_open_hand_at_the_commanded_grasp(de
     robot = robot_of(config)
     turn = Rotation.from_euler("xyz", [0.3, -0.2, 1.0])
     with MuJoCoHand(config) as engine:
-        engine.build(designed_box, ((0.0, 0.0, 0.0), (0, 0, 0, 1)), "link", np.array([0.1, 0.2, 0.5]), turn.as_quat(), table=False, gravity=False)
+        engine.build(WorldStart(designed_box, ((0.0, 0.0, 0.0), (0, 0, 0, 1)), "link", np.array([0.1, 0.2, 0.5]), turn.as_quat(),
+                                table=False, gravity=False))
         world, data = engine.world, engine.data
         assert len(world.finger_qpos) == len(robot.finger_joints) == 2
         assert data.qpos[list(world.finger_qpos)].sum() == pytest.approx(robot.open_width_m)
@@ -89,7 +119,7 @@ def test_the_hand_is_the_robot_description_s_open_hand_at_the_commanded_grasp(de
 def test_the_centre_of_mass_frame_is_where_it_was_put(designed_box):
     with MuJoCoHand(Config()) as engine:
         com = ((0.4, -0.1, 0.9), tuple(Rotation.from_euler("z", 0.7).as_quat()))
-        engine.build(designed_box, com, "com", np.array([0.4, -0.1, 1.3]), np.array([0, 0, 0, 1.0]), table=True, gravity=True)
+        engine.build(WorldStart(designed_box, com, "com", np.array([0.4, -0.1, 1.3]), np.array([0, 0, 0, 1.0]), table=True, gravity=True))
         position, quat = engine.object_pose()
         assert np.allclose(position, com[0]) and np.allclose(np.abs(np.dot(quat, com[1])), 1.0)
 

@@ -1,6 +1,7 @@
 """Both labelling protocols on grasps whose outcome is known by construction, and robust labels."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from sagp_batched.benchmarks.label_fidelity import designed_box_grasps
@@ -50,3 +51,16 @@ def test_the_protocol_is_checked_before_anything_is_simulated(designed_box):
         label_object_grasps(designed_box, designed_box_grasps(designed_box), None, "upside_down", Config())
     with pytest.raises(ValueError, match="the tabletop protocol needs an ObjectPlacement"):
         label_object_grasps(designed_box, designed_box_grasps(designed_box), None, "tabletop", Config(), placement=FloatingPlacement(designed_box))
+
+
+def test_every_protocol_the_settings_name_is_one_object_that_says_where_things_start():
+    from sagp_batched.config.run import LABEL_PROTOCOLS
+    from sagp_batched.datasets.protocols import PROTOCOLS, HandTarget, ObjectPlacement
+
+    assert tuple(PROTOCOLS) == LABEL_PROTOCOLS
+    spec = object()
+    target = HandTarget(np.array([0.0, 0.0, 1.2]), np.array([0.0, 0.0, 1.1]), np.array([1.0, 0.0, 0.0, 0.0]))
+    tabletop = PROTOCOLS["tabletop"].start(ObjectPlacement(spec, (0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 1.0)), target)
+    assert tabletop.table and tabletop.gravity and tabletop.object_frame == "com" and tabletop.hand_position is target.start
+    floating = PROTOCOLS["floating"].start(FloatingPlacement(spec), target)
+    assert not floating.table and not floating.gravity and floating.object_frame == "link" and floating.hand_position is target.grasp

@@ -14,6 +14,7 @@ from sagp_batched.study.experiment import UnitResult, grasps_file
 from sagp_batched.study.records import TrialRecord
 from sagp_batched.study.trials_file import TRIALS_FILE, TrialWriter
 from sagp_batched.world.objects import load_object_set
+from sagp_batched.workers import Recipe, ReportingWorker
 
 OBJECTS = load_object_set()
 SPEC = OBJECTS.get("005_tomato_soup_can")
@@ -84,17 +85,27 @@ def test_a_worker_file_that_would_leave_the_run_directory_is_refused(tmp_path, m
 def test_a_worker_reports_its_memory_after_every_unit_and_the_driver_logs_one_line_each(tmp_path, monkeypatch):
     monkeypatch.setattr(study, "TrialRunner", _FileMakingRunner)
     config = _config(tmp_path)
-    worker = study._Worker(config.to_dict(), OBJECTS, "/objects/here")
+    worker = ReportingWorker(Recipe(study._Worker, (config, OBJECTS, "/objects/here")))
     units = study.plan_units(config, OBJECTS, ["go", "sagp"])
-    reports = [worker.run_unit(unit)[1] for unit in units]
+    reports = [worker.run(unit)[1] for unit in units]
     assert [r.units_done for r in reports] == [1, 2, 3] and {r.pid for r in reports} == {os.getpid()}
     assert all(r.rss_bytes > 10_000_000 and r.unit_s >= 0 and r.objects_dir == "/objects/here" for r in reports)
 
-    def reporting_inline(config, objects, units, finish):  # a pool of one worker, run in this process
-        for unit in units:
-            finish(*worker.run_unit(unit))
+    class ReportingPool:  # a pool of that one worker, run in this process
+        def __init__(self, *args, **kwargs):
+            pass
 
-    monkeypatch.setattr(study, "_run_inline", reporting_inline)
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc_info):
+            pass
+
+        def as_finished(self, units):
+            for unit in units:
+                yield (unit, *worker.run(unit))
+
+    monkeypatch.setattr(study, "WorkerPool", ReportingPool)
     study.run_study(config, OBJECTS, ["go", "sagp"], progress=False)
     lines = [json.loads(line) for line in (tmp_path / WORKERS_FILE).read_text().splitlines()]
     assert [line["units_done"] for line in lines] == [4, 5, 6]

@@ -17,10 +17,11 @@ import time
 from typing import Any, Callable, Sequence
 
 from ..config import Config
+from ..config.run import LABEL_PROTOCOLS
 from ..datasets.labelling import label_object_grasps
 from ..seeds import capture_trial
 from ..world.objects import ObjectSet
-from .label_fidelity import PROTOCOLS, designed_grasps, held_agreement, plan_grasps
+from .label_fidelity import designed_grasps, held_agreement, plan_grasps
 
 DEFAULT_OBJECTS = ("025_mug", "003_cracker_box", "005_tomato_soup_can", "006_mustard_bottle")
 
@@ -36,7 +37,7 @@ def _label_all(grasps: dict[str, tuple], config: Config, engine: str) -> tuple[d
     labels = {}
     start = time.process_time()
     for object_id, (spec, poses, widths, placements) in grasps.items():
-        for protocol in PROTOCOLS:
+        for protocol in LABEL_PROTOCOLS:
             labels[object_id, protocol] = label_object_grasps(spec, poses, widths, protocol, config, placement=placements[protocol], engine=engine)
     return labels, time.process_time() - start
 
@@ -52,7 +53,7 @@ def _pooled(reference: dict[tuple[str, str], list], labels: dict[tuple[str, str]
     """Agreement on held over every object and protocol, and per protocol."""
     keys = sorted(reference)
     result = {"all": held_agreement([l for k in keys for l in reference[k]], [l for k in keys for l in labels[k]])}
-    for protocol in PROTOCOLS:
+    for protocol in LABEL_PROTOCOLS:
         mine = [k for k in keys if k[1] == protocol]
         result[protocol] = held_agreement([l for k in mine for l in reference[k]], [l for k in mine for l in labels[k]])
     return result
@@ -127,7 +128,7 @@ def agreement_markdown(report: dict[str, Any]) -> str:
     ]
     for row in report["variants"]:
         agreement, speed = row["agreement"], row["speed"]
-        shares = " / ".join("-" if agreement[p]["agreement"] is None else f"{100 * agreement[p]['agreement']:.0f} %" for p in PROTOCOLS)
+        shares = " / ".join("-" if agreement[p]["agreement"] is None else f"{100 * agreement[p]['agreement']:.0f} %" for p in LABEL_PROTOCOLS)
         kappa = "-" if agreement["all"]["kappa"] is None else f"{agreement['all']['kappa']:.2f}"
         overrides = ", ".join(f"{key}={value}" for key, value in row["overrides"].items()) or "profile"
         lines.append(f"| {overrides} | {100 * agreement['all']['agreement']:.1f} % ({shares}) | {kappa} | "

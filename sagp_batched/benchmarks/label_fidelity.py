@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from ..config import Config
+from ..config.run import LABEL_PROTOCOLS
 from ..datasets.collision_urdf import urdf_origin
 from ..grasps import GraspPoses
 from ..seeds import capture_trial
@@ -38,7 +39,6 @@ from ..world.objects import ObjectSet, ObjectSpec
 
 # A few of the embedded YCB set: a cavity and a handle, a thin box, a cylinder.
 DEFAULT_OBJECTS = ("025_mug", "003_cracker_box", "005_tomato_soup_can")
-PROTOCOLS = ("tabletop", "floating")
 # The designed box (m): lying on its 5 x 8 face, 4 cm tall, once imported.
 DESIGNED_BOX_M = (0.05, 0.04, 0.08)
 # The Panda's finger hull is 21 mm wide: a grasp centre this far beyond a face closes both fingers beside it.
@@ -227,7 +227,7 @@ def designed_grasps(config: Config, cache_dir: Path | None = None, engine: str =
         trimesh.creation.box(DESIGNED_BOX_M).export(Path(folder) / "box.obj")
         box = load_object_set(folder, MeshImportSettings(cache_dir=cache_dir)).get("box")
         results = {}
-        for protocol in PROTOCOLS:
+        for protocol in LABEL_PROTOCOLS:
             labels = label_object_grasps(box, designed_box_grasps(box), None, protocol, config, engine=engine)
             got = [(label.held, label.simulated) for label in labels]
             results[protocol] = {"correct": sum(g == e for g, e in zip(got, DESIGNED_OUTCOMES)), "of": len(DESIGNED_OUTCOMES),

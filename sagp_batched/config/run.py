@@ -25,6 +25,8 @@ MAX_WORKERS = 1024
 RUN_BACKENDS = ("local", "ray")
 # The engines a hand-mode label can be simulated by (``datasets.engines``).
 LABEL_ENGINES = ("pybullet", "mujoco")
+# The protocols a hand-mode label can follow (``datasets.protocols.PROTOCOLS``, by these names).
+LABEL_PROTOCOLS = ("tabletop", "floating")
 
 
 @dataclass
@@ -71,13 +73,13 @@ class DatasetConfig(_Section):
     # What a hand-mode label simulates (``datasets.protocols``): "tabletop", the object where it
     # settled on the table and the hand approaching from the pre-grasp; "floating", ACRONYM's: the
     # object alone, the hand closing at the grasp, grasps sampled around the whole object.
-    protocol: str = setting("tabletop", choices=("tabletop", "floating"))
+    protocol: str = setting("tabletop", choices=LABEL_PROTOCOLS)
     # The engines every hand-mode grasp is labelled in: with more than one, the dataset's label is
     # held in all of them (a label one simulator gives and another does not is the simulator's), and
     # each engine's own is kept beside it. PyBullet is the study's execution engine.
     engines: tuple[str, ...] = setting(("pybullet",), non_empty=True, unique=True)
     # Share of each object's grasps, at most, taken from each verdict geometry alone fails
-    # (``verdicts.GEOMETRY_VERDICTS``: the hand through the table, or in the object's points).
+    # (``protocols.LabelProtocol.geometry_verdicts``: the hand through the table, or in the object's points).
     geometry_verdict_fraction: float = setting(0.05, at_least=0, at_most=1)
     # Share of a floating dataset's grasps that are clear grasps moved toward failure
     # (``boundary_grasps``): the picked grasps alone hold 88-98 %, and a learner needs the

@@ -3,12 +3,20 @@ simulation (``labelling``, in its own worlds built by ``collision_urdf``), one o
 labels (``datagen``), the run over objects (``run``), the dataset's directory (``dataset``; its files'
 layouts are ``sagp_batched.formats``'), the report (``report``) and another simulator's grasp file relabelled by ours
 (``relabel``: ``check_relabel_inputs``, then ``relabel_grasp_file``)."""
-from .labelling import GraspLabel, ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
-from .relabel import InputError as RelabelInputError
-from .relabel import Inputs as RelabelInputs
-from .relabel import check_inputs as check_relabel_inputs
-from .relabel import relabel as relabel_grasp_file
-from .run import DatasetResult, generate_dataset
+from typing import TYPE_CHECKING
 
-__all__ = ["DatasetResult", "GraspLabel", "ObjectPlacement", "RelabelInputError", "RelabelInputs", "check_relabel_inputs", "generate_dataset",
-           "grasps_from_poses", "label_grasps_arm", "label_grasps_hand", "relabel_grasp_file"]
+from ..lazy_exports import lazy_exports
+
+# Imported on first use, so that one engine's modules load without the other's simulator.
+if TYPE_CHECKING:
+    from .labelling import GraspLabel, ObjectPlacement, grasps_from_poses, label_grasps_arm, label_grasps_hand
+    from .relabel import (
+        InputError as RelabelInputError, Inputs as RelabelInputs, check_inputs as check_relabel_inputs, relabel as relabel_grasp_file,
+    )
+    from .run import DatasetResult, generate_dataset
+
+__all__ = [
+    "DatasetResult", "GraspLabel", "ObjectPlacement", "RelabelInputError", "RelabelInputs", "check_relabel_inputs",
+    "generate_dataset", "grasps_from_poses", "label_grasps_arm", "label_grasps_hand", "relabel_grasp_file",
+]
+__getattr__ = lazy_exports(__name__, __file__)

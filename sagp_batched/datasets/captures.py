@@ -16,6 +16,7 @@ from ..grasps import Grasp, GraspCandidates, GraspPoses
 from ..seeds import labelling_seed
 from ..types import PerceivedCloud
 from ..world.objects import ObjectSpec
+from .protocols import label_protocol
 from .verdicts import FEASIBLE, CaptureVerdicts, ClassifiedGrasps, capture_verdicts, classify_grasps
 
 # Captures whose verdicts one batch computes: a batch holds every capture's candidates, covering poses
@@ -106,7 +107,7 @@ def _classified(spec: ObjectSpec, capture: Capture, verdicts: CaptureVerdicts, c
     from .grasp_geometry import object_surface
 
     cloud, n_grasps, seed = capture.cloud, capture.n_grasps, labelling_seed(config, capture.pose_index)
-    if config.dataset.protocol != "floating":
+    if label_protocol(config.dataset.protocol).table:
         return classify_grasps(cloud, config, seed, n_grasps, taken_object=taken, verdicts=verdicts)
     boundary = round(config.dataset.boundary_fraction * n_grasps)
     clear = functools.partial(_open_hand_clear_world, spec, cloud.object_from_world, config)

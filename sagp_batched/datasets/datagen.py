@@ -32,6 +32,7 @@ from ..seeds import capture_trial
 from ..types import PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
 from .cross_engine import combined_labels, engine_columns, failure_text
+from .protocols import label_protocol
 from .captures import DATASET_TASKS, Capture, PosePlan, plan_captures
 
 if TYPE_CHECKING:
@@ -232,7 +233,7 @@ class ObjectLabeller:
         except PerceptionFailure as failure:
             spent["capture"] += time.perf_counter() - clock
             return f"capture {pose_index}: {failure.reason}"
-        if self.config.dataset.protocol == "floating":
+        if not label_protocol(self.config.dataset.protocol).table:
             cloud = whole_object_cloud(cloud, object_surface(spec), self.config.perception.voxel_size_m)
         spent["capture"] += time.perf_counter() - clock
         placement = ObjectPlacement.from_scene(self.scene)

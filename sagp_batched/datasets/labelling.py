@@ -23,9 +23,7 @@ of its own pose where that agreed with the majority, else of the first perturbed
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
-from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
@@ -34,7 +32,6 @@ from scipy.spatial.transform import Rotation
 
 from ..config import Config
 from ..execution.pick import checked_grasp, execute_grasp
-from ..execution.poses import pose_matrix
 from ..grasps import Grasp, GraspCandidates, GraspPoses, InvalidGraspError
 from ..robot.description import robot_of
 from ..robot.motion import grasp_waypoint_index
@@ -42,36 +39,11 @@ from ..types import GraspAttempt
 from ..world.objects import ObjectSpec
 from ..world.scene import Scene
 from .grasp_geometry import contact_widths, floating_hand_links, object_surface, open_hand_collisions
-from .collision_urdf import urdf_origin
 from .engines import check_engine, hand_engine
-from .protocols import PROTOCOLS, GraspLabel, HandEngine, ObjectPlacement, run_floating, run_tabletop
+from .protocols import FloatingPlacement, GraspLabel, HandEngine, HandTarget, LabelProtocol, ObjectPlacement, Placement, label_protocol
 
 __all__ = ["FloatingPlacement", "GraspLabel", "ObjectPlacement", "grasps_from_poses", "label_grasps_arm", "label_grasps_hand",
            "label_object_grasps", "tabletop_placement"]
-
-
-@dataclass(frozen=True)
-class FloatingPlacement:
-    """An object floating alone (the ``floating`` protocol): the world pose of its link frame.
-    Gravity pulls along the world's -z, so the pose says which way is down for the object."""
-
-    spec: ObjectSpec
-    link_position_world: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    link_quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-
-
-@dataclass(frozen=True)
-class _Target:
-    """One simulation's hand motion in the world: start (the pre-grasp, or the grasp where the hand appears there), grasp, orientation."""
-
-    start: np.ndarray
-    grasp: np.ndarray
-    quat: np.ndarray
-
-    def moved(self, translation: np.ndarray, turn: Rotation) -> "_Target":
-        """The same motion turned by ``turn`` about the grasp centre and moved by ``translation``."""
-        grasp = self.grasp + translation
-        return _Target(grasp + turn.apply(self.start - self.grasp), grasp, (turn * Rotation.from_quat(self.quat)).as_quat())
 
 
 def _arm_label(attempt: GraspAttempt) -> GraspLabel | None:
@@ -121,13 +93,13 @@ def _as_placements(placements: ObjectPlacement | Scene | Sequence[ObjectPlacemen
     return [p if isinstance(p, ObjectPlacement) else cache.setdefault(id(p), ObjectPlacement.from_scene(p)) for p in given]
 
 
-def _tabletop_targets(grasps: Sequence[Grasp], config: Config) -> list[_Target]:
+def _tabletop_targets(grasps: Sequence[Grasp], config: Config) -> list[HandTarget]:
     """The pre-grasp and the grasp waypoint of the study's motion, and the orientation, of each grasp."""
     index = grasp_waypoint_index(config.motion)
     targets = []
     for grasp in grasps:
         quat, waypoints, _ = checked_grasp(grasp, config.motion, robot_of(config))
-        targets.append(_Target(waypoints[0], waypoints[index], quat))
+        targets.append(HandTarget(waypoints[0], waypoints[index], quat))
     return targets
 
 
@@ -139,22 +111,6 @@ def tabletop_placement(spec: ObjectSpec, config: Config, resting_pose: int = 0, 
         return ObjectPlacement.from_scene(scene)
     finally:
         scene.close()
-
-
-# -- frames ------------------------------------------------------------------------------------------
-def _link_pose_world(placement: ObjectPlacement | FloatingPlacement) -> np.ndarray:
-    """(4, 4) the object's link frame in the world."""
-    if isinstance(placement, FloatingPlacement):
-        return pose_matrix(placement.link_position_world, placement.link_quat_xyzw)
-    return pose_matrix(placement.com_position_world, placement.com_quat_xyzw) @ np.linalg.inv(_com_in_link(placement.spec))
-
-
-@functools.lru_cache(maxsize=64)
-def _com_in_link(spec: ObjectSpec) -> np.ndarray:
-    """(4, 4) the centre-of-mass (inertial) frame in the link frame, from the URDF's ``<inertial><origin>``."""
-    import xml.etree.ElementTree as ElementTree
-
-    return urdf_origin(ElementTree.parse(spec.urdf_path).getroot().find("link/inertial/origin"))
 
 
 # -- labelling -----------------------------------------------------------------------------------------
@@ -174,25 +130,11 @@ def label_grasps_hand(
     protocol each grasp keeps its pose on the object, which floats alone at the world's origin.
     ``engine``: the simulator (``engines.ENGINES``).
     """
-    if protocol not in PROTOCOLS:
-        raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+    label_as = label_protocol(protocol)
     check_engine(engine)
     grasp_list = _as_grasps(grasps)
     placement_list = _as_placements(placements, len(grasp_list))
-    targets = _tabletop_targets(grasp_list, config)
-    if protocol == "tabletop":
-        return _label(placement_list, targets, config, engine)
-    floating: dict[ObjectSpec, FloatingPlacement] = {}
-    object_from_world_of: dict[int, np.ndarray] = {}  # one per placement: a batch usually shares one
-    on_object = []
-    for placement, target in zip(placement_list, targets):
-        if id(placement) not in object_from_world_of:
-            object_from_world_of[id(placement)] = np.linalg.inv(_link_pose_world(placement))
-        object_from_world = object_from_world_of[id(placement)]
-        grasp = object_from_world[:3, :3] @ target.grasp + object_from_world[:3, 3]
-        quat = (Rotation.from_matrix(object_from_world[:3, :3]) * Rotation.from_quat(target.quat)).as_quat()
-        on_object.append(_Target(grasp, grasp, quat))
-    return _label([floating.setdefault(p.spec, FloatingPlacement(p.spec)) for p in placement_list], on_object, config, engine)
+    return _label(label_as, *label_as.placed(placement_list, _tabletop_targets(grasp_list, config)), config, engine)
 
 
 def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, protocol: str, config: Config,
@@ -204,59 +146,53 @@ def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, prot
     the mesh then (``grasp_geometry.contact_widths``): the hand closes fully either way, the width
     only checks the grasp. ``engine``: the simulator (``engines.ENGINES``).
     """
-    if protocol not in PROTOCOLS:
-        raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+    label_as = label_protocol(protocol)
     check_engine(engine)
     if poses.frame != "object":
         raise InvalidGraspError(f"object grasps are given in the object frame, got poses in the {poses.frame} frame")
     if placement is None:
-        placement = FloatingPlacement(spec) if protocol == "floating" else tabletop_placement(spec, config)
-    if isinstance(placement, FloatingPlacement) != (protocol == "floating"):
-        raise ValueError(f"the {protocol} protocol needs {'a FloatingPlacement' if protocol == 'floating' else 'an ObjectPlacement'}")
+        placement = tabletop_placement(spec, config) if label_as.table else FloatingPlacement(spec)
+    if not isinstance(placement, label_as.placement_type):
+        needed = label_as.placement_type.__name__
+        raise ValueError(f"the {protocol} protocol needs {'an' if needed[0] in 'AEIOU' else 'a'} {needed}")
     robot = robot_of(config)
     widths = contact_widths(object_surface(spec), poses, robot.open_width_m) if widths_m is None else widths_m
-    world = poses.transform(_link_pose_world(placement), "world")
+    world = poses.transform(placement.link_pose_world(), "world")
     grasps = grasps_from_poses(world, widths)
-    if protocol == "tabletop":
-        return _label([placement] * len(grasps), _tabletop_targets(grasps, config), config, engine)
-    targets = [_Target(g, g, q) for g, q in zip(world.position.numpy(), world.quat_xyzw().numpy())]
-    return _label([placement] * len(grasps), targets, config, engine)
+    if label_as.approaches:
+        targets = _tabletop_targets(grasps, config)
+    else:
+        targets = [HandTarget(g, g, q) for g, q in zip(world.position.numpy(), world.quat_xyzw().numpy())]
+    return _label(label_as, [placement] * len(grasps), targets, config, engine)
 
 
-def _label(placements: Sequence[ObjectPlacement | FloatingPlacement], targets: Sequence[_Target], config: Config,
+def _label(protocol: LabelProtocol, placements: Sequence[Placement], targets: Sequence[HandTarget], config: Config,
            engine_name: str) -> list[GraspLabel]:
     """Each grasp's label: every simulation of it (its pose and its perturbations) tested by geometry, the clear ones simulated."""
     samples = [[target] + _perturbed(target, config) for target in targets]
-    decided = _geometry_verdicts(placements, samples, config)
+    decided = _geometry_verdicts(protocol, placements, samples, config)
     labels = []
     with hand_engine(engine_name, config) as engine:
         for placement, poses, verdicts in zip(placements, samples, decided):
             if verdicts[0] is not None:  # the grasp itself intersects: no simulation tests it
                 labels.append(verdicts[0])
                 continue
-            labels.append(_majority(_decisive_outcomes(engine, placement, poses, verdicts, config)))
+            labels.append(_majority(_decisive_outcomes(protocol, engine, placement, poses, verdicts, config)))
     return [dataclasses.replace(label, engine=engine_name) for label in labels]
 
 
-def _decisive_outcomes(engine: HandEngine, placement: ObjectPlacement | FloatingPlacement, poses: list[_Target],
+def _decisive_outcomes(protocol: LabelProtocol, engine: HandEngine, placement: Placement, poses: list[HandTarget],
                        verdicts: list[GraspLabel | None], config: Config) -> list[GraspLabel]:
     """The grasp's simulations in order (its pose, then its perturbations) until their majority is
     decided: the simulations left could not change the label, only its ``held_fraction``."""
     needed = len(poses) // 2 + 1  # held by a strict majority; dropped once held can no longer reach it
     outcomes: list[GraspLabel] = []
     for target, verdict in zip(poses, verdicts):
-        outcomes.append(verdict or _simulate(engine, placement, target, config))
+        outcomes.append(verdict or protocol.simulate(engine, placement, target, config))
         held = sum(outcome.held for outcome in outcomes)
         if held >= needed or len(outcomes) - held > len(poses) - needed:
             break
     return outcomes
-
-
-def _simulate(engine: HandEngine, placement: ObjectPlacement | FloatingPlacement, target: _Target, config: Config) -> GraspLabel:
-    if isinstance(placement, FloatingPlacement):
-        pose = (placement.link_position_world, placement.link_quat_xyzw)
-        return run_floating(engine, placement.spec, pose, target.grasp, target.quat, config)
-    return run_tabletop(engine, placement, target.start, target.grasp, target.quat, config)
 
 
 def _majority(outcomes: list[GraspLabel]) -> GraspLabel:
@@ -268,7 +204,7 @@ def _majority(outcomes: list[GraspLabel]) -> GraspLabel:
     return dataclasses.replace(representative, held_fraction=fraction)
 
 
-def _perturbed(target: _Target, config: Config) -> list[_Target]:
+def _perturbed(target: HandTarget, config: Config) -> list[HandTarget]:
     """The K - 1 perturbed copies of a target, from a seed made of the target's own pose."""
     labelling = config.labelling
     count = labelling.perturbed_simulations - 1
@@ -282,7 +218,7 @@ def _perturbed(target: _Target, config: Config) -> list[_Target]:
     return [target.moved(labelling.perturbation_translation_m * shift, Rotation.from_rotvec(angle * axis)) for shift, axis in directions]
 
 
-def _geometry_verdicts(placements: Sequence[ObjectPlacement | FloatingPlacement], samples: list[list[_Target]],
+def _geometry_verdicts(protocol: LabelProtocol, placements: Sequence[Placement], samples: list[list[HandTarget]],
                        config: Config) -> list[list[GraspLabel | None]]:
     """Per grasp and sample, the collision label where the open hand intersects the object or the
     table at the grasp pose (tested on the object's mesh, in its frame), else None."""
@@ -294,22 +230,21 @@ def _geometry_verdicts(placements: Sequence[ObjectPlacement | FloatingPlacement]
         by_placement.setdefault(id(placement), []).extend((i, k) for k in range(len(samples[i])))
     for indices in by_placement.values():
         placement = placements[indices[0][0]]
-        world_from_object = _link_pose_world(placement)
+        world_from_object = placement.link_pose_world()
         targets = [samples[i][k] for i, k in indices]
         world = GraspPoses(torch.as_tensor(np.array([t.grasp for t in targets]), dtype=torch.float64),
                            torch.as_tensor(Rotation.from_quat([t.quat for t in targets]).as_matrix(), dtype=torch.float64), "world")
         poses = world.transform(np.linalg.inv(world_from_object), "object")
         table = None
-        if isinstance(placement, ObjectPlacement):  # the table top, z = top in the world, in the object's frame
+        if protocol.table:  # the table top, z = top in the world, in the object's frame
             up = world_from_object[2, :3]
             table = (up, float(world_from_object[2, 3] - config.scene.table_top_z_m))
         object_hit, table_hit = open_hand_collisions(object_surface(placement.spec), poses, robot, links,
                                                      config.labelling.geometry_tolerance_m, table)
-        protocol = "floating" if isinstance(placement, FloatingPlacement) else "tabletop"
         for (i, k), hit in zip(indices, object_hit | table_hit):
             if hit:
                 verdicts[i][k] = GraspLabel(mode="hand", held=False, failure_reason="collision", failed_at="grasp_pose",
-                                            protocol=protocol, simulated=False)
+                                            protocol=protocol.name, simulated=False)
     return verdicts
 
 

@@ -1,5 +1,5 @@
-"""The MuJoCo engine of hand-mode labels: the same methods as ``pybullet_hand.PyBulletHand``, so the
-protocols (``protocols``) run on it unchanged.
+"""The MuJoCo engine of hand-mode labels: the same methods as ``pybullet_hand.PyBulletHand``
+(``protocols.HandEngine``), so the protocols run on it unchanged, and no PyBullet.
 
 Its world (``mujoco_world``) is compiled once per object and table and every simulation starts from
 ``mj_resetData``: MuJoCo steps a world deterministically from its state, and the reset clears all of it
@@ -22,8 +22,8 @@ from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
 from .collision_urdf import floating_hand_urdf
 from .mujoco_world import HandWorld, compile_world
+from .protocols import Pose, WorldStart
 
-Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
 # MuJoCo writes quaternions w first, the protocols x first.
 XYZW_FROM_WXYZ = [1, 2, 3, 0]
 WXYZ_FROM_XYZW = [3, 0, 1, 2]
@@ -62,25 +62,22 @@ class MuJoCoHand:
             self._worlds[key] = (world, mujoco.MjData(world.model))
         return self._worlds[key]
 
-    def build(self, spec: ObjectSpec, object_pose: Pose, pose_of: str, hand_position: np.ndarray, quat: np.ndarray,
-              table: bool, gravity: bool) -> None:
-        """The object's world reset: the object with its centre-of-mass frame (``pose_of`` "com") or its
-        link frame ("link") at ``object_pose``, the open hand's grasp target at ``hand_position`` /
-        ``quat``, gravity on or off."""
-        self.world, self.data = world, data = self._world(spec, table)
+    def build(self, start: WorldStart) -> None:
+        """The object's world reset to ``start``."""
+        self.world, self.data = world, data = self._world(start.spec, start.table)
         model = world.model
         mujoco.mj_resetData(model, data)
-        self.set_gravity(gravity)
-        link = pose_matrix(*object_pose)
-        if pose_of == "com":
+        self.set_gravity(start.gravity)
+        link = pose_matrix(*start.object_pose)
+        if start.object_frame == "com":
             link = link @ np.linalg.inv(pose_matrix(world.com_in_link[0], world.com_in_link[1][XYZW_FROM_WXYZ]))
         self._set_free_joint(world.object_qpos, link)
-        self._set_free_joint(world.hand_qpos, pose_matrix(hand_position, quat) @ world.hand_in_target)
+        self._set_free_joint(world.hand_qpos, pose_matrix(start.hand_position, start.hand_quat) @ world.hand_in_target)
         # The fingers open, and their servos' set points with them.
         data.qpos[list(world.finger_qpos)] = data.act[:] = self.robot.open_width_m / 2.0
         self.command_fingers(self.robot.open_width_m)
-        self.quat = np.asarray(quat, dtype=float)
-        self.move(hand_position)
+        self.quat = np.asarray(start.hand_quat, dtype=float)
+        self.move(start.hand_position)
         mujoco.mj_forward(model, data)
 
     def _set_free_joint(self, address: int, pose: np.ndarray) -> None:
@@ -146,8 +143,3 @@ class MuJoCoHand:
         bodies = self._contact_bodies()
         on_object = bodies[(bodies == self.world.object_body).any(axis=1)].ravel()
         return all(finger in on_object for finger in self.world.finger_bodies)
-
-    def held_above_table(self) -> bool:
-        """Execution's success test: the object's centre of mass high enough above the table and both fingers on it."""
-        height = self.object_pose()[0][2] - self.config.scene.table_top_z_m
-        return height >= self.config.execution.success_height_above_table_m and self.fingers_touching()

@@ -1,18 +1,19 @@
-"""Labelling protocols: what is placed where, how the hand moves, and what counts as held.
+"""Labelling protocols: each one object (a ``LabelProtocol``) that says what is placed where, how the
+hand moves and what counts as held; the engines (``engines``: ``pybullet_hand.PyBulletHand``,
+``mujoco_hand.MuJoCoHand``) build the world it asks for and step it, and know nothing of protocols.
+A new protocol is one more subclass here, listed in ``PROTOCOLS`` (and its name in ``config.run.LABEL_PROTOCOLS``).
 
-Two protocols, each run on any hand engine (``engines``: ``pybullet_hand.PyBulletHand``,
-``mujoco_hand.MuJoCoHand``; an engine builds the world and steps it, the protocol decides everything else):
-
-``tabletop``: the object rests on the study's table where the capture left it; the open hand starts
+``TABLETOP``: the object rests on the study's table where the capture left it; the open hand starts
 at the pre-grasp (``pregrasp_offset_m`` back along the approach), moves along the approach to the
 grasp, closes with the study's grip force and finger friction, lifts ``lift_height_m``, holds and
-shakes (``ShakeConfig``). Held: execution's own test (``execution.object_held``), the object's centre
+shakes (``ShakeConfig``). Held: the study's test (``execution.held.object_held``), the object's centre
 of mass ``success_height_above_table_m`` above the table and both fingers on it, after the hold
 and again after the shake.
 
-``floating``: ACRONYM's protocol. The object alone, no table, its link frame where the placement puts
+``FLOATING``: ACRONYM's protocol. The object alone, no table, its link frame where the placement puts
 it; gravity off while the open hand appears at the grasp pose and closes, then gravity on, the same
-lift, hold and shake. Held: both fingers still on the object after the hold and after the shake.
+lift, hold and shake. Held: the same test without a table, both fingers still on the object after
+the hold and after the shake.
 
 In both, a grasp whose open hand already intersects the object's mesh (or the table) at the grasp
 pose is a collision decided by geometry (``grasp_geometry``) before any simulation; the caller
@@ -21,20 +22,23 @@ close in the world (the hand holds still), during the shake in the hand's (grasp
 """
 from __future__ import annotations
 
+import abc
+import functools
 import math
+import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
-from typing import Any, Protocol, Sequence
+from typing import Any, ClassVar, Protocol, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..config import Config
-from ..execution.pick import lift_failure
-from ..execution.poses import pose_change, relative_pose
+from ..execution.held import lift_failure, object_held
+from ..execution.poses import pose_change, pose_matrix, relative_pose
 from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets, shake_profile
 from ..world.objects import ObjectSpec
+from .collision_urdf import urdf_origin
 
-PROTOCOLS: tuple[str, ...] = ("tabletop", "floating")
 Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
 
 
@@ -89,12 +93,79 @@ class ObjectPlacement:
         position, quat = scene.centre_of_mass(scene.target_id)
         return cls(scene.target_spec, tuple(float(v) for v in position), tuple(float(v) for v in quat))
 
+    frame: ClassVar[str] = "com"  # the object's frame ``pose`` places
+
+    @property
+    def pose(self) -> Pose:
+        return self.com_position_world, self.com_quat_xyzw
+
+    def link_pose_world(self) -> np.ndarray:
+        """(4, 4) the object's link frame in the world."""
+        return pose_matrix(*self.pose) @ np.linalg.inv(com_in_link(self.spec))
+
+
+@dataclass(frozen=True)
+class FloatingPlacement:
+    """An object floating alone (the ``floating`` protocol): the world pose of its link frame.
+    Gravity pulls along the world's -z, so the pose says which way is down for the object."""
+
+    spec: ObjectSpec
+    link_position_world: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    link_quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    frame: ClassVar[str] = "link"  # the object's frame ``pose`` places
+
+    @property
+    def pose(self) -> Pose:
+        return self.link_position_world, self.link_quat_xyzw
+
+    def link_pose_world(self) -> np.ndarray:
+        """(4, 4) the object's link frame in the world."""
+        return pose_matrix(*self.pose)
+
+
+Placement = ObjectPlacement | FloatingPlacement
+
+
+@functools.lru_cache(maxsize=64)
+def com_in_link(spec: ObjectSpec) -> np.ndarray:
+    """(4, 4) the centre-of-mass (inertial) frame in the link frame, from the URDF's ``<inertial><origin>``."""
+    return urdf_origin(ElementTree.parse(spec.urdf_path).getroot().find("link/inertial/origin"))
+
+
+@dataclass(frozen=True)
+class HandTarget:
+    """One simulation's hand motion in the world: start (the pre-grasp, or the grasp where the hand appears there), grasp, orientation."""
+
+    start: np.ndarray
+    grasp: np.ndarray
+    quat: np.ndarray
+
+    def moved(self, translation: np.ndarray, turn: Rotation) -> "HandTarget":
+        """The same motion turned by ``turn`` about the grasp centre and moved by ``translation``."""
+        grasp = self.grasp + translation
+        return HandTarget(grasp + turn.apply(self.start - self.grasp), grasp, (turn * Rotation.from_quat(self.quat)).as_quat())
+
+
+@dataclass(frozen=True)
+class WorldStart:
+    """The world an engine builds before a simulation: the study's table where ``table``, the object
+    with its centre-of-mass frame (``object_frame`` "com") or its link frame ("link") at
+    ``object_pose``, the open hand's grasp target at ``hand_position`` / ``hand_quat``, gravity on or off."""
+
+    spec: ObjectSpec
+    object_pose: Pose
+    object_frame: str
+    hand_position: np.ndarray
+    hand_quat: np.ndarray
+    table: bool
+    gravity: bool
+
 
 class HandEngine(Protocol):
     """What a protocol asks of an engine (``pybullet_hand.PyBulletHand`` and ``mujoco_hand.MuJoCoHand`` are two)."""
 
-    def build(self, spec: ObjectSpec, object_pose: Pose, pose_of: str, hand_position: np.ndarray, quat: np.ndarray,
-              table: bool, gravity: bool) -> None: ...
+    def build(self, start: WorldStart) -> None: ...
     def set_gravity(self, on: bool) -> None: ...
     def command_fingers(self, width_m: float) -> None: ...
     def step(self, steps: int) -> None: ...
@@ -104,7 +175,6 @@ class HandEngine(Protocol):
     def hand_in_contact(self) -> tuple[bool, bool]: ...
     def table_push_n(self) -> float: ...
     def fingers_touching(self) -> bool: ...
-    def held_above_table(self) -> bool: ...
 
 
 def _half_cosine(fraction: float) -> float:
@@ -117,65 +187,142 @@ def _checkpoints(steps: int, count: int) -> set[int]:
     return {round(steps * (k + 1) / count) for k in range(count)}
 
 
-def run_tabletop(engine: HandEngine, placement: ObjectPlacement, pregrasp: np.ndarray, grasp: np.ndarray, quat: np.ndarray,
-                 config: Config) -> GraspLabel:
-    """Approach, close, lift, hold, shake, with the object on the table: the label of one grasp."""
-    execution, labelling = config.execution, config.labelling
-    engine.build(placement.spec, (placement.com_position_world, placement.com_quat_xyzw), "com", pregrasp, quat, table=True, gravity=True)
-    rest_com = np.array(placement.com_position_world)
-    if any(engine.hand_in_contact()):
-        return _failed("tabletop", "collision", "pregrasp", {})
-    engine.step(labelling.hand_settle_steps)
-    # Checked as the study checks its descent: after each of its waypoints.
-    checks = _checkpoints(labelling.hand_approach_steps, config.motion.descent_waypoints)
-    for step in range(1, labelling.hand_approach_steps + 1):
-        engine.move(pregrasp + (grasp - pregrasp) * _half_cosine(step / labelling.hand_approach_steps))
-        engine.step(1)
-        if step in checks:
-            knocked = np.linalg.norm(np.subtract(engine.object_pose()[0], rest_com)) > execution.knock_tolerance_m
-            if knocked or engine.table_push_n() > execution.table_contact_max_force_n:
-                return _failed("tabletop", "collision", "descent", {})
-    return _close_lift_shake(engine, grasp, config, "tabletop", engine.held_above_table, rise_from_z=float(rest_com[2]))
+class LabelProtocol(abc.ABC):
+    """One way of labelling a grasp by simulation. ``start`` says what is placed where, ``simulate``
+    moves the hand from there and ``held`` judges; after the close every protocol here lifts, holds and
+    shakes (``_close_lift_shake``), a protocol with another motion overrides ``simulate``.
+
+    ``table``: the study's table is in the world (and the dataset's grasps come from the table's
+    captures); without it the object floats alone and grasps are taken from all around it.
+    ``geometry_verdicts``: the planner's verdicts whose grasps geometry alone mostly fails, of which a
+    dataset takes few, since a learner gains little from many. ``approaches``: the hand starts at the
+    pre-grasp and moves along the study's approach to the grasp; else it appears at the grasp.
+    ``placement_type``: where a ``simulate`` call's object is (``ObjectPlacement``, ``FloatingPlacement``)."""
+
+    name: ClassVar[str]
+    table: ClassVar[bool]
+    geometry_verdicts: ClassVar[tuple[str, ...]]
+    approaches: ClassVar[bool]
+    placement_type: ClassVar[type]
+
+    def start(self, placement: Placement, target: HandTarget) -> WorldStart:
+        """The world a simulation starts from: the object where ``placement`` has it, the hand at the
+        pre-grasp where it ``approaches``, else at the grasp; gravity on from the start where there is a table."""
+        hand_position = target.start if self.approaches else target.grasp
+        return WorldStart(placement.spec, placement.pose, placement.frame, hand_position, target.quat, table=self.table, gravity=self.table)
+
+    @abc.abstractmethod
+    def simulate(self, engine: HandEngine, placement: Placement, target: HandTarget, config: Config) -> GraspLabel:
+        """The label of one simulation of a grasp, in a world ``engine`` builds from nothing."""
+
+    def held(self, engine: HandEngine, config: Config) -> bool:
+        """The study's test (``object_held``) on what the engine measures, the table where there is one."""
+        height = engine.object_pose()[0][2] - config.scene.table_top_z_m if self.table else None
+        return object_held(engine.fingers_touching(), height, config.execution)
+
+    def placed(self, placements: Sequence[ObjectPlacement], targets: Sequence[HandTarget]) -> tuple[list[Placement], list[HandTarget]]:
+        """Where grasps planned on objects resting on the table (``placements``, ``targets`` in the world)
+        are simulated in this protocol: as they are."""
+        return list(placements), list(targets)
+
+    def _close_lift_shake(self, engine: HandEngine, grasp: np.ndarray, config: Config, rise_from_z: float | None,
+                          gravity_after_close: bool = False) -> GraspLabel:
+        """Once the hand is at the grasp: close, lift, hold, judge, shake, judge.
+
+        The object's rise during the lift (slipped or never lifted) is measured from ``rise_from_z``,
+        where it rested, or from where the close left it (None)."""
+        execution, labelling = config.execution, config.labelling
+        motion: dict[str, Any] = {}
+        before_close = engine.object_pose()
+        engine.command_fingers(0.0)
+        engine.step(labelling.hand_close_steps)
+        after_close = engine.object_pose()
+        motion["object_motion_during_closing_linear"], motion["object_motion_during_closing_angular"] = pose_change(before_close, after_close)
+        touching_after_close = engine.fingers_touching()
+        if gravity_after_close:
+            engine.set_gravity(True)
+        checks = _checkpoints(labelling.hand_lift_steps, config.motion.lift_waypoints)
+        up = np.array([0.0, 0.0, config.motion.lift_height_m])
+        highest_rise, rise_from_z = 0.0, (after_close[0][2] if rise_from_z is None else rise_from_z)
+        for step in range(1, labelling.hand_lift_steps + 1):
+            engine.move(grasp + up * _half_cosine(step / labelling.hand_lift_steps))
+            engine.step(1)
+            if step in checks:
+                highest_rise = max(highest_rise, float(engine.object_pose()[0][2] - rise_from_z))
+        engine.step(labelling.hand_hold_steps)
+        if not self.held(engine, config):
+            return self._failed(*lift_failure(highest_rise, touching_after_close, execution), motion)
+        motion.update(_shake(engine, shake_profile(labelling.shake, config.scene.time_step_s)))
+        if self.held(engine, config):
+            return GraspLabel(mode="hand", held=True, failure_reason=None, failed_at=None, protocol=self.name, **motion)
+        return self._failed("slipped", "shake", motion)
+
+    def _failed(self, reason: str, phase: str, motion: dict[str, Any]) -> GraspLabel:
+        return GraspLabel(mode="hand", held=False, failure_reason=reason, failed_at=phase, protocol=self.name, **motion)
 
 
-def run_floating(engine: HandEngine, spec: ObjectSpec, object_link_pose: Pose, grasp: np.ndarray, quat: np.ndarray,
-                 config: Config) -> GraspLabel:
-    """The object floating with gravity off, the open hand at the grasp; close, then gravity, lift, hold, shake."""
-    engine.build(spec, object_link_pose, "link", grasp, quat, table=False, gravity=False)
-    return _close_lift_shake(engine, grasp, config, "floating", engine.fingers_touching, rise_from_z=None, gravity_after_close=True)
+class Tabletop(LabelProtocol):
+    """The object where it settled on the study's table, the hand approaching from the pre-grasp."""
+
+    name, table, approaches, placement_type = "tabletop", True, True, ObjectPlacement
+    # The open hand through the table or in the object's points.
+    geometry_verdicts = ("table", "volume")
+
+    def simulate(self, engine: HandEngine, placement: ObjectPlacement, target: HandTarget, config: Config) -> GraspLabel:
+        """Approach, close, lift, hold, shake, with the object on the table."""
+        execution, labelling = config.execution, config.labelling
+        engine.build(self.start(placement, target))
+        rest_com = np.array(placement.com_position_world)
+        if any(engine.hand_in_contact()):
+            return self._failed("collision", "pregrasp", {})
+        engine.step(labelling.hand_settle_steps)
+        # Checked as the study checks its descent: after each of its waypoints.
+        checks = _checkpoints(labelling.hand_approach_steps, config.motion.descent_waypoints)
+        for step in range(1, labelling.hand_approach_steps + 1):
+            engine.move(target.start + (target.grasp - target.start) * _half_cosine(step / labelling.hand_approach_steps))
+            engine.step(1)
+            if step in checks:
+                knocked = np.linalg.norm(np.subtract(engine.object_pose()[0], rest_com)) > execution.knock_tolerance_m
+                if knocked or engine.table_push_n() > execution.table_contact_max_force_n:
+                    return self._failed("collision", "descent", {})
+        return self._close_lift_shake(engine, target.grasp, config, rise_from_z=float(rest_com[2]))
 
 
-def _close_lift_shake(engine: HandEngine, grasp: np.ndarray, config: Config, protocol: str, held, rise_from_z: float | None,
-                      gravity_after_close: bool = False) -> GraspLabel:
-    """The phases both protocols share once the hand is at the grasp: close, lift, hold, judge, shake, judge.
+class Floating(LabelProtocol):
+    """The object alone with gravity off, the open hand at the grasp; close, then gravity, lift, hold, shake."""
 
-    The object's rise during the lift (slipped or never lifted) is measured from ``rise_from_z``,
-    where it rested, or from where the close left it (None)."""
-    execution, labelling = config.execution, config.labelling
-    motion: dict[str, Any] = {}
-    before_close = engine.object_pose()
-    engine.command_fingers(0.0)
-    engine.step(labelling.hand_close_steps)
-    after_close = engine.object_pose()
-    motion["object_motion_during_closing_linear"], motion["object_motion_during_closing_angular"] = pose_change(before_close, after_close)
-    touching_after_close = engine.fingers_touching()
-    if gravity_after_close:
-        engine.set_gravity(True)
-    checks = _checkpoints(labelling.hand_lift_steps, config.motion.lift_waypoints)
-    up = np.array([0.0, 0.0, config.motion.lift_height_m])
-    highest_rise, rise_from_z = 0.0, (after_close[0][2] if rise_from_z is None else rise_from_z)
-    for step in range(1, labelling.hand_lift_steps + 1):
-        engine.move(grasp + up * _half_cosine(step / labelling.hand_lift_steps))
-        engine.step(1)
-        if step in checks:
-            highest_rise = max(highest_rise, float(engine.object_pose()[0][2] - rise_from_z))
-    engine.step(labelling.hand_hold_steps)
-    if not held():
-        return _failed(protocol, *lift_failure(highest_rise, touching_after_close, execution), motion)
-    motion.update(_shake(engine, shake_profile(labelling.shake, config.scene.time_step_s)))
-    if held():
-        return GraspLabel(mode="hand", held=True, failure_reason=None, failed_at=None, protocol=protocol, **motion)
-    return _failed(protocol, "slipped", "shake", motion)
+    name, table, approaches, placement_type = "floating", False, False, FloatingPlacement
+    # No descent, but the hand's sweep ends in the hand at the grasp.
+    geometry_verdicts = ("volume", "hand_sweep")
+
+    def simulate(self, engine: HandEngine, placement: FloatingPlacement, target: HandTarget, config: Config) -> GraspLabel:
+        engine.build(self.start(placement, target))
+        return self._close_lift_shake(engine, target.grasp, config, rise_from_z=None, gravity_after_close=True)
+
+    def placed(self, placements: Sequence[ObjectPlacement], targets: Sequence[HandTarget]) -> tuple[list[Placement], list[HandTarget]]:
+        """Each grasp keeps its pose on the object, which floats alone at the world's origin."""
+        floating: dict[ObjectSpec, FloatingPlacement] = {}
+        object_from_world_of: dict[int, np.ndarray] = {}  # one per placement: a batch usually shares one
+        on_object = []
+        for placement, target in zip(placements, targets):
+            if id(placement) not in object_from_world_of:
+                object_from_world_of[id(placement)] = np.linalg.inv(placement.link_pose_world())
+            object_from_world = object_from_world_of[id(placement)]
+            grasp = object_from_world[:3, :3] @ target.grasp + object_from_world[:3, 3]
+            quat = (Rotation.from_matrix(object_from_world[:3, :3]) * Rotation.from_quat(target.quat)).as_quat()
+            on_object.append(HandTarget(grasp, grasp, quat))
+        return [floating.setdefault(p.spec, FloatingPlacement(p.spec)) for p in placements], on_object
+
+
+TABLETOP, FLOATING = Tabletop(), Floating()
+PROTOCOLS: dict[str, LabelProtocol] = {protocol.name: protocol for protocol in (TABLETOP, FLOATING)}
+
+
+def label_protocol(name: str) -> LabelProtocol:
+    """The protocol called ``name``; ``ValueError`` naming the known ones where none is."""
+    if name not in PROTOCOLS:
+        raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {name!r}")
+    return PROTOCOLS[name]
 
 
 def _shake(engine: HandEngine, profile: ShakeProfile) -> dict[str, Any]:
@@ -198,7 +345,3 @@ def _shake(engine: HandEngine, profile: ShakeProfile) -> dict[str, Any]:
         "object_motion_during_shaking_angular": angular,
         "shake_achieved_peak_accelerations": achieved_shake_peaks(profile, frame_offsets(start, hand_poses)),
     }
-
-
-def _failed(protocol: str, reason: str, phase: str, motion: dict[str, Any]) -> GraspLabel:
-    return GraspLabel(mode="hand", held=False, failure_reason=reason, failed_at=phase, protocol=protocol, **motion)

@@ -1,9 +1,9 @@
 """The PyBullet engine of hand-mode labels: one floating Panda hand and one object, in a world built
 from nothing for every simulation.
 
-The engine knows how to simulate, not what to test: ``protocols`` places the object and the hand,
-moves the hand and judges the outcome through the methods here, so a second engine implements the
-same methods and the protocols stay as they are.
+The engine knows how to simulate, not what to test: a protocol (``protocols.LabelProtocol``) says
+what to build (``protocols.WorldStart``), moves the hand and judges the outcome through the methods
+here, so a second engine implements the same methods and the protocols stay as they are.
 
 The hand is the robot URDF's hand subtree (collision meshes only, fingers as prismatic joints),
 carried by a fixed constraint on its grasp target. Simulations do not share a world: PyBullet's
@@ -17,18 +17,17 @@ from __future__ import annotations
 
 from typing import Sequence
 
-import numpy as np
 import pybullet
 
 from ..config import Config
-from ..execution.pick import fingers_touching, object_held, push_n, set_finger_friction
+from ..execution.pick import fingers_touching, push_n, set_finger_friction
 from ..robot.description import robot_of
 from ..robot.hand import hand_to_grasp_target_m
 from ..world.objects import ObjectLoadError, ObjectSpec
 from ..world.scene import command_fingers, configure_physics, create_table
 from .collision_urdf import collision_only_urdf, floating_hand_urdf
+from .protocols import Pose, WorldStart
 
-Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
 
 
 class PyBulletHand:
@@ -62,24 +61,22 @@ class PyBulletHand:
         self.close()
 
     # -- building ------------------------------------------------------------------------------------
-    def build(self, spec: ObjectSpec, object_pose: Pose, pose_of: str, hand_position: np.ndarray, quat: np.ndarray,
-              table: bool, gravity: bool) -> None:
-        """A new world: the study's table where ``table``, the object with its centre-of-mass frame
-        (``pose_of`` "com") or its link frame ("link") at ``object_pose``, the open hand's grasp target
-        at ``hand_position`` / ``quat``, gravity on or off."""
-        client, config = self.client, self.config
+    def build(self, start: WorldStart) -> None:
+        """A new world as ``start`` has it."""
+        client, config, spec, object_pose = self.client, self.config, start.spec, start.object_pose
+        hand_position, quat = start.hand_position, start.hand_quat
         pybullet.resetSimulation(physicsClientId=client)
         configure_physics(client, config.scene)
-        self.set_gravity(gravity)
+        self.set_gravity(start.gravity)
         pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
-        self.table = create_table(client, config.scene) if table else None
+        self.table = create_table(client, config.scene) if start.table else None
         try:
             # loadURDF places the link frame; resetBasePositionAndOrientation the centre-of-mass frame.
-            link_pose = object_pose if pose_of == "link" else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+            link_pose = object_pose if start.object_frame == "link" else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
             self.target = pybullet.loadURDF(self._object_urdf(spec), *link_pose, flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
         except pybullet.error as exc:
             raise ObjectLoadError(f"object '{spec.id}': PyBullet cannot load {spec.urdf_path}: {exc}") from exc
-        if pose_of == "com":
+        if start.object_frame == "com":
             pybullet.resetBasePositionAndOrientation(self.target, object_pose[0], object_pose[1], physicsClientId=client)
         self.hand = pybullet.loadURDF(self.hand_urdf, physicsClientId=client)
         names = {pybullet.getJointInfo(self.hand, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(self.hand, physicsClientId=client))}
@@ -146,7 +143,3 @@ class PyBulletHand:
 
     def fingers_touching(self) -> bool:
         return fingers_touching(self.client, self.hand, self.finger_joints, self.target)
-
-    def held_above_table(self) -> bool:
-        """Execution's success test: the object's centre of mass high enough above the table and both fingers on it."""
-        return object_held(self.client, self.hand, self.finger_joints, self.target, self.config)

@@ -7,10 +7,9 @@ frame (``link_from_imported_mesh``) and labelled in chunks kept as each finishes
 """
 from __future__ import annotations
 
-import concurrent.futures
+import functools
 import hashlib
 import json
-import multiprocessing
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ import numpy as np
 
 from ..config import Config
 from ..formats.grasp_file import GraspFile, read_grasp_file
+from ..workers import Recipe, WorkerPool
 from ..world.objects import ObjectSpec, load_object_set
 from .engines import ENGINES
 
@@ -244,6 +244,25 @@ def _read_chunk(path: Path, start: int, stop: int) -> list[dict[str, Any]] | Non
     return chunk["labels"] if ok else None
 
 
+class _ChunkLabeller:
+    """A worker of ``label_pending``: a unit is the (start, stop) rows of the grasps it labels (``label_chunk``)."""
+
+    objects_dir = None
+
+    def __init__(self, spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, protocol: str,
+                 engines: tuple[str, ...], config: Config | dict):
+        self.spec, self.transforms_link, self.widths = spec, transforms_link, widths
+        self.protocol, self.engines, self.config = protocol, engines, config
+
+    def run(self, rows: tuple[int, int]) -> list[dict[str, Any]]:
+        start, stop = rows
+        widths = None if self.widths is None else self.widths[start:stop]
+        return label_chunk(self.spec, self.transforms_link[start:stop], widths, self.protocol, self.engines, self.config)
+
+    def close(self) -> None:
+        """Nothing to free: each chunk's engines are closed when it is labelled."""
+
+
 def label_pending(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, inputs: Inputs,
                   config: Config, out_dir: Path, on_chunk: Any = None) -> list[dict[str, Any]]:
     """Every grasp's label: chunks already in ``out_dir/chunks`` read back, the rest labelled and each written as it ends."""
@@ -260,17 +279,12 @@ def label_pending(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndar
         if on_chunk is not None:
             on_chunk(len(done), len(bounds))
 
-    def piece(start: int, stop: int) -> tuple:
-        return spec, transforms_link[start:stop], None if widths is None else widths[start:stop], inputs.protocol, inputs.engines
-
-    if config.run.workers <= 1:
-        for start, stop in pending:
-            keep(start, stop, label_chunk(*piece(start, stop), config))
-    else:
-        with concurrent.futures.ProcessPoolExecutor(config.run.workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(label_chunk, *piece(start, stop), config.to_dict()): (start, stop) for start, stop in pending}
-            for future in concurrent.futures.as_completed(futures):
-                keep(*futures[future], future.result())
+    labeller = functools.partial(_ChunkLabeller, spec, transforms_link, widths, inputs.protocol, inputs.engines)
+    # Relabelling runs here or in spawned processes (``--workers``), whatever the run's backend.
+    pool = WorkerPool("local", config.run.workers, here=lambda: labeller(config), in_process=Recipe(labeller, (config.to_dict(),)))
+    with pool:
+        for (start, stop), labels, _ in pool.as_finished(pending):
+            keep(start, stop, labels)
     return [label for start, _ in bounds for label in done[start]]
 
 

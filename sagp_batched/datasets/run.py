@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import collections
 import math
-import os
-import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +20,7 @@ import numpy as np
 from ..config import Config
 from ..formats.frames import grasp_poses_from_acronym
 from ..run_directory import WorkerReport
-from ..runtime import ray_worker_stopped
+from ..workers import Recipe, WorkerPool
 from ..world.objects import ObjectSet
 from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
 
@@ -50,150 +48,37 @@ def dataset_object_ids(config: Config, objects: ObjectSet) -> list[str]:
 
 # --- workers: each holds one ObjectLabeller (one PyBullet client) for the whole run -------------------
 class _DatasetWorker:
-    """One worker process's labeller and its count of finished work, reported after each piece."""
+    """One worker's labeller; a unit is ("plan", (object id, grasps)) or ("simulate", chunk)."""
 
-    def __init__(self, config_dict: dict, objects: ObjectSet, objects_dir: str | None):
-        from ..config import load_config
-        from ..runtime import configure_torch
-
-        configure_torch()
-        self.labeller = ObjectLabeller(load_config(overrides=config_dict), objects)
+    def __init__(self, labeller: ObjectLabeller, objects_dir: str | None):
+        self.labeller = labeller
         self.objects_dir = objects_dir
-        self.node = socket.gethostname()
-        self.done = 0
 
-    def work(self, kind: str, payload: Any) -> tuple[Any, WorkerReport]:
-        from ..runtime import resident_memory_bytes
-
-        start = time.perf_counter()
-        result = _work(self.labeller, kind, payload)
-        self.done += 1
-        return result, WorkerReport(os.getpid(), self.node, self.done, resident_memory_bytes(), time.perf_counter() - start, self.objects_dir)
-
-
-def _work(labeller: ObjectLabeller, kind: str, payload: Any) -> Any:
-    if kind == "plan":
-        object_id, n_grasps = payload
-        return labeller.plan_object(object_id, n_grasps)
-    return labeller.simulate(payload)
-
-
-_PROCESS_WORKER: _DatasetWorker | None = None
-
-
-def _init_process_worker(config_dict: dict, objects: ObjectSet) -> None:
-    global _PROCESS_WORKER
-    _PROCESS_WORKER = _DatasetWorker(config_dict, objects, None)
-
-
-def _work_in_process(kind: str, payload: Any) -> tuple[Any, WorkerReport]:
-    return _PROCESS_WORKER.work(kind, payload)
-
-
-class _InlineWorkers:
-    """Work run in this process, in the order submitted."""
-
-    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
-        self.labeller = ObjectLabeller(config, objects)
-        self.queue: collections.deque = collections.deque()
-
-    def submit(self, kind: str, payload: Any) -> None:
-        self.queue.append((kind, payload))
-
-    def __len__(self) -> int:
-        return len(self.queue)
-
-    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
-        kind, payload = self.queue.popleft()
-        return kind, _work(self.labeller, kind, payload), None
+    def run(self, unit: tuple[str, Any]) -> Any:
+        kind, payload = unit
+        if kind == "plan":
+            object_id, n_grasps = payload
+            return self.labeller.plan_object(object_id, n_grasps)
+        return self.labeller.simulate(payload)
 
     def close(self) -> None:
         self.labeller.close()
 
 
-class _ProcessWorkers:
-    """Spawned worker processes: each a fresh interpreter with its own PyBullet client."""
+def _process_worker(config_dict: dict, objects: ObjectSet) -> _DatasetWorker:
+    from ..config import load_config
 
-    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
-        import concurrent.futures
-        import multiprocessing
-
-        self._futures = concurrent.futures
-        self.pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=config.run.workers, mp_context=multiprocessing.get_context("spawn"),
-            initializer=_init_process_worker, initargs=(config.to_dict(), objects))
-        self.running: dict = {}
-
-    def submit(self, kind: str, payload: Any) -> None:
-        self.running[self.pool.submit(_work_in_process, kind, payload)] = kind
-
-    def __len__(self) -> int:
-        return len(self.running)
-
-    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
-        done, _ = self._futures.wait(self.running, return_when=self._futures.FIRST_COMPLETED)
-        future = next(iter(done))
-        return (self.running.pop(future), *future.result())
-
-    def close(self) -> None:
-        # An interrupt or a failed write ends the run: start nothing further.
-        self.pool.shutdown(wait=False, cancel_futures=True)
+    return _DatasetWorker(ObjectLabeller(load_config(overrides=config_dict), objects), None)
 
 
-class _RayLabeller:
-    """A Ray actor holding one ``_DatasetWorker`` for the whole run. Its objects arrive by value from the
-    object store (``object_transfer``) and are written to this node's own cache, so no node needs the
-    driver's objects folder."""
+def _ray_worker(config_dict: dict, packed: Any) -> _DatasetWorker:
+    """A Ray actor's worker: its objects arrive by value from the object store (``object_transfer``) and are
+    written to this node's own cache, so no node needs the driver's objects folder."""
+    from ..config import load_config
+    from ..world.object_transfer import materialise, materialised_dir
 
-    def __init__(self, config_dict: dict, packed: Any):
-        from ..world.object_transfer import materialise, materialised_dir
-
-        self.worker = _DatasetWorker(config_dict, materialise(packed), str(materialised_dir(packed)))
-
-    def work(self, kind: str, payload: Any) -> tuple[Any, WorkerReport]:
-        return self.worker.work(kind, payload)
-
-
-class _RayWorkers:
-    """One actor per worker, each given one piece of work at a time, the rest waiting here in order."""
-
-    def __init__(self, config: Config, objects: ObjectSet, packed: Any):
-        import ray
-
-        self.ray = ray
-        actor = ray.remote(num_cpus=1)(_RayLabeller)
-        packed_ref = ray.put(packed)  # once: each node that runs an actor fetches it
-        self.idle = [actor.remote(config.to_dict(), packed_ref) for _ in range(config.run.workers)]
-        self.waiting: collections.deque = collections.deque()
-        self.running: dict = {}
-
-    def submit(self, kind: str, payload: Any) -> None:
-        self.waiting.append((kind, payload))
-        self._dispatch()
-
-    def _dispatch(self) -> None:
-        while self.idle and self.waiting:
-            kind, payload = self.waiting.popleft()
-            worker = self.idle.pop()
-            self.running[worker.work.remote(kind, payload)] = (kind, worker)
-
-    def __len__(self) -> int:
-        return len(self.running) + len(self.waiting)
-
-    def next_done(self) -> tuple[str, Any, WorkerReport | None]:
-        [ref], _ = self.ray.wait(list(self.running), num_returns=1)
-        kind, worker = self.running.pop(ref)
-        self.idle.append(worker)
-        try:
-            result, report = self.ray.get(ref)
-        except self.ray.exceptions.RayActorError as exc:
-            raise ray_worker_stopped(exc) from exc
-        self._dispatch()
-        return kind, result, report
-
-    def close(self) -> None:
-        for ref in self.running:
-            self.ray.cancel(ref)
+    objects = materialise(packed)
+    return _DatasetWorker(ObjectLabeller(load_config(overrides=config_dict), objects), str(materialised_dir(packed)))
 
 
 def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], packed: Any = None,
@@ -201,33 +86,31 @@ def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], 
     """Each object's labels as soon as its plan and every chunk of it are done (objects in any order).
     ``packed``: the objects packed for Ray (``object_transfer.pack_objects``); ``on_report`` hears each
     worker process's report after each piece of work."""
-    dataset = config.dataset
-    if config.run.backend == "ray":
-        workers_type = _RayWorkers
-    else:
-        workers_type = _InlineWorkers if config.run.workers == 1 else _ProcessWorkers
-    workers = workers_type(config, objects, packed)
+    dataset, config_dict = config.dataset, config.to_dict()
+    workers = WorkerPool(config.run.backend, config.run.workers, here=lambda: _DatasetWorker(ObjectLabeller(config, objects), None),
+                         in_process=Recipe(_process_worker, (config_dict, objects)), on_ray=Recipe(_ray_worker, (config_dict, packed)),
+                         ray_address=config.run.ray_address)
     to_plan = collections.deque(object_ids)
     unfinished: dict[str, tuple[ObjectPlan, list, int]] = {}
 
     def plan_next() -> None:
         if to_plan:
-            workers.submit("plan", (to_plan.popleft(), dataset.grasps_per_object))
+            workers.submit(("plan", (to_plan.popleft(), dataset.grasps_per_object)))
 
-    try:
+    with workers:
         # Planning stays about one object per worker ahead of the simulation: the pool never idles
         # while plans and outcomes waiting to be joined stay few.
         for _ in range(max(1, config.run.workers)):
             plan_next()
         while len(workers):
-            kind, result, report = workers.next_done()
+            (kind, _), result, report = workers.next_done()
             if report is not None and on_report is not None:
                 on_report(report)
             if kind == "plan":
                 chunks = result.chunks(dataset.mode, dataset.grasps_per_chunk)
                 unfinished[result.object_id] = (result, [], len(chunks))
                 for chunk in chunks:
-                    workers.submit("simulate", chunk)
+                    workers.submit(("simulate", chunk))
                 plan_next()
                 object_id = result.object_id
             else:
@@ -237,8 +120,6 @@ def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], 
             if len(outcomes) == n_chunks:
                 del unfinished[object_id]
                 yield object_labels(plan, outcomes, config.dataset.engines)
-    finally:
-        workers.close()
 
 
 def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol: str) -> dict:
@@ -358,31 +239,19 @@ def _label_pending(config: Config, objects: ObjectSet, out_dir: Path, pending: l
 
         bar = tqdm(total=len(pending), unit="object", file=sys.stderr, dynamic_ncols=True)
     new_objects = []
-    try:
-        with _ray_connected(config):
-            def on_report(report: WorkerReport) -> None:
-                append_json_line(out_dir / WORKERS_FILE, {**report.to_json(), "time": time.time()})
+    def on_report(report: WorkerReport) -> None:
+        append_json_line(out_dir / WORKERS_FILE, {**report.to_json(), "time": time.time()})
 
-            for labels in labelled_objects(config, objects, pending, packed, on_report):
-                entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, config.dataset.protocol)
-                new_objects.append(labels.object_id)
-                if on_object is not None:
-                    on_object(entry)
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix_str(labels.object_id)
+    try:
+        for labels in labelled_objects(config, objects, pending, packed, on_report):
+            entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, config.dataset.protocol)
+            new_objects.append(labels.object_id)
+            if on_object is not None:
+                on_object(entry)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix_str(labels.object_id)
     finally:
         if bar is not None:
             bar.close()
     return new_objects
-
-
-def _ray_connected(config: Config):
-    """Ray connected for the run where it is the backend, else nothing."""
-    import contextlib
-
-    if config.run.backend != "ray":
-        return contextlib.nullcontext()
-    from ..runtime import ray_session
-
-    return ray_session(config.run.ray_address, config.run.workers)

@@ -26,6 +26,7 @@ from ..planning import ScreenedCandidates, check_motions, jaw_width_limit, scree
 from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
 from ..types import PerceivedCloud
+from .protocols import label_protocol
 
 # The planner's verdicts on a grasp, in the order its checks run; a grasp's verdict is the first
 # check it fails, or "feasible" when it passes them all. "boundary" is no check of the planner's: a
@@ -34,12 +35,6 @@ VERDICTS: tuple[str, ...] = ("feasible", "table", "volume", "hand_sweep", "grasp
 FEASIBLE = VERDICTS.index("feasible")
 # Poses a floating capture tests against the mesh at once, at the least, while it draws its picks.
 CLEAR_TEST_BLOCK = 64
-# Per protocol, the verdicts whose grasps geometry alone mostly fails (the open hand through the table,
-# in the object's points, or its hulls swept through them): a dataset takes few of them, since a learner
-# gains little from many. A floating hand has no descent, but the sweep ends in the hand at the grasp.
-GEOMETRY_VERDICTS: dict[str, tuple[str, ...]] = {"tabletop": ("table", "volume"), "floating": ("volume", "hand_sweep")}
-
-
 @dataclass
 class ClassifiedGrasps:
     """Grasps of one cloud (one approach each) with the planner's verdict and its reason.
@@ -278,15 +273,16 @@ def _pick(verdict: torch.Tensor, seed: int, n_grasps: int, dataset: DatasetConfi
           clear_of: Callable[[torch.Tensor], torch.Tensor] | None) -> torch.Tensor:
     """The grasps a dataset takes: across the planner's verdicts (``tabletop``), or alike from every
     direction (``floating``: the arm's reach and the table do not bear on a floating object); in both,
-    at most ``geometry_verdict_fraction`` of them from each class geometry alone fails: the verdicts of
-    ``GEOMETRY_VERDICTS``, or, where ``clear_of`` (pose indices -> bool) says which open hands stay out
+    at most ``geometry_verdict_fraction`` of them from each class geometry alone fails: the protocol's
+    ``geometry_verdicts``, or, where ``clear_of`` (pose indices -> bool) says which open hands stay out
     of the object's mesh, the rest (``_pick_clear``)."""
     cap = int(dataset.geometry_verdict_fraction * n_grasps)
-    if clear_of is not None and dataset.protocol == "floating":
+    protocol = label_protocol(dataset.protocol)
+    if clear_of is not None and not protocol.table:
         return _pick_clear(verdict.numel(), seed, n_grasps, cap, clear_of)
-    geometry = [VERDICTS.index(name) for name in GEOMETRY_VERDICTS[dataset.protocol]]
+    geometry = [VERDICTS.index(name) for name in protocol.geometry_verdicts]
     caps = dict.fromkeys(geometry, cap)
-    if dataset.protocol == "tabletop":
+    if protocol.table:
         return _pick_across_verdicts(verdict, seed, n_grasps, dataset.feasible_fraction, caps)
     drawn_alike = torch.where(torch.isin(verdict, torch.tensor(geometry)), verdict, torch.full_like(verdict, FEASIBLE))
     return _pick_across_verdicts(drawn_alike, seed, n_grasps, 1.0, caps)

@@ -32,6 +32,7 @@ from ..robot.motion import grasp_waypoint_index, motion_waypoints
 from ..types import GraspAttempt
 from ..world.scene import Scene, make_camera
 from .arm_joints import path_to_execute
+from .held import lift_failure, object_held
 from .poses import pose_change, quat_angle_deg, relative_pose
 from .shake import achieved_shake_peaks, frame_offsets, shake_profile
 
@@ -66,20 +67,12 @@ def fingers_touching(client: int, gripper_id: int, finger_links: Sequence[int], 
     )
 
 
-def object_held(client: int, gripper_id: int, finger_links: Sequence[int], target_id: int, config: Config) -> bool:
-    """The study's success test: the target's centre of mass ``success_height_above_table_m`` above
-    the table and both fingers touching it."""
-    com = pybullet.getBasePositionAndOrientation(target_id, physicsClientId=client)[0]
-    high_enough = com[2] - config.scene.table_top_z_m >= config.execution.success_height_above_table_m
-    return high_enough and fingers_touching(client, gripper_id, finger_links, target_id)
-
-
-def lift_failure(highest_rise_m: float, fingers_touching_after_close: bool, execution: ExecutionConfig) -> tuple[str, str]:
-    """(reason, phase) of a grasp not held after the lift: "slipped" when the object rose at least
-    ``lifted_detect_height_m`` before it fell, else "not_lifted"; in the lift when the fingers
-    held it after closing, else already in the close."""
-    phase = "lift" if fingers_touching_after_close else "close"
-    return ("slipped" if highest_rise_m >= execution.lifted_detect_height_m else "not_lifted"), phase
+def _held(scene: Scene, config: Config) -> bool:
+    """The study's success test (``held.object_held``) on the scene's target."""
+    client, target, fingers = scene.client, scene.target_id, scene.robot_indices.finger_joints
+    com = pybullet.getBasePositionAndOrientation(target, physicsClientId=client)[0]
+    touching = fingers_touching(client, scene.robot_id, fingers, target)
+    return object_held(touching, com[2] - config.scene.table_top_z_m, config.execution)
 
 
 def _step(scene: Scene, steps: int) -> None:
@@ -126,10 +119,9 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     execution = config.execution
     quat, waypoints, joint_path = checked_grasp(grasp, config.motion, scene.robot)
     grasp_index = grasp_waypoint_index(config.motion)
-    client, target = scene.client, scene.target_id
     outcome = _AttemptOutcome(scene, config, record_frames)
     diagnostics, finish = outcome.diagnostics, outcome.finish
-    set_finger_friction(client, scene.robot_id, scene.robot_indices.finger_joints, execution)
+    set_finger_friction(scene.client, scene.robot_id, scene.robot_indices.finger_joints, execution)
 
     # Every joint is known before stepping: IK and checks teleport the arm, harmless while time stands still.
     start_joints = scene.arm_joints()
@@ -146,13 +138,12 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     outcome.record_frame("contact")
     highest_rise = _lift_and_hold(scene, config, joint_path[grasp_index + 1 :], outcome.rest_com, diagnostics)
 
-    fingers = scene.robot_indices.finger_joints
-    if not object_held(client, scene.robot_id, fingers, target, config):
+    if not _held(scene, config):
         return finish(False, *lift_failure(highest_rise, diagnostics.fingers_touching_after_close, execution))
     if shake is None:
         return finish(True, None, None)
     _shake_arm(scene, config, shake, joint_path[-1], diagnostics)
-    if object_held(client, scene.robot_id, fingers, target, config):
+    if _held(scene, config):
         return finish(True, None, None)
     return finish(False, "slipped", "shake")
 

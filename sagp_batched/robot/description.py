@@ -14,7 +14,6 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import pybullet
 import pybullet_data
 
 from ..config.settings import ConfigError
@@ -124,6 +123,9 @@ class BodyIndices:
 
 def body_indices(robot: RobotDescription, body_id: int, client: int) -> BodyIndices:
     """Look ``robot``'s joints and links up by name in the loaded body ``body_id``."""
+    # Here alone: a robot's description is read by engines without PyBullet too.
+    import pybullet
+
     joints, links, movable = {}, {}, []
     for index in range(pybullet.getNumJoints(body_id, physicsClientId=client)):
         info = pybullet.getJointInfo(body_id, index, physicsClientId=client)

@@ -1,6 +1,15 @@
 """The study: the loop over objects x tasks x trials (``run``), one trial (``experiment``), the
 methods' rankings (``methods``), the task judgement (``judging``), a trial's record (``records``) and the
 file of them (``trials_file``), the summary (``metrics``) and its report (``report``)."""
-from .run import StudyResult, run_study
+from typing import TYPE_CHECKING
 
-__all__ = ["StudyResult", "run_study"]
+from ..lazy_exports import lazy_exports
+
+# Imported on first use: ``records`` reads ``judging`` while ``run`` reads ``records``.
+if TYPE_CHECKING:
+    from .run import StudyResult, run_study
+
+__all__ = [
+    "StudyResult", "run_study",
+]
+__getattr__ = lazy_exports(__name__, __file__)

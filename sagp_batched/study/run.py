@@ -1,9 +1,9 @@
-"""The study loop: units over objects x tasks x trials, run locally, in processes, or on Ray.
+"""The study loop: units over objects x tasks x trials, run here, in processes, or on Ray (``workers.WorkerPool``).
 
 Long runs lose nothing: each finished record is appended to ``trials.jsonl`` and synced at once
 (``run_directory``); a re-run into the same directory skips finished records and runs again the
 trials whose line was torn or invalid, and those that ended in an error unless ``run.keep_errors``;
-a unit that raises or times out is recorded with its error.
+a unit that raises or times out is recorded with its error, and so is each unit of a worker process that died.
 
 Only the driver writes the run directory, whichever backend runs the units: a unit comes back with
 its records and the contents of the files they name, and the driver writes the files (whole, by
@@ -12,10 +12,6 @@ process reports its resident memory after every unit; the driver appends it to `
 """
 from __future__ import annotations
 
-import concurrent.futures
-import multiprocessing
-import os
-import socket
 import sys
 import time
 from dataclasses import dataclass, field
@@ -30,6 +26,7 @@ from ..run_directory import (
 )
 from ..seeds import candidate_seed, scene_seed
 from ..types import METHODS, TASKS
+from ..workers import Recipe, WorkerPool
 from ..world.objects import ObjectSet, load_object_set
 from .experiment import TrialRunner, UnitResult
 from .metrics import summarise
@@ -84,68 +81,30 @@ def plan_units(config: Config, objects: ObjectSet, methods: Iterable[str]) -> li
 
 
 class _Worker:
-    """One worker process's ``TrialRunner`` (one PyBullet client and rater, kept for the whole run) and its count of units."""
+    """One worker's ``TrialRunner`` (one PyBullet client and rater, kept for the whole run)."""
 
-    def __init__(self, config_dict: dict[str, Any], objects: ObjectSet, objects_dir: str | None):
-        from ..runtime import configure_torch
-
-        configure_torch()
-        self.runner = TrialRunner(load_config(overrides=config_dict), objects)
+    def __init__(self, config: Config, objects: ObjectSet, objects_dir: str | None):
+        self.runner = TrialRunner(config, objects)
         self.objects_dir = objects_dir
-        self.node = socket.gethostname()
-        self.units_done = 0
 
-    def run_unit(self, unit: TrialUnit) -> tuple[UnitResult, WorkerReport]:
-        from ..runtime import resident_memory_bytes
+    def run(self, unit: TrialUnit) -> UnitResult:
+        return self.runner.run_unit(unit)
 
-        start = time.perf_counter()
-        result = self.runner.run_unit(unit)
-        self.units_done += 1
-        return result, WorkerReport(os.getpid(), self.node, self.units_done, resident_memory_bytes(),
-                                    time.perf_counter() - start, self.objects_dir)
+    def close(self) -> None:
+        """Nothing to free: the runner keeps its client as long as its process lives."""
 
 
-_PROCESS_WORKER: _Worker | None = None
+def _process_worker(config_dict: dict[str, Any], objects_dir: str | None) -> _Worker:
+    return _Worker(load_config(overrides=config_dict), load_object_set(objects_dir), objects_dir)
 
 
-def _init_process_worker(config_dict: dict[str, Any], objects_dir: str | None) -> None:
-    global _PROCESS_WORKER
-    _PROCESS_WORKER = _Worker(config_dict, load_object_set(objects_dir), objects_dir)
+def _ray_worker(config_dict: dict[str, Any], packed_objects: PackedObjects) -> _Worker:
+    """A Ray actor's worker: its objects arrive from the object store (``object_transfer``) and are written
+    to this node's own cache, so no node needs the driver's objects folder."""
+    from ..world.object_transfer import materialise, materialised_dir
 
-
-def _run_unit_in_process(unit: TrialUnit) -> tuple[UnitResult, WorkerReport]:
-    return _PROCESS_WORKER.run_unit(unit)
-
-
-Finish = Callable[[UnitResult, "WorkerReport | None"], None]
-
-
-def _run_inline(config: Config, objects: ObjectSet, units: list[TrialUnit], finish: Finish) -> None:
-    runner = TrialRunner(config, objects)
-    for unit in units:
-        finish(runner.run_unit(unit), None)
-
-
-def _run_processes(config: Config, objects: ObjectSet, units: list[TrialUnit], finish: Finish, objects_dir: str | None) -> None:
-    # spawn: each worker gets a fresh interpreter and its own PyBullet client (fork would copy
-    # the parent's torch thread pools and any open client).
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(
-        max_workers=config.run.workers, mp_context=context, initializer=_init_process_worker,
-        initargs=(config.to_dict(), objects_dir),
-    ) as pool:
-        futures = {pool.submit(_run_unit_in_process, unit): unit for unit in units}
-        try:
-            for future in concurrent.futures.as_completed(futures):
-                unit = futures[future]
-                try:
-                    result, report = future.result()
-                except concurrent.futures.process.BrokenProcessPool as exc:
-                    result, report = _crashed_unit(config, objects, unit, exc), None
-                finish(result, report)
-        except BaseException:  # an interrupt, or a record that cannot be written: start no further unit
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
+    objects = materialise(packed_objects)
+    return _Worker(load_config(overrides=config_dict), objects, str(materialised_dir(packed_objects)))
 
 
 def _crashed_unit(config: Config, objects: ObjectSet, unit: TrialUnit, exc: BaseException) -> UnitResult:
@@ -160,43 +119,6 @@ def objects_used(objects: ObjectSet, units: Iterable[TrialUnit]) -> list[str]:
     if any(unit.task == "t3" for unit in units):
         ids += [spec.id for spec in objects.distractors() if spec.id not in ids]
     return ids
-
-
-class _RayTrialRunner:
-    """A Ray actor holding one ``_Worker`` for the whole run: the scene is built once per worker and
-    reused, where a task per unit would build one per unit and a module-level cache is a pickled copy
-    inside a remote function. Its objects arrive from the object store (``object_transfer``) and are
-    written to this node's own cache, so no node needs the driver's objects folder."""
-
-    def __init__(self, config_dict: dict[str, Any], packed_objects: PackedObjects):
-        from ..world.object_transfer import materialise, materialised_dir
-
-        objects = materialise(packed_objects)
-        self.worker = _Worker(config_dict, objects, str(materialised_dir(packed_objects)))
-
-    def run_unit(self, unit: TrialUnit) -> tuple[UnitResult, WorkerReport]:
-        return self.worker.run_unit(unit)
-
-
-def _run_ray(config: Config, packed: PackedObjects, units: list[TrialUnit], finish: Finish) -> None:
-    from ..runtime import ray_session, ray_worker_stopped
-
-    if not units:
-        return
-    with ray_session(config.run.ray_address, config.run.workers):
-        import ray
-        from ray.util import ActorPool
-
-        # The object store, not a runtime_env working_dir: a working_dir is zipped and uploaded per job under a
-        # size cap, where one put is fetched by each node that runs an actor.
-        packed_ref = ray.put(packed)
-        actor = ray.remote(num_cpus=1)(_RayTrialRunner)
-        pool = ActorPool([actor.remote(config.to_dict(), packed_ref) for _ in range(config.run.workers)])
-        try:
-            for result, report in pool.map_unordered(lambda runner, unit: runner.run_unit.remote(unit), units):
-                finish(result, report)
-        except ray.exceptions.RayActorError as exc:
-            raise ray_worker_stopped(exc) from exc
 
 
 # --- the study ---------------------------------------------------------------------------------
@@ -318,15 +240,14 @@ def _run_pending(config: Config, objects: ObjectSet, pending: list[TrialUnit], o
         if report is not None:
             append_json_line(workers_path, {**report.to_json(), "time": time.time()})
 
+    config_dict = config.to_dict()
+    pool = WorkerPool(config.run.backend, config.run.workers, here=lambda: _Worker(config, objects, objects_dir),
+                      in_process=Recipe(_process_worker, (config_dict, objects_dir)), on_ray=Recipe(_ray_worker, (config_dict, packed)),
+                      ray_address=config.run.ray_address, on_worker_death=lambda unit, exc: _crashed_unit(config, objects, unit, exc))
     try:
-        if config.run.backend == "ray":
-            _run_ray(config, packed, pending, finish)
-        elif config.run.backend == "local" and config.run.workers > 1:
-            _run_processes(config, objects, pending, finish, objects_dir)
-        elif config.run.backend == "local":
-            _run_inline(config, objects, pending, finish)
-        else:
-            raise ConfigError(f"unknown backend '{config.run.backend}' (known: local, ray)")
+        with pool:
+            for _, result, report in pool.as_finished(pending):
+                finish(result, report)
     finally:
         writer.close()
         if bar is not None:

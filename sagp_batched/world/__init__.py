@@ -3,8 +3,17 @@
 ``mesh_settings``; sent to workers by ``object_transfer``), their annotated functional parts
 (``functional_regions``), the PyBullet scene (``scene``) and the cameras' perceived cloud
 (``perception``)."""
-from .objects import ObjectSet, ObjectSpec, load_object_set
-from .perception import capture
-from .scene import Scene
+from typing import TYPE_CHECKING
 
-__all__ = ["ObjectSet", "ObjectSpec", "Scene", "capture", "load_object_set"]
+from ..lazy_exports import lazy_exports
+
+# Imported on first use: the objects are read by engines without PyBullet too.
+if TYPE_CHECKING:
+    from .objects import ObjectSet, ObjectSpec, load_object_set
+    from .perception import capture
+    from .scene import Scene
+
+__all__ = [
+    "ObjectSet", "ObjectSpec", "Scene", "capture", "load_object_set",
+]
+__getattr__ = lazy_exports(__name__, __file__)

@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
-import pybullet
 import pybullet_data
 
 if TYPE_CHECKING:
@@ -288,6 +287,8 @@ def _load_ycb_dir(objects_dir: Path, source_label: str = "ycb") -> ObjectSet:
 
 def _measure_builtin(urdf_path: Path) -> tuple[float, tuple[float, float, float]]:
     """Mass and resting extents of a pybullet_data object, read from PyBullet (its URDFs carry no metadata)."""
+    import pybullet  # here alone: objects are read by engines without PyBullet too
+
     client = pybullet.connect(pybullet.DIRECT)
     try:
         body = pybullet.loadURDF(str(urdf_path), physicsClientId=client)
