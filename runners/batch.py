@@ -13,7 +13,7 @@ from sagp_batched.config import RATING_BACKENDS, RUN_BACKENDS, Config, ConfigErr
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 from sagp_batched.study.methods import REGISTRY
-from sagp_batched.study.run import plan_units, run_study
+from sagp_batched.study.study_run import plan_units, run_study
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 
 from .cli import config_or_report, workers_line

@@ -250,7 +250,7 @@ def _ray_worker_memory(args: argparse.Namespace) -> int:
     from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError
     from sagp_batched.preflight import PreflightError, check_ray_address, check_ray_installed
     from sagp_batched.run_directory import WORKERS_FILE
-    from sagp_batched.study.run import run_study
+    from sagp_batched.study.study_run import run_study
 
     out = args.study_out or Path(tempfile.mkdtemp(prefix="sagp_ray_memory_"))
     objects_dir = _ycb_dir(args.objects_dir)

@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from sagp_batched.datasets.run import dataset_object_ids, generate_dataset
+    from sagp_batched.datasets.dataset_run import dataset_object_ids, generate_dataset
 
     args = build_parser().parse_args(argv)
     config = config_or_report(args, SETTING_FLAGS)

@@ -18,7 +18,7 @@ from pathlib import Path
 from sagp_batched.config import ConfigError
 from sagp_batched.formats.grasp_file import GraspFileError
 from sagp_batched.config.run import LABEL_PROTOCOLS
-from sagp_batched.datasets.relabel import CHUNKS_DIR, ENGINES, REPORT_FILE, InputError, check_inputs, relabel
+from sagp_batched.datasets.relabelling import CHUNKS_DIR, ENGINES, REPORT_FILE, InputError, check_inputs, relabel
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError
 
 from .cli import config_or_report

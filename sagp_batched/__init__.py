@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from .rating import ZoneRating, get_rater
     from .semantics.scoring import score_candidates
     from .semantics.zones import ZoneDecomposition, assign_zones
-    from .study.run import run_study
+    from .study.study_run import run_study
     from .types import CameraData, GraspAttempt, PerceivedCloud, PerceptionFailure
     from .world.objects import ObjectSet, ObjectSpec, load_object_set
     from .world.perception import capture

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from .config import Config, PlannerConfig, RatingConfig
 from .planning.device import planning_device
-from .rating.types import RatingError, VLMRequestError
+from .rating.zone_rating import RatingError, VLMRequestError
 from .rating.vlm import OpenAIVLM, TransformersVLM
 
 # A reachable cluster accepts a TCP connection in milliseconds; seconds only make a dead one slow to report.

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from sagp_batched.config import load_config
-from sagp_batched.datasets.datagen import ObjectLabeller, object_labels
+from sagp_batched.datasets.object_labeller import ObjectLabeller, object_labels
 from sagp_batched.world.objects import load_object_set
 
 

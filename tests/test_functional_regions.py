@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sagp_batched.study.metrics import per_object, summarise
-from sagp_batched.study.report import RATE_METRICS, summary_markdown, write_plots
+from sagp_batched.study.study_report import RATE_METRICS, summary_markdown, write_plots
 from sagp_batched.world.functional_regions import load_regions, mesh_vertices, region_membership
 from sagp_batched.world.objects import YCB_ASYMMETRIC_IDS
 

@@ -172,7 +172,7 @@ def test_endpoint_good_answer_with_image_and_key(endpoint, tmp_path, monkeypatch
 
 
 def test_endpoint_is_asked_for_json_matching_the_answer_schema_and_the_rating_says_so(endpoint, tmp_path):
-    from sagp_batched.rating.types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, ZoneRating
+    from sagp_batched.rating.zone_rating import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, ZoneRating
 
     endpoint.script = [("answer", json.dumps(GOOD_ANSWER))]
     rating = openai_rater(endpoint, tmp_path).rate("025_mug", "mug", "t2", CROP, ZONES)
@@ -220,7 +220,7 @@ def test_a_refusal_for_another_reason_still_fails_and_is_not_remembered(endpoint
 
 
 def test_ratings_cached_before_the_output_mode_was_recorded_still_load():
-    from sagp_batched.rating.types import ZoneRating
+    from sagp_batched.rating.zone_rating import ZoneRating
 
     stored = {**GOOD_ANSWER, "ratings": {"top": "bad"}, "approach_vector_world": None, "issues": [],
               "provenance": {"backend": "openai", "model": "m", "prompt_version": "v", "latency_s": 1.0, "outcome": "ok"}}
@@ -422,7 +422,7 @@ def test_the_oracle_rates_the_mug_handle_zone_good_and_is_labelled_an_upper_boun
     from sagp_batched.config import RatingConfig
     from sagp_batched.world.functional_regions import load_regions
     from sagp_batched.rating import get_rater
-    from sagp_batched.study.report import rater_note
+    from sagp_batched.study.study_report import rater_note
 
     oracle = get_rater(RatingConfig(backend="oracle"))
     assert oracle.uses_ground_truth and "upper bound" in oracle.model

@@ -12,7 +12,7 @@ from sagp_batched.rating import json_answer
 from sagp_batched.rating.json_answer import MAX_ANSWER_CHARS, MAX_DEPTH
 from sagp_batched.rating.prompt import answer_zone_names
 from sagp_batched.rating.raters import PriorRater, VLMRater
-from sagp_batched.rating.types import MAX_ISSUE_CHARS, MAX_REASON_CHARS, VLMRequestError
+from sagp_batched.rating.zone_rating import MAX_ISSUE_CHARS, MAX_REASON_CHARS, VLMRequestError
 from sagp_batched.rating.vlm import ModelAnswer
 from sagp_batched.semantics.vlm_direct import MAX_DROPPED_LISTED, parse_shortlist
 

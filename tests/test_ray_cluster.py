@@ -14,7 +14,7 @@ import pytest
 
 import sagp_batched.runtime as runtime
 from sagp_batched.config import load_config
-from sagp_batched.study.run import run_study
+from sagp_batched.study.study_run import run_study
 from sagp_batched.world.objects import CACHE_DIR_ENV, load_object_set
 from test_study_e2e import _stable
 

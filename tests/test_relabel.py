@@ -1,4 +1,4 @@
-"""``runners.relabel`` over ``sagp_batched.datasets.relabel``: its inputs refused in one line before any work, and,
+"""``runners.relabel`` over ``sagp_batched.datasets.relabelling``: its inputs refused in one line before any work, and,
 with the labeller stood in for, the grasps reaching it in the imported object's link frame, the agreement computed from the labels it gave, and a
 resumed run labelling only what is missing."""
 import json
@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from runners import relabel
 from sagp_batched.config import Config
 from sagp_batched.datasets import labelling
-from sagp_batched.datasets import relabel as relabelling
+from sagp_batched.datasets import relabelling
 from sagp_batched.datasets.agreement import grasp_regions, label_agreement
 from sagp_batched.datasets.protocols import GraspLabel
 from sagp_batched.formats.grasp_file import read_grasp_file
@@ -269,8 +269,8 @@ def test_our_own_file_relabelled_for_real_gets_its_own_labels_back(tmp_path, mon
     import torch
 
     from sagp_batched.config import load_config
-    from sagp_batched.datasets.dataset import copy_object_mesh
-    from sagp_batched.datasets.datagen import object_physics
+    from sagp_batched.datasets.dataset_directory import copy_object_mesh
+    from sagp_batched.datasets.object_labeller import object_physics
     from sagp_batched.formats.acronym import write_object_file
     from sagp_batched.formats.frames import acronym_gripper_transforms_object
     from sagp_batched.formats.object_grasps import LabelledGrasps, UntestedGrasps

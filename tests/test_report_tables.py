@@ -1,6 +1,6 @@
 """The study summary's markdown tables: FAS beside GSR, failed attempts by reason@stage, per-object rows."""
 from sagp_batched.study.metrics import per_object, summarise
-from sagp_batched.study.report import summary_markdown
+from sagp_batched.study.study_report import summary_markdown
 
 
 def _attempt(success, reason=None, at=None, feasible=True):

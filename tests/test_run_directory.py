@@ -16,7 +16,7 @@ from sagp_batched.config import load_config
 from sagp_batched.run_directory import RunDirectoryBusy, RunLock
 from sagp_batched.study.experiment import UnitResult
 from sagp_batched.study.records import TrialRecord, TrialUnit, record_problem
-from sagp_batched.study.run import run_study
+from sagp_batched.study.study_run import run_study
 from sagp_batched.study.trials_file import REJECTED_FILE, TRIALS_FILE, TrialWriteError, TrialWriter, read_records, recover_trials_file
 from sagp_batched.world.objects import load_object_set
 
@@ -174,7 +174,7 @@ class _ScriptedRunner:
 
 @pytest.fixture
 def scripted_runner(monkeypatch):
-    import sagp_batched.study.run as study
+    import sagp_batched.study.study_run as study
 
     monkeypatch.setattr(study, "TrialRunner", _ScriptedRunner)
     _ScriptedRunner.failing, _ScriptedRunner.ran = set(), []

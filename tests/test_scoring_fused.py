@@ -11,7 +11,7 @@ import torch
 from sagp_batched.config import GEOMETRY_ONLY_WEIGHTS, Config, ScoreWeights
 from sagp_batched.grasps import GraspCandidates
 from sagp_batched.rating import PriorRater, ZoneRating, neutral_rating
-from sagp_batched.rating.types import RatingProvenance
+from sagp_batched.rating.zone_rating import RatingProvenance
 from sagp_batched.semantics.scoring import ScoringInputError, score_candidates
 from sagp_batched.semantics.zones import decompose
 from sagp_batched_kernels.scoring import predicted_swing_tilt, zone_affordance

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from sagp_batched.config import load_config
-from sagp_batched.study.run import run_study
+from sagp_batched.study.study_run import run_study
 from sagp_batched.study.trials_file import REJECTED_FILE, read_records
 from sagp_batched.world.objects import load_object_set
 

@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-import sagp_batched.study.run as study
+import sagp_batched.study.study_run as study
 from sagp_batched.config import load_config
 from sagp_batched.run_directory import WORKERS_FILE, RunDirectoryError
 from sagp_batched.runtime import resident_memory_bytes

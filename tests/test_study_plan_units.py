@@ -2,7 +2,7 @@
 import pytest
 
 from sagp_batched.config import ConfigError, load_config
-from sagp_batched.study.run import plan_units
+from sagp_batched.study.study_run import plan_units
 from sagp_batched.world.objects import ObjectSet, load_object_set
 
 OBJECTS = load_object_set(None)

@@ -18,7 +18,7 @@ from sagp_batched.semantics.zones import (
     ZoneInputError,
     decompose,
 )
-from sagp_batched_kernels import zones as zone_kernels
+from sagp_batched_kernels import zone_geometry as zone_kernels
 
 TABLE_Z = 0.625
 rng = np.random.default_rng(7)

@@ -56,7 +56,7 @@ def _dataset_config(config: Config, object_ids: Sequence[str], case: DatasetCase
 
 def benchmark_dataset_case(config: Config, objects: ObjectSet, object_ids: Sequence[str], case: DatasetCase, workers: int) -> dict[str, Any]:
     """One dataset run of ``case.grasps`` grasps of each of ``object_ids`` on ``workers`` workers."""
-    from ..datasets.run import generate_dataset
+    from ..datasets.dataset_run import generate_dataset
 
     run_config = _dataset_config(config, object_ids, case, workers)
     entries: list[dict] = []

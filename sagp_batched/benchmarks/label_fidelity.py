@@ -117,7 +117,7 @@ def planning_config(config: Config) -> Config:
 
 def plan_grasps(config: Config, objects: ObjectSet, object_ids: Sequence[str], n_grasps: int) -> dict[str, GraspPoses | str]:
     """Per object, ``n_grasps`` object-frame grasps planned all around it, or why its capture gave none."""
-    from ..datasets.datagen import ObjectLabeller
+    from ..datasets.object_labeller import ObjectLabeller
 
     labeller = ObjectLabeller(planning_config(config), objects)
     planned: dict[str, GraspPoses | str] = {}

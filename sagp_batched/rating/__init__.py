@@ -3,7 +3,7 @@ from .json_answer import extract_json_object
 from .parse import parse_zone_rating
 from .prompt import PROMPT_VERSION, build_zone_prompt
 from .raters import CachedRater, PriorRater, Rater, VLMRater, get_rater
-from .types import (
+from .zone_rating import (
     PHI,
     RATING_LEVELS,
     RatingError,

@@ -14,7 +14,7 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-from .types import clipped
+from .zone_rating import clipped
 
 # A full zone answer is ~600 characters; 16K leaves a model room to ramble around it.
 MAX_ANSWER_CHARS = 16_384

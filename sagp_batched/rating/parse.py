@@ -13,7 +13,7 @@ from collections.abc import Collection
 from typing import Any
 
 from .json_answer import MAX_ANSWER_CHARS, MAX_NUMBER_CHARS, excerpt, extract_json_object
-from .types import APPROACH_NAMES, GRASP_STYLES, PHI, RatingProvenance, ZoneRating, clipped, neutral_rating
+from .zone_rating import APPROACH_NAMES, GRASP_STYLES, PHI, RatingProvenance, ZoneRating, clipped, neutral_rating
 
 log = logging.getLogger(__name__)
 

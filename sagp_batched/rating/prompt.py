@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..types import PROTRUSION, TASKS, ZONE_NAMES, is_zone_name
-from .types import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, RatingError
+from .zone_rating import APPROACH_NAMES, GRASP_STYLES, RATING_LEVELS, RatingError
 
 if TYPE_CHECKING:
     from ..semantics.zones import ObjectFacts, ZoneDecomposition, ZoneFacts

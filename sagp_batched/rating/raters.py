@@ -29,7 +29,7 @@ from .prompt import (
     task_description,
     zone_answer_schema,
 )
-from .types import RatingError, RatingProvenance, VLMRequestError, ZoneRating, neutral_rating
+from .zone_rating import RatingError, RatingProvenance, VLMRequestError, ZoneRating, neutral_rating
 from .vlm import VLMClient, answer_endpoint, get_vlm_client
 
 log = logging.getLogger(__name__)

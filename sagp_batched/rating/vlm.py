@@ -23,7 +23,7 @@ from PIL import Image
 
 from ..config import RatingConfig
 from .prompt import checked_image
-from .types import RatingError, VLMRequestError
+from .zone_rating import RatingError, VLMRequestError
 
 log = logging.getLogger(__name__)
 

@@ -20,7 +20,7 @@ from sagp_batched_kernels import scoring as score_kernels
 
 from ..config import Config, ScoreWeights
 from ..grasps import GraspCandidates
-from ..rating.types import PHI, ZoneRating
+from ..rating.zone_rating import PHI, ZoneRating
 
 
 class ScoringInputError(ValueError):

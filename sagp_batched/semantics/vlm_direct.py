@@ -21,7 +21,7 @@ from ..config import Config, RatingConfig
 from ..grasps import GraspCandidates
 from ..rating.json_answer import MAX_NUMBER_CHARS, excerpt, extract_json_object, extract_json_value
 from ..rating.prompt import checked_image, task_description
-from ..rating.types import RatingError, VLMRequestError
+from ..rating.zone_rating import RatingError, VLMRequestError
 from ..rating.vlm import VLMClient, get_vlm_client
 from ..types import PerceivedCloud
 

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from sagp_batched_kernels import zones as zone_kernels
+from sagp_batched_kernels import zone_geometry as zone_kernels
 
 from .._open3d import o3d
 from ..config import ZonesConfig

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..config import Config
 from ..grasps import GraspCandidates
-from ..rating.types import ZoneRating, clipped, neutral_rating
+from ..rating.zone_rating import ZoneRating, clipped, neutral_rating
 from ..seeds import candidate_seed
 from ..types import GraspAttempt, PerceivedCloud, PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..config import TaskConfig
 from ..grasps import Grasp
-from ..rating.types import ZoneRating
+from ..rating.zone_rating import ZoneRating
 from ..types import TASKS
 from ..world.functional_regions import region_membership
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..config import GEOMETRY_ONLY_WEIGHTS, Config, ScoreWeights
-from ..rating.types import ZoneRating
+from ..rating.zone_rating import ZoneRating
 from ..semantics.scoring import score_candidates
 import torch
 

@@ -3,7 +3,7 @@
 ``ObjectLabeller.plan_object`` captures and plans each of an object's captures once for all their
 grasps; ``ObjectLabeller.simulate`` labels a chunk of them; ``object_labels`` joins the chunks.
 ``dataset_run.generate_dataset`` spreads plans and chunks over workers, writes each finished object at
-once (``dataset``) and resumes where a stopped run left off.
+once (``dataset_directory``) and resumes where a stopped run left off.
 
 What a label is: the outcome of simulating the grasp (``labelling``): held after the lift and the
 shake, or dropped, with the object's motion during closing and shaking. The grasps are the planner's

@@ -168,7 +168,7 @@ def run_study(
 def _run_locked(config: Config, objects: ObjectSet, methods: Iterable[str], units: list[TrialUnit], out_dir: Path,
                 objects_dir: str | None, packed: PackedObjects | None, progress: bool, not_run: dict[str, str],
                 on_note: Callable[[str], None]) -> StudyResult:
-    from .report import write_reports
+    from .study_report import write_reports
 
     trials_path = out_dir / TRIALS_FILE
     recovered = _open_run_directory(config, objects, methods, units, out_dir, not_run, on_note)

@@ -18,7 +18,7 @@ from ..config import Config
 from ..run_directory import write_json
 from ..statistics import count_and_rate
 from .cross_engine import LABEL_RULE, agreement_report_lines
-from .dataset import read_progress, split_of, write_splits
+from .dataset_directory import read_progress, split_of, write_splits
 from .verdicts import VERDICTS
 
 MANIFEST_FILE = "manifest.json"

@@ -22,7 +22,7 @@ from ..formats.frames import grasp_poses_from_acronym
 from ..run_directory import WorkerReport
 from ..workers import Recipe, WorkerPool
 from ..world.objects import ObjectSet
-from .datagen import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
+from .object_labeller import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
 
 # The report's coverage figure: grasps closer than this, and turned less, count as one.
 DISTINCT_TRANSLATION_M = 0.01
@@ -127,7 +127,7 @@ def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol
     from sagp_batched_kernels.pose_nms import distinct_grasp_count
 
     from .cross_engine import object_engine_agreement
-    from .dataset import append_progress, copy_object_mesh
+    from .dataset_directory import append_progress, copy_object_mesh
     from ..formats.acronym import write_object_file
     from ..formats.graspgen import write_graspgen_file
 
@@ -190,8 +190,8 @@ def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progr
     hears each written object's progress line. With ``agreement_grasps``, the hand-vs-arm agreement
     on that many grasps of each of ``agreement_objects`` is measured too (``agreement.json``, in the report)."""
     from .. import provenance
-    from .dataset import read_progress
-    from .report import write_dataset_report
+    from .dataset_directory import read_progress
+    from .dataset_report import write_dataset_report
     from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_json
 
     on_note = on_note or (lambda note: None)
@@ -218,7 +218,7 @@ def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progr
             on_note(f"{len(finished)} object(s) already in {out_dir} are kept; {len(pending)} to label")
         new_objects = _label_pending(config, objects, out_dir, pending, packed, progress, on_object)
         if agreement_grasps:
-            from .report import AGREEMENT_FILE
+            from .dataset_report import AGREEMENT_FILE
 
             write_json(out_dir / AGREEMENT_FILE, measure_agreement(config, objects, list(agreement_objects or []), agreement_grasps))
         manifest = write_dataset_report(out_dir, config, objects, object_ids)
