@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from sagp_batched.config import ConfigError, load_config
-from sagp_batched.rating.prompt import describe_zones
+from sagp_batched.semantics.zone_descriptions import describe_zones
 from sagp_batched.semantics.zone_marks import PRIMARY_ZONE_RGB, PROTRUSION_RGB
 from sagp_batched.semantics.zones import GEOMETRIC_ZONES, ZONE_INDEX, ZoneDecomposition, decompose
 from sagp_batched.types import PerceptionFailure

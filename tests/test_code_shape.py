@@ -145,3 +145,10 @@ def test_formats_import_nothing_of_the_study_or_the_datasets():
 def test_the_study_and_the_datasets_do_not_import_each_other_both_ways():
     reachable = {package: _reachable(_package_imports(), package) for package in ("study", "datasets")}
     assert not ("datasets" in reachable["study"] and "study" in reachable["datasets"])
+
+
+def test_no_package_imports_itself_through_another():
+    edges = _package_imports()
+    assert "semantics" in _reachable(edges, "study"), "the package graph follows imports through packages"
+    cycles = sorted(package for package in edges if package in _reachable(edges, package))
+    assert not cycles, f"packages on an import cycle: {', '.join(cycles)}"

@@ -23,7 +23,7 @@ from sagp_batched.rating import (
     VLMRequestError,
     get_rater,
 )
-from sagp_batched.rating.prompt import describe_zones
+from sagp_batched.semantics.zone_descriptions import describe_zones
 from sagp_batched.rating.vlm import ModelAnswer
 from sagp_batched.types import TASKS
 

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from runners.zones import plot_zones
 from sagp_batched.config import ZonesConfig
-from sagp_batched.rating.prompt import describe_zones
+from sagp_batched.semantics.zone_descriptions import describe_zones
 from sagp_batched.semantics.zones import (
     UNZONED,
     ZONE_INDEX,

@@ -113,7 +113,7 @@ def test_the_prompt_describes_the_embedded_pitcher_and_scissors_zones_word_for_w
     import torch
 
     from sagp_batched.world.objects import embedded_ycb_dir
-    from sagp_batched.rating.prompt import describe_zones
+    from sagp_batched.semantics.zone_descriptions import describe_zones
 
     config = load_config("paper")
     with Scene(config) as scene:

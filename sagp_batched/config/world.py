@@ -3,9 +3,15 @@ images into a cloud."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import resources
 
 from .settings import _Section, setting
 
+# The robots the package describes, a file each (``data/robots/<name>.toml``, read by ``robot.description``).
+ROBOTS: tuple[str, ...] = tuple(sorted(
+    entry.name.removesuffix(".toml") for entry in resources.files("sagp_batched").joinpath("data/robots").iterdir()
+    if entry.name.endswith(".toml")
+))
 # Each view renders RGB, depth and segmentation buffers, ~12 bytes a pixel: ~200 MB a view at 4,096 px a side.
 MAX_IMAGE_SIDE_PX = 4096
 
@@ -22,7 +28,7 @@ class SceneConfig(_Section):
     table_center_xy_m: tuple[float, float] = setting((0.5, 0.0), shape=(2,))
     # The robot (``sagp_batched/data/robots/<robot>.toml``): its URDF, joints, links, base pose,
     # home joints, tolerances and gripper boxes.
-    robot: str = setting("panda", non_empty=True)
+    robot: str = setting("panda", choices=ROBOTS)
     # Comfortable Panda workspace for tabletop grasps: 0.4-0.65 m ahead, +-0.2 m sideways.
     object_x_range_m: tuple[float, float] = setting((0.45, 0.65), shape=(2,), ordered=True)
     object_y_range_m: tuple[float, float] = setting((-0.2, 0.2), shape=(2,), ordered=True)

@@ -80,7 +80,7 @@ def plan_captures(captures: list[Capture], spec: ObjectSpec, config: Config, rat
 
 def _plan_capture(capture: Capture, verdicts: CaptureVerdicts, spec: ObjectSpec, config: Config, rater, taken: GraspPoses) -> PosePlan | str:
     """The capture's grasps picked (not the same as one of ``taken``), zoned and rated; why it gave none instead."""
-    from ..rating.prompt import describe_zones
+    from ..semantics.zone_descriptions import describe_zones
     from ..semantics.zone_marks import rating_image
     from ..semantics.zones import assign_zones
 

@@ -137,7 +137,7 @@ class ZoneDecomposition:
 
     def facts(self) -> "ObjectFacts":
         """The measurements of the object and of every zone that holds points, which the rating prompt
-        states (``rating.prompt.describe_zones``)."""
+        states (``zone_descriptions.describe_zones``)."""
         if self.n_points == 0:
             return ObjectFacts(0, torch.zeros(()), None, self.split, self.protrusion_rule, self.degenerate, ())
         relative = self.points_world - self.centroid_world

@@ -189,7 +189,7 @@ class TrialRunner:
     def _rate(self, spec: ObjectSpec, unit: TrialUnit, cloud: PerceivedCloud, decomposition) -> tuple[ZoneRating, tuple[str, str] | None, float]:
         """(rating, (error, traceback) when the rater raised, seconds) of the unit's zones. A failed
         rating is neutral: it fails the methods that rank by the rating only, the others run on."""
-        from ..rating.prompt import describe_zones
+        from ..semantics.zone_descriptions import describe_zones
         from ..semantics.zone_marks import rating_image
 
         config = self.config
