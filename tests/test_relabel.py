@@ -77,7 +77,7 @@ def _run(path, mesh_root, out, *extra):
 def test_the_labels_and_the_agreement_come_from_the_grasps_in_the_link_frame(acronym_file, tmp_path, monkeypatch):
     path, mesh_root = acronym_file
     fake = _Labeller()
-    monkeypatch.setattr(labelling, "label_object_grasps", fake)
+    monkeypatch.setattr(relabelling, "label_object_grasps", fake)
     out = tmp_path / "out"
     assert _run(path, mesh_root, out) == 0
     assert len(fake.centres) == 3, "10 grasps in chunks of 4"
@@ -115,7 +115,7 @@ def test_the_labels_and_the_agreement_come_from_the_grasps_in_the_link_frame(acr
 def test_a_rerun_resumes_labelling_only_the_missing_chunks(acronym_file, tmp_path, monkeypatch):
     path, mesh_root = acronym_file
     fake = _Labeller()
-    monkeypatch.setattr(labelling, "label_object_grasps", fake)
+    monkeypatch.setattr(relabelling, "label_object_grasps", fake)
     out = tmp_path / "out"
     assert _run(path, mesh_root, out) == 0
     first = (out / "agreement.json").read_text()
@@ -127,7 +127,7 @@ def test_a_rerun_resumes_labelling_only_the_missing_chunks(acronym_file, tmp_pat
 
 def test_a_rerun_with_other_inputs_is_refused(acronym_file, tmp_path, monkeypatch, capsys):
     path, mesh_root = acronym_file
-    monkeypatch.setattr(labelling, "label_object_grasps", _Labeller())
+    monkeypatch.setattr(relabelling, "label_object_grasps", _Labeller())
     out = tmp_path / "out"
     assert _run(path, mesh_root, out, "--max-grasps", "5") == 0
     with h5py.File(out / "relabel.h5", "r") as f:
@@ -146,7 +146,7 @@ def test_a_rerun_with_other_inputs_is_refused(acronym_file, tmp_path, monkeypatc
 ])
 def test_a_bad_input_is_one_error_line_before_any_work(acronym_file, tmp_path, monkeypatch, capsys, change, expected):
     path, mesh_root = acronym_file
-    monkeypatch.setattr(labelling, "label_object_grasps", lambda *args: pytest.fail("labelled despite a bad input"))
+    monkeypatch.setattr(relabelling, "label_object_grasps", lambda *args: pytest.fail("labelled despite a bad input"))
     out = tmp_path / "out"
     grasp_file, root, out = change(path, mesh_root, out)
     assert _run(grasp_file, root, out) == 2
@@ -170,7 +170,7 @@ def test_the_library_entry_relabels_as_the_command_does(acronym_file, tmp_path, 
     from sagp_batched.datasets import RelabelInputError, check_relabel_inputs, relabel_grasp_file
 
     path, mesh_root = acronym_file
-    monkeypatch.setattr(labelling, "label_object_grasps", _Labeller())
+    monkeypatch.setattr(relabelling, "label_object_grasps", _Labeller())
     assert _run(path, mesh_root, tmp_path / "command") == 0
     out = tmp_path / "library"
     config = load_config("dataset", overrides={"run": {"out": str(out), "workers": 1},  # the patched labeller is this process's
@@ -215,7 +215,7 @@ def test_two_engines_relabel_each_grasp_keep_each_label_and_measure_each_against
         return [GraspLabel("hand", held=bool(h), failure_reason=None if h else "slipped", failed_at=None if h else ("shake" if engine == "pybullet" else "lift"),
                            protocol=protocol, engine=engine) for h in held]
 
-    monkeypatch.setattr(labelling, "label_object_grasps", by_engine)
+    monkeypatch.setattr(relabelling, "label_object_grasps", by_engine)
     out = tmp_path / "out"
     assert _run(path, mesh_root, out, "--engine", "pybullet,mujoco") == 0
     assert set(calls) == {"pybullet", "mujoco"}

@@ -17,11 +17,20 @@ from typing import Any
 
 import numpy as np
 
-from ..config import Config
+from .. import provenance
+from ..config import Config, load_config
+from ..formats.acronym import relabel_file_bytes
+from ..formats.frames import grasp_poses_from_acronym
 from ..formats.grasp_file import GraspFile, read_grasp_file
+from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_file_atomically, write_json
 from ..workers import Recipe, WorkerPool
+from ..world.mesh_sources import MESH_SUFFIXES
 from ..world.objects import ObjectSpec, load_object_set
+from .agreement import agreement_markdown, grasp_regions, label_agreement
+from .cross_engine import combined_labels
 from .engines import ENGINES
+from .grasp_geometry import object_mesh_link
+from .labelling import label_object_grasps
 
 RELABEL_FILE = "relabel.h5"
 AGREEMENT_FILE = "agreement.json"
@@ -40,7 +49,6 @@ class InputError(ValueError):
 @dataclass(frozen=True)
 class Inputs:
     """The checked inputs of a relabel: the grasp file, its mesh, the grasps chosen, the object's id."""
-
     grasp_file: GraspFile
     mesh_path: Path
     selection: np.ndarray  # (M,) rows of the file relabelled, ascending
@@ -62,8 +70,6 @@ def check_inputs(grasp_file: str | Path, mesh_root: str | Path, config: Config, 
     The output directory, protocol and seed (that draws ``max_grasps`` of the file's grasps) come from ``config``;
     the messages name the command's flags, so a library caller and the command see the same one-line errors.
     """
-    from ..world.mesh_sources import MESH_SUFFIXES
-
     engines = tuple(name.strip() for name in (engine.split(",") if isinstance(engine, str) else engine) if name.strip())
     if not engines or any(name not in ENGINES for name in engines) or len(set(engines)) < len(engines):
         raise InputError(f"--engine must be one of {', '.join(ENGINES)} or a comma list of them without repeats, got {engine!r}")
@@ -151,8 +157,6 @@ def import_object(inputs: Inputs, out_dir: Path, finger_lateral_friction: float)
     A file's friction is its contacts' coefficient (its simulator takes one for a contact), where PyBullet
     multiplies the finger's by the object's: the object gets the file's over ``finger_lateral_friction``, so
     its contacts with our fingers have the file's coefficient."""
-    from ..run_directory import write_json
-
     folder = out_dir / "objects" / inputs.object_id
     folder.mkdir(parents=True, exist_ok=True)
     link = folder / f"{inputs.object_id}{inputs.mesh_path.suffix.lower()}"
@@ -192,8 +196,6 @@ def link_from_imported_mesh(spec: ObjectSpec, scale: float) -> np.ndarray:
 
 def object_bounds(spec: ObjectSpec) -> np.ndarray:
     """(2, 3) the object's axis-aligned box in its link frame, from its visual mesh."""
-    from .grasp_geometry import object_mesh_link
-
     return np.asarray(object_mesh_link(spec).bounds, dtype=np.float64)
 
 
@@ -206,11 +208,6 @@ def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarra
                 config: Config | dict) -> list[dict[str, Any]]:
     """Our labels of (C, 4, 4) ACRONYM grasp poses in the object's link frame, by each of ``engines``, as plain
     values: held where every engine held (``cross_engine.combined_labels``), each engine's own under "by_engine"."""
-    from ..config import load_config
-    from .cross_engine import combined_labels
-    from ..formats.frames import grasp_poses_from_acronym
-    from .labelling import label_object_grasps
-
     if isinstance(config, dict):  # in a worker process: the config travels as its dict
         config = load_config(overrides=config)
     poses = grasp_poses_from_acronym(transforms_link)
@@ -246,7 +243,6 @@ def _read_chunk(path: Path, start: int, stop: int) -> list[dict[str, Any]] | Non
 
 class _ChunkLabeller:
     """A worker of ``label_pending``: a unit is the (start, stop) rows of the grasps it labels (``label_chunk``)."""
-
     objects_dir = None
 
     def __init__(self, spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, protocol: str,
@@ -266,8 +262,6 @@ class _ChunkLabeller:
 def label_pending(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarray | None, inputs: Inputs,
                   config: Config, out_dir: Path, on_chunk: Any = None) -> list[dict[str, Any]]:
     """Every grasp's label: chunks already in ``out_dir/chunks`` read back, the rest labelled and each written as it ends."""
-    from ..run_directory import write_json
-
     (out_dir / CHUNKS_DIR).mkdir(exist_ok=True)
     bounds = chunk_bounds(len(transforms_link), config.dataset.grasps_per_chunk)
     done = {start: labels for start, stop in bounds if (labels := _read_chunk(out_dir / CHUNKS_DIR / f"{start:08d}.json", start, stop)) is not None}
@@ -295,12 +289,6 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
     ``note`` is handed each progress and import-fidelity line. Raises ``InputError`` for a directory holding a
     relabel of other inputs or an object whose frame cannot take the file's grasps, and the object set's and run
     directory's own errors."""
-    from .. import provenance
-    from ..formats.acronym import relabel_file_bytes
-    from ..formats.frames import grasp_poses_from_acronym
-    from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_file_atomically, write_json
-    from .agreement import agreement_markdown, grasp_regions, label_agreement
-
     record = input_record(inputs)
     with RunLock(out_dir):
         _check_same_input(out_dir, record)
@@ -341,8 +329,6 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
 
 def _engine_agreements(reference: np.ndarray, labels: list[dict[str, Any]], regions: list[str], engines: tuple[str, ...]) -> dict[str, Any]:
     """With several engines: each one's agreement with the file's labels, and the second's with the first's."""
-    from .agreement import label_agreement
-
     own = {engine: [label["by_engine"][engine] for label in labels] for engine in engines}
     held = {engine: np.array([label["held"] for label in own[engine]], dtype=bool) for engine in engines}
     phases = {engine: [label["failed_at"] for label in own[engine]] for engine in engines}

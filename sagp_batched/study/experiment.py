@@ -17,13 +17,24 @@ from dataclasses import dataclass, field
 from typing import Any, Iterator
 
 import numpy as np
+from PIL import Image
 
 from ..config import Config
+from ..execution.pick import execute_ranked
+from ..formats.acronym import trial_file_bytes
 from ..grasps import GraspCandidates
+from ..planning import plan
+from ..rating import get_rater
 from ..rating.zone_rating import ZoneRating, clipped, neutral_rating
 from ..seeds import candidate_seed
+from ..semantics.vlm_direct import get_vd_client
+from ..semantics.zone_descriptions import describe_zones
+from ..semantics.zone_marks import rating_image
+from ..semantics.zones import assign_zones
 from ..types import GraspAttempt, PerceivedCloud, PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
+from ..world.perception import capture
+from ..world.scene import Scene
 from .judging import judge_task, place_grasp
 from .methods import RankingInputs, get_method
 from .records import STAGE_TIMES, ExecutedGrasps, PlanSummary, TrialRecord, TrialUnit
@@ -88,16 +99,12 @@ class TrialRunner:
     @property
     def scene(self):
         if self._scene is None:
-            from ..world.scene import Scene
-
             self._scene = Scene(self.config, gui=self.config.run.gui)
         return self._scene
 
     @property
     def rater(self):
         if self._rater is None:
-            from ..rating import get_rater
-
             self._rater = get_rater(self.config.rating)
         return self._rater
 
@@ -132,10 +139,6 @@ class TrialRunner:
         return list(self.objects.distractors())
 
     def _run_unit(self, spec: ObjectSpec, unit: TrialUnit, result: UnitResult) -> None:
-        from ..world.perception import capture
-        from ..planning import plan
-        from ..semantics.zones import assign_zones
-
         config, scene = self.config, self.scene
         emit = result.records.append
         scene.reset(spec, unit.trial, distractors=self._distractors_for(unit))
@@ -181,17 +184,12 @@ class TrialRunner:
             attempts_by_method[method] = executed_grasps.attempts
             emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=executed_grasps))
         if config.run.export_grasps:
-            from ..formats.acronym import trial_file_bytes
-
             result.files[grasps_file(spec.id, unit.task, unit.trial)] = trial_file_bytes(
                 spec, cloud, candidates, ranked_by_method, attempts_by_method)
 
     def _rate(self, spec: ObjectSpec, unit: TrialUnit, cloud: PerceivedCloud, decomposition) -> tuple[ZoneRating, tuple[str, str] | None, float]:
         """(rating, (error, traceback) when the rater raised, seconds) of the unit's zones. A failed
         rating is neutral: it fails the methods that rank by the rating only, the others run on."""
-        from ..semantics.zone_descriptions import describe_zones
-        from ..semantics.zone_marks import rating_image
-
         config = self.config
         start = time.perf_counter()
         rating_failure: tuple[str, str] | None = None
@@ -215,8 +213,6 @@ class TrialRunner:
                  executed: dict[int, GraspAttempt], files: dict[str, bytes]) -> ExecutedGrasps:
         """Execute the leading grasps of ``ranked`` (reusing the unit's attempts in ``executed``) and judge the
         last one tried; the attempts' images (``run.save_frames``) go into ``files``."""
-        from ..execution.pick import execute_ranked
-
         config = self.config
         attempts = execute_ranked(self.scene, config, ranked, record_frames=config.run.save_frames, executed=executed)
         final_index = len(attempts) - 1
@@ -231,8 +227,6 @@ class TrialRunner:
 
     def _model_client(self):
         """The rater's own model client, so VLM-Direct never loads a second copy of the model."""
-        from ..semantics.vlm_direct import get_vd_client
-
         rater = getattr(self.rater, "inner", self.rater)
         return rater.client if hasattr(rater, "client") else get_vd_client(self.config.rating)
 
@@ -241,8 +235,6 @@ def _encode_frames(attempts: list[GraspAttempt], unit: TrialUnit, method: str, f
     """PNG images of every attempt, into ``files``: at contact and after the lift, or at the moment it
     failed (``failed_<phase>``), since failures are what a user looks at. Keys are the final attempt's
     moments, and ``attempt<k>_<moment>`` for the earlier attempts; values are the run-relative paths."""
-    from PIL import Image
-
     saved = {}
     for number, attempt in enumerate(attempts, start=1):
         prefix = "" if number == len(attempts) else f"attempt{number}_"
