@@ -16,17 +16,14 @@ from __future__ import annotations
 
 import math
 import time
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from ..config import Config
 from ..formats.frames import acronym_gripper_transforms_object
-from ..formats.object_grasps import LabelledGrasps, ObjectPhysics, UntestedGrasps
+from ..formats.object_grasps import LabelledGrasps, UntestedGrasps
 from ..grasps import Grasp, GraspCandidates
 from ..seeds import capture_trial
 from ..types import PerceptionFailure
@@ -34,69 +31,6 @@ from ..world.objects import ObjectSet, ObjectSpec
 from .cross_engine import combined_labels, engine_columns, failure_text
 from .protocols import label_protocol
 from .captures import DATASET_TASKS, Capture, PosePlan, plan_captures
-
-if TYPE_CHECKING:
-    import trimesh
-
-# PyBullet's lateral friction where a URDF gives none.
-PYBULLET_DEFAULT_FRICTION = 0.5
-
-
-def object_physics(spec: ObjectSpec) -> ObjectPhysics:
-    """What the simulator was given for ``spec``: an imported object's figures from its import
-    metadata (the solid's volume and full inertia, the density that made its mass), else the
-    URDF's mass, COM, inertia and friction with the volume of its collision hulls (the solid
-    PyBullet collides) and density = mass / volume."""
-    from ..world.mesh_import import METADATA_FILE
-
-    metadata_path = Path(spec.urdf_path).with_name(METADATA_FILE)
-    if metadata_path.is_file():
-        import json
-
-        metadata = json.loads(metadata_path.read_text())
-        return ObjectPhysics(float(metadata["mass_kg"]), float(metadata["density_kg_m3"]), float(metadata["friction"]),
-                             tuple(metadata["com_m"]), tuple(tuple(row) for row in metadata["inertia_kg_m2"]),
-                             float(metadata["volume_m3"]))
-    return _urdf_physics(spec)
-
-
-def _urdf_physics(spec: ObjectSpec) -> ObjectPhysics:
-    import trimesh
-
-    link = ElementTree.parse(spec.urdf_path).getroot().find("link")
-    inertial = link.find("inertial")
-    mass = float(inertial.find("mass").get("value")) if inertial is not None else spec.mass_kg
-    origin = inertial.find("origin") if inertial is not None else None
-    com = tuple(float(v) for v in (origin.get("xyz") if origin is not None else "0 0 0").split())
-    inertia_element = inertial.find("inertia") if inertial is not None else None
-    values = {key: float(inertia_element.get(key, 0.0)) if inertia_element is not None else 0.0
-              for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
-    inertia = ((values["ixx"], values["ixy"], values["ixz"]), (values["ixy"], values["iyy"], values["iyz"]),
-               (values["ixz"], values["iyz"], values["izz"]))
-    friction_element = link.find("contact/lateral_friction")
-    friction = float(friction_element.get("value")) if friction_element is not None else PYBULLET_DEFAULT_FRICTION
-    mesh_element = link.find("collision/geometry/mesh")
-    volume = 0.0
-    if mesh_element is not None:
-        scale = np.array([float(v) for v in (mesh_element.get("scale") or "1 1 1").split()])
-        mesh = trimesh.load(Path(spec.urdf_path).parent / mesh_element.get("filename"), force="mesh")
-        mesh.apply_scale(scale)
-        volume = float(sum(_hull_volume(part) for part in mesh.split(only_watertight=False)))
-    density = mass / volume if volume > 0 else math.nan
-    return ObjectPhysics(mass, density, friction, com, inertia, volume)  # type: ignore[arg-type]
-
-
-def _hull_volume(part: "trimesh.Trimesh") -> float:
-    """The volume of a mesh part's convex hull; a part lying in one plane (a stray triangle or
-    sheet in a scanned mesh) has none, and qhull refuses to build its hull."""
-    from scipy.spatial import QhullError
-
-    try:
-        return float(part.convex_hull.volume)
-    except QhullError:
-        return 0.0
-
-
 @dataclass
 class ObjectLabels:
     """One object's labelled and untested grasps, with what making them cost."""
@@ -281,6 +215,16 @@ class ObjectLabeller:
         return {"compared": len(hand), "both_tested": len(both), "agree": sum(h.held == a.held for h, a in both),
                 "hand_held": sum(h.held for h, _ in both), "arm_held": sum(a.held for _, a in both)}
 
+
+def mode_agreement(config: Config, objects: ObjectSet, object_ids: list[str], n_grasps: int) -> dict:
+    """Hand-vs-arm agreement on ``n_grasps`` grasps of each object of ``object_ids`` (``ObjectLabeller.compare_modes``)."""
+    labeller = ObjectLabeller(config, objects)
+    try:
+        by_object = {object_id: labeller.compare_modes(object_id, n_grasps) for object_id in object_ids}
+    finally:
+        labeller.close()
+    totals = {key: sum(row[key] for row in by_object.values()) for key in ("compared", "both_tested", "agree", "hand_held", "arm_held")}
+    return {**totals, "grasps_per_object": n_grasps, "by_object": by_object}
 
 def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome], engines: tuple[str, ...] = ("pybullet",)) -> ObjectLabels:
     """An object's labels from its plan and the outcomes of every chunk of it (in any order), labelled by ``engines``."""
