@@ -33,7 +33,6 @@ from ..formats.graspgen import write_graspgen_file
 from ..formats.object_grasps import ObjectPhysics
 from ..world.objects import ObjectSpec, objects_root
 from .cross_engine import object_engine_agreement
-from .grasp_geometry import object_surface
 
 if TYPE_CHECKING:
     import trimesh
@@ -63,12 +62,14 @@ def write_object(out_dir: Path, spec: ObjectSpec, labels: "ObjectLabels", mode: 
     write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
     distinct = distinct_grasp_count(poses.position, poses.rotation, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
     write_s = time.perf_counter() - clock
+    # Whether positives spread over the object or gather on one part: how many of the eight octants of the
+    # object's bounding box hold the contact midpoint of a held grasp.
+    held_sides = grasps.contacts[grasps.held].mean(axis=1) > labels.surface_centre
     entry = {
         "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
         "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
         "decided_by_geometry": grasps.decided_by.count("geometry"),
-        # Whether positives spread over the object or gather on one part.
-        "held_octants": object_surface(spec).octants_holding(grasps.contacts[grasps.held].mean(axis=1)),
+        "held_octants": len({tuple(side) for side in held_sides.astype(int)}),
         "unanimous": int(((grasps.held_fraction == 0.0) | (grasps.held_fraction == 1.0)).sum()),
         "hull_fidelity": spec.import_record.fidelity_summary() if spec.import_record is not None else None,
         "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,

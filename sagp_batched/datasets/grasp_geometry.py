@@ -59,11 +59,11 @@ class ObjectSurface:
         query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
         return self.scene.compute_occupancy(query, nsamples=3).numpy() > 0.5
 
-    def octants_holding(self, points: np.ndarray) -> int:
-        """Of the eight octants of the surface's bounding box, how many hold any of ``points`` (M, 3, link frame)."""
-        surface_points = self.points.numpy()
-        centre = (surface_points.min(axis=0) + surface_points.max(axis=0)) / 2.0
-        return len({tuple(side) for side in (points > centre).astype(int)})
+    @property
+    def box_centre(self) -> np.ndarray:
+        """(3,) the centre of the surface's bounding box, link frame."""
+        points = self.points.numpy()
+        return (points.min(axis=0) + points.max(axis=0)) / 2.0
 
 
 def object_mesh_link(spec: ObjectSpec):

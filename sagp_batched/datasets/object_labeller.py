@@ -40,6 +40,7 @@ class ObjectLabels:
     untested: UntestedGrasps
     rater: str
     neutral_tasks: dict[str, str]  # task -> why its rating is neutral (the rater does not know the object)
+    surface_centre: np.ndarray  # (3,) the centre of the object's mesh's bounding box, link frame
     skipped_poses: list[str] = field(default_factory=list)
     times_s: dict[str, float] = field(default_factory=dict)  # reset, capture, plan, simulate (summed over workers)
     engine_seconds: dict[str, float] = field(default_factory=dict)  # the simulate stage's share of each engine
@@ -54,6 +55,7 @@ class ObjectPlan:
     skipped_poses: list[str]
     rater: str
     neutral_tasks: dict[str, str]
+    surface_centre: np.ndarray  # (3,) the centre of the object's mesh's bounding box, link frame
     times_s: dict[str, float]
 
     def chunks(self, mode: str, grasps_per_chunk: int) -> list["SimulationChunk"]:
@@ -62,14 +64,15 @@ class ObjectPlan:
         state between grasps, and PyBullet's ``restoreState`` leaves small traces of the grasp before
         (object motions differ in the fourth decimal), so a grasp's label would depend on where a
         chunk began."""
-        chunks = []
-        for pose in self.poses:
-            grasps = pose.simulated_grasps(mode)
-            size = grasps_per_chunk if mode == "hand" else max(1, len(grasps))
-            for first in range(0, len(grasps), size):
-                chunks.append(SimulationChunk(self.object_id, pose.pose_index, first, pose.com_position_world,
-                                              pose.com_quat_xyzw, grasps[first:first + size]))
-        return chunks
+        return [chunk for pose in self.poses for chunk in pose_chunks(self.object_id, pose, mode, grasps_per_chunk)]
+
+
+def pose_chunks(object_id: str, pose: PosePlan, mode: str, grasps_per_chunk: int) -> list["SimulationChunk"]:
+    """One capture's grasps in chunks (``ObjectPlan.chunks``)."""
+    grasps = pose.simulated_grasps(mode)
+    size = grasps_per_chunk if mode == "hand" else max(1, len(grasps))
+    return [SimulationChunk(object_id, pose.pose_index, first, pose.com_position_world, pose.com_quat_xyzw, grasps[first:first + size])
+            for first in range(0, len(grasps), size)]
 
 
 @dataclass(frozen=True)
@@ -133,13 +136,17 @@ class ObjectLabeller:
         """Plan ``n_grasps`` grasps of the object, split over its captures."""
         n_poses = self.config.dataset.captures_per_object
         shares = [n_grasps // n_poses + (1 if k < n_grasps % n_poses else 0) for k in range(n_poses)]
-        planned, times = self._plan_poses(self.objects.get(object_id), shares)
+        from .grasp_geometry import object_surface
+
+        spec = self.objects.get(object_id)
+        planned, times = self._plan_poses(spec, shares)
         poses = [pose for pose in planned if not isinstance(pose, str)]
         neutral = {}
         for pose in poses:
             neutral.update({task: (r.issues[0] if r.issues else "neutral") for task, r in pose.ratings.items() if r.is_neutral})
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
-        return ObjectPlan(object_id, poses, [pose for pose in planned if isinstance(pose, str)], rater, neutral, times)
+        return ObjectPlan(object_id, poses, [pose for pose in planned if isinstance(pose, str)], rater, neutral,
+                          object_surface(spec).box_centre, times)
 
     def _plan_poses(self, spec: ObjectSpec, shares: list[int]) -> tuple[list[PosePlan | str], dict[str, float]]:
         """Captures 0, 1, ... taking ``shares`` grasps each, planned (``captures.plan_captures``), or why each
@@ -182,19 +189,19 @@ class ObjectLabeller:
 
         clock = time.perf_counter()
         spec = self.objects.get(chunk.object_id)
-        if (mode or self.config.dataset.mode) == "hand":
-            placement = ObjectPlacement(spec, chunk.com_position_world, chunk.com_quat_xyzw)
-            by_engine, seconds = {}, {}
-            for engine in self.config.dataset.engines:
-                started = time.perf_counter()
-                by_engine[engine] = label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol, engine)
-                seconds[engine] = time.perf_counter() - started
-            return ChunkOutcome(chunk, combined_labels(by_engine), time.perf_counter() - clock, seconds)
-        self._reset_to_pose(spec, chunk.pose_index)
-        labels = label_grasps_arm(self.scene, chunk.grasps, self.config)
-        outcomes = [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
-        seconds = time.perf_counter() - clock
-        return ChunkOutcome(chunk, outcomes, seconds, {"pybullet": seconds})
+        if (mode or self.config.dataset.mode) == "arm":
+            self._reset_to_pose(spec, chunk.pose_index)
+            labels = label_grasps_arm(self.scene, chunk.grasps, self.config)
+            outcomes = [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
+            seconds = time.perf_counter() - clock
+            return ChunkOutcome(chunk, outcomes, seconds, {"pybullet": seconds})
+        placement = ObjectPlacement(spec, chunk.com_position_world, chunk.com_quat_xyzw)
+        by_engine, seconds = {}, {}
+        for engine in self.config.dataset.engines:
+            started = time.perf_counter()
+            by_engine[engine] = label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol, engine)
+            seconds[engine] = time.perf_counter() - started
+        return ChunkOutcome(chunk, combined_labels(by_engine), time.perf_counter() - clock, seconds)
 
     def label(self, object_id: str, n_grasps: int) -> ObjectLabels:
         """``n_grasps`` grasps of the object planned and simulated here, one chunk a capture."""
@@ -208,8 +215,7 @@ class ObjectLabeller:
         pose = self._plan_poses(self.objects.get(object_id), [n_grasps])[0][0]
         if isinstance(pose, str):
             return {"compared": 0, "both_tested": 0, "agree": 0, "hand_held": 0, "arm_held": 0, "skipped": pose}
-        plan = ObjectPlan(object_id, [pose], [], "", {}, {})
-        hand, arm = ([o for chunk in plan.chunks(mode, max(1, n_grasps)) for o in self.simulate(chunk, mode).outcomes]
+        hand, arm = ([o for chunk in pose_chunks(object_id, pose, mode, max(1, n_grasps)) for o in self.simulate(chunk, mode).outcomes]
                      for mode in ("hand", "arm"))
         both = [(h, a) for h, a in zip(hand, arm) if not isinstance(h, str) and not isinstance(a, str)]
         return {"compared": len(hand), "both_tested": len(both), "agree": sum(h.held == a.held for h, a in both),
@@ -237,7 +243,8 @@ def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome], engines: tuple
     untested = UntestedGrasps(np.concatenate([p[1].transforms for p in parts] + [np.zeros((0, 4, 4))]), sum((p[1].reason for p in parts), []))
     times = {**plan.times_s, "simulate": sum(o.seconds for o in outcomes)}
     engine_seconds = {engine: sum(o.engine_seconds.get(engine, 0.0) for o in outcomes) for engine in engines}
-    return ObjectLabels(plan.object_id, grasps, untested, plan.rater, plan.neutral_tasks, plan.skipped_poses, times, engine_seconds)
+    return ObjectLabels(plan.object_id, grasps, untested, plan.rater, plan.neutral_tasks, plan.surface_centre, plan.skipped_poses,
+                        times, engine_seconds)
 
 
 def _pose_labels(pose: PosePlan, outcomes: list, engines: tuple[str, ...]) -> tuple[LabelledGrasps, UntestedGrasps]:
