@@ -37,7 +37,7 @@ from .cross_engine import object_engine_agreement
 if TYPE_CHECKING:
     import trimesh
 
-    from .object_labeller import ObjectLabels
+    from .object_plan import ObjectLabels
 
 OBJECTS_PROGRESS_FILE = "objects.jsonl"
 # The report's coverage figure: grasps closer than this, and turned less, count as one.

@@ -18,7 +18,8 @@ from ..config import Config
 from ..run_directory import WorkerReport
 from ..workers import Recipe, WorkerPool
 from ..world.objects import ObjectSet
-from .object_labeller import ObjectLabeller, ObjectLabels, ObjectPlan, mode_agreement, object_labels
+from .object_labeller import ObjectLabeller, mode_agreement
+from .object_plan import ObjectLabels, ObjectPlan, object_labels
 
 @dataclass
 class DatasetResult:
