@@ -11,7 +11,7 @@ Layout of a dataset directory::
     objects.jsonl               one line per finished object: what a resumed run skips
 
 The keys, dtypes, units and frames of the files are ``sagp_batched.formats``' (``formats.acronym``,
-``formats.graspgen``), which writes them.
+``formats.graspgen``), which writes them; ``write_object`` writes one finished object's files and its line.
 """
 from __future__ import annotations
 
@@ -59,8 +59,8 @@ def write_object(out_dir: Path, spec: ObjectSpec, labels: "ObjectLabels", mode: 
     write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, physics,
                       grasps, labels.untested, mode, protocol, labels.rater)
     poses = grasp_poses_from_acronym(grasps.transforms)
-    write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
     distinct = distinct_grasp_count(poses.position, poses.rotation, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
+    write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
     write_s = time.perf_counter() - clock
     # Whether positives spread over the object or gather on one part: how many of the eight octants of the
     # object's bounding box hold the contact midpoint of a held grasp.

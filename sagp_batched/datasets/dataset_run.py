@@ -21,6 +21,7 @@ from ..world.objects import ObjectSet
 from .object_labeller import ObjectLabeller, mode_agreement
 from .object_plan import ObjectLabels, ObjectPlan, object_labels
 
+
 @dataclass
 class DatasetResult:
     out_dir: Path

@@ -29,7 +29,7 @@ class ObjectLabels:
     untested: UntestedGrasps
     rater: str
     neutral_tasks: dict[str, str]  # task -> why its rating is neutral (the rater does not know the object)
-    surface_centre: np.ndarray  # (3,) the centre of the object's mesh's bounding box, link frame
+    surface_centre: np.ndarray  # (3,) the centre of the object's mesh's bounding box, link frame: the octants' centre
     skipped_poses: list[str] = field(default_factory=list)
     times_s: dict[str, float] = field(default_factory=dict)  # reset, capture, plan, simulate (summed over workers)
     engine_seconds: dict[str, float] = field(default_factory=dict)  # the simulate stage's share of each engine
