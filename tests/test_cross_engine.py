@@ -9,7 +9,8 @@ from sagp_batched.config import ConfigError, load_config
 from sagp_batched.datasets import labelling
 from sagp_batched.datasets.cross_engine import (agreement_report_lines, combined_labels, engine_columns, object_engine_agreement,
                                                 pooled_agreement)
-from sagp_batched.datasets.object_labeller import ObjectLabeller, object_labels
+from sagp_batched.datasets.object_labeller import ObjectLabeller
+from sagp_batched.datasets.object_plan import object_labels
 from sagp_batched.datasets.protocols import GraspLabel
 from sagp_batched.world.objects import load_object_set
 from tests.ycb_paths import embedded_ycb_dir

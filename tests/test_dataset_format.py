@@ -99,7 +99,7 @@ def test_a_stray_flat_part_in_a_collision_mesh_adds_no_volume_and_raises_nothing
     """Scanned meshes carry stray triangles; qhull cannot build their hull, and they hold no volume."""
     import trimesh
 
-    from sagp_batched.datasets.object_labeller import object_physics
+    from sagp_batched.datasets.dataset_directory import object_physics
     from sagp_batched.world.objects import ObjectSpec
 
     box = trimesh.creation.box(extents=(0.1, 0.05, 0.02))

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from sagp_batched.config import load_config
-from sagp_batched.datasets.object_labeller import ObjectLabeller, object_labels
+from sagp_batched.datasets.object_labeller import ObjectLabeller
+from sagp_batched.datasets.object_plan import object_labels
 from sagp_batched.world.objects import load_object_set
 
 

@@ -51,7 +51,8 @@ def test_the_robot_is_described_once_and_its_joints_are_found_by_name_in_the_loa
     import pybullet
 
     from sagp_batched.robot.hand import hand_to_grasp_target_m
-    from sagp_batched.robot.description import body_indices, load_robot
+    from sagp_batched.robot.description import load_robot
+    from sagp_batched.world.scene import body_indices
 
     robot = load_robot()
 

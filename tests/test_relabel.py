@@ -269,8 +269,7 @@ def test_our_own_file_relabelled_for_real_gets_its_own_labels_back(tmp_path, mon
     import torch
 
     from sagp_batched.config import load_config
-    from sagp_batched.datasets.dataset_directory import copy_object_mesh
-    from sagp_batched.datasets.object_labeller import object_physics
+    from sagp_batched.datasets.dataset_directory import copy_object_mesh, object_physics
     from sagp_batched.formats.acronym import write_object_file
     from sagp_batched.formats.frames import acronym_gripper_transforms_object
     from sagp_batched.formats.object_grasps import LabelledGrasps, UntestedGrasps

@@ -11,23 +11,76 @@ Layout of a dataset directory::
     objects.jsonl               one line per finished object: what a resumed run skips
 
 The keys, dtypes, units and frames of the files are ``sagp_batched.formats``' (``formats.acronym``,
-``formats.graspgen``), which writes them.
+``formats.graspgen``), which writes them; ``write_object`` writes one finished object's files and its line.
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
+import time
+import xml.etree.ElementTree as ElementTree
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..formats.frames import mesh_reference
+from ..formats.acronym import write_object_file
+from ..formats.frames import grasp_poses_from_acronym, mesh_reference
+from ..formats.graspgen import write_graspgen_file
+from ..formats.object_grasps import ObjectPhysics
 from ..world.objects import ObjectSpec, objects_root
+from .cross_engine import object_engine_agreement
+
+if TYPE_CHECKING:
+    import trimesh
+
+    from .object_plan import ObjectLabels
 
 OBJECTS_PROGRESS_FILE = "objects.jsonl"
+# The report's coverage figure: grasps closer than this, and turned less, count as one.
+DISTINCT_TRANSLATION_M = 0.01
+DISTINCT_ROTATION_DEG = 20.0
+
+
+def write_object(out_dir: Path, spec: ObjectSpec, labels: "ObjectLabels", mode: str, protocol: str) -> dict:
+    """Write one finished object: its mesh, its ACRONYM and GraspGen files, then its progress line (what the
+    report and a resume read), which is returned."""
+    from sagp_batched_kernels.pose_nms import distinct_grasp_count
+
+    clock = time.perf_counter()
+    for sub in ("grasps", "graspgen", "meshes"):
+        (out_dir / sub).mkdir(exist_ok=True)
+    physics = object_physics(spec)
+    mesh_file, scale, mesh_to_link = copy_object_mesh(spec, out_dir / "meshes")
+    grasps = labels.grasps
+    write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, physics,
+                      grasps, labels.untested, mode, protocol, labels.rater)
+    poses = grasp_poses_from_acronym(grasps.transforms)
+    distinct = distinct_grasp_count(poses.position, poses.rotation, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
+    write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
+    write_s = time.perf_counter() - clock
+    # Whether positives spread over the object or gather on one part: how many of the eight octants of the
+    # object's bounding box hold the contact midpoint of a held grasp.
+    held_sides = grasps.contacts[grasps.held].mean(axis=1) > labels.surface_centre
+    entry = {
+        "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
+        "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
+        "decided_by_geometry": grasps.decided_by.count("geometry"),
+        "held_octants": len({tuple(side) for side in held_sides.astype(int)}),
+        "unanimous": int(((grasps.held_fraction == 0.0) | (grasps.held_fraction == 1.0)).sum()),
+        "hull_fidelity": spec.import_record.fidelity_summary() if spec.import_record is not None else None,
+        "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
+        "by_verdict": {v: [int(sum(h for h, w in zip(grasps.held, grasps.verdict) if w == v)), grasps.verdict.count(v)]
+                       for v in sorted(set(grasps.verdict))},
+        "times_s": {**labels.times_s, "write": write_s}, "engine_seconds": labels.engine_seconds,
+        "engine_agreement": object_engine_agreement(grasps.engine_held, grasps.engine_failure,
+                                                    np.array([by == "simulation" for by in grasps.decided_by], dtype=bool), grasps.verdict),
+    }
+    append_progress(out_dir, entry)
+    return entry
 
 
 def copy_object_mesh(spec: ObjectSpec, meshes_dir: Path) -> tuple[str, float, np.ndarray]:
@@ -39,6 +92,65 @@ def copy_object_mesh(spec: ObjectSpec, meshes_dir: Path) -> tuple[str, float, np
     target.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(source, target)
     return f"{spec.id}/{source.name}", scale, mesh_to_link
+
+
+# PyBullet's lateral friction where a URDF gives none.
+PYBULLET_DEFAULT_FRICTION = 0.5
+
+
+def object_physics(spec: ObjectSpec) -> ObjectPhysics:
+    """What the simulator was given for ``spec``: an imported object's figures from its import
+    metadata (the solid's volume and full inertia, the density that made its mass), else the
+    URDF's mass, COM, inertia and friction with the volume of its collision hulls (the solid
+    PyBullet collides) and density = mass / volume."""
+    from ..world.mesh_import import METADATA_FILE
+
+    metadata_path = Path(spec.urdf_path).with_name(METADATA_FILE)
+    if metadata_path.is_file():
+        import json
+
+        metadata = json.loads(metadata_path.read_text())
+        return ObjectPhysics(float(metadata["mass_kg"]), float(metadata["density_kg_m3"]), float(metadata["friction"]),
+                             tuple(metadata["com_m"]), tuple(tuple(row) for row in metadata["inertia_kg_m2"]),
+                             float(metadata["volume_m3"]))
+    return _urdf_physics(spec)
+
+
+def _urdf_physics(spec: ObjectSpec) -> ObjectPhysics:
+    import trimesh
+
+    link = ElementTree.parse(spec.urdf_path).getroot().find("link")
+    inertial = link.find("inertial")
+    mass = float(inertial.find("mass").get("value")) if inertial is not None else spec.mass_kg
+    origin = inertial.find("origin") if inertial is not None else None
+    com = tuple(float(v) for v in (origin.get("xyz") if origin is not None else "0 0 0").split())
+    inertia_element = inertial.find("inertia") if inertial is not None else None
+    values = {key: float(inertia_element.get(key, 0.0)) if inertia_element is not None else 0.0
+              for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    inertia = ((values["ixx"], values["ixy"], values["ixz"]), (values["ixy"], values["iyy"], values["iyz"]),
+               (values["ixz"], values["iyz"], values["izz"]))
+    friction_element = link.find("contact/lateral_friction")
+    friction = float(friction_element.get("value")) if friction_element is not None else PYBULLET_DEFAULT_FRICTION
+    mesh_element = link.find("collision/geometry/mesh")
+    volume = 0.0
+    if mesh_element is not None:
+        scale = np.array([float(v) for v in (mesh_element.get("scale") or "1 1 1").split()])
+        mesh = trimesh.load(Path(spec.urdf_path).parent / mesh_element.get("filename"), force="mesh")
+        mesh.apply_scale(scale)
+        volume = float(sum(_hull_volume(part) for part in mesh.split(only_watertight=False)))
+    density = mass / volume if volume > 0 else math.nan
+    return ObjectPhysics(mass, density, friction, com, inertia, volume)  # type: ignore[arg-type]
+
+
+def _hull_volume(part: "trimesh.Trimesh") -> float:
+    """The volume of a mesh part's convex hull; a part lying in one plane (a stray triangle or
+    sheet in a scanned mesh) has none, and qhull refuses to build its hull."""
+    from scipy.spatial import QhullError
+
+    try:
+        return float(part.convex_hull.volume)
+    except QhullError:
+        return 0.0
 
 
 def split_of(object_id: str, valid_fraction: float) -> str:

@@ -9,24 +9,17 @@ simulation starts from its capture's settled state alone. The driver alone write
 from __future__ import annotations
 
 import collections
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-import numpy as np
-
 from ..config import Config
-from ..formats.frames import grasp_poses_from_acronym
 from ..run_directory import WorkerReport
 from ..workers import Recipe, WorkerPool
 from ..world.objects import ObjectSet
-from .object_labeller import ObjectLabeller, ObjectLabels, ObjectPlan, object_labels, object_physics
-
-# The report's coverage figure: grasps closer than this, and turned less, count as one.
-DISTINCT_TRANSLATION_M = 0.01
-DISTINCT_ROTATION_DEG = 20.0
+from .object_labeller import ObjectLabeller, mode_agreement
+from .object_plan import ObjectLabels, ObjectPlan, object_labels
 
 
 @dataclass
@@ -122,66 +115,6 @@ def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], 
                 yield object_labels(plan, outcomes, config.dataset.engines)
 
 
-def _write_object(out_dir: Path, spec, labels: ObjectLabels, mode: str, protocol: str) -> dict:
-    """Write one object's files and return its progress line (what the report and a resume read)."""
-    from sagp_batched_kernels.pose_nms import distinct_grasp_count
-
-    from .cross_engine import object_engine_agreement
-    from .dataset_directory import append_progress, copy_object_mesh
-    from ..formats.acronym import write_object_file
-    from ..formats.graspgen import write_graspgen_file
-
-    clock = time.perf_counter()
-    for sub in ("grasps", "graspgen", "meshes"):
-        (out_dir / sub).mkdir(exist_ok=True)
-    mesh_file, scale, mesh_to_link = copy_object_mesh(spec, out_dir / "meshes")
-    grasps = labels.grasps
-    write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, object_physics(spec),
-                      grasps, labels.untested, mode, protocol, labels.rater)
-    write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
-    poses = grasp_poses_from_acronym(grasps.transforms)
-    distinct = distinct_grasp_count(poses.position, poses.rotation, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
-    write_s = time.perf_counter() - clock
-    entry = {
-        "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
-        "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
-        "decided_by_geometry": grasps.decided_by.count("geometry"),
-        "held_octants": held_octants(spec, grasps.contacts[grasps.held]),
-        "unanimous": int(((grasps.held_fraction == 0.0) | (grasps.held_fraction == 1.0)).sum()),
-        "hull_fidelity": spec.import_record.fidelity_summary() if spec.import_record is not None else None,
-        "neutral_tasks": labels.neutral_tasks, "skipped_captures": labels.skipped_poses,
-        "by_verdict": {v: [int(sum(h for h, w in zip(grasps.held, grasps.verdict) if w == v)), grasps.verdict.count(v)]
-                       for v in sorted(set(grasps.verdict))},
-        "times_s": {**labels.times_s, "write": write_s}, "engine_seconds": labels.engine_seconds,
-        "engine_agreement": object_engine_agreement(grasps.engine_held, grasps.engine_failure,
-                                                    np.array([by == "simulation" for by in grasps.decided_by], dtype=bool), grasps.verdict),
-    }
-    append_progress(out_dir, entry)
-    return entry
-
-
-def held_octants(spec, contacts_object: np.ndarray) -> int:
-    """Of the eight octants of the object's bounding box (link frame), how many hold the contact
-    midpoint of a held grasp: whether positives spread over the object or gather on one part."""
-    from .grasp_geometry import object_surface
-
-    points = object_surface(spec).points.numpy()
-    centre = (points.min(axis=0) + points.max(axis=0)) / 2.0
-    sides = (contacts_object.reshape(-1, 2, 3).mean(axis=1) > centre).astype(int)
-    return len({tuple(side) for side in sides})
-
-
-def measure_agreement(config: Config, objects: ObjectSet, object_ids: list[str], n_grasps: int) -> dict:
-    """Hand-vs-arm agreement on ``n_grasps`` grasps of each object of ``object_ids`` (``ObjectLabeller.compare_modes``)."""
-    labeller = ObjectLabeller(config, objects)
-    try:
-        by_object = {object_id: labeller.compare_modes(object_id, n_grasps) for object_id in object_ids}
-    finally:
-        labeller.close()
-    totals = {key: sum(row[key] for row in by_object.values()) for key in ("compared", "both_tested", "agree", "hand_held", "arm_held")}
-    return {**totals, "grasps_per_object": n_grasps, "by_object": by_object}
-
-
 def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progress: bool = True,
                      on_note: Callable[[str], None] | None = None, on_object: Callable[[dict], None] | None = None,
                      agreement_objects: list[str] | None = None, agreement_grasps: int = 0) -> DatasetResult:
@@ -220,16 +153,17 @@ def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progr
         if agreement_grasps:
             from .dataset_report import AGREEMENT_FILE
 
-            write_json(out_dir / AGREEMENT_FILE, measure_agreement(config, objects, list(agreement_objects or []), agreement_grasps))
+            write_json(out_dir / AGREEMENT_FILE, mode_agreement(config, objects, list(agreement_objects or []), agreement_grasps))
         manifest = write_dataset_report(out_dir, config, objects, object_ids)
     return DatasetResult(out_dir, new_objects, manifest)
 
 
 def _label_pending(config: Config, objects: ObjectSet, out_dir: Path, pending: list[str], packed: Any, progress: bool,
                    on_object: Callable[[dict], None] | None) -> list[str]:
-    """Label the ``pending`` objects, each written (``_write_object``) as soon as it is done, the
+    """Label the ``pending`` objects, each written (``dataset_directory.write_object``) as soon as it is done, the
     workers' reports appended to ``workers.jsonl``; the objects written, in that order."""
     from ..run_directory import WORKERS_FILE, append_json_line
+    from .dataset_directory import write_object
 
     bar = None
     if progress:
@@ -244,7 +178,7 @@ def _label_pending(config: Config, objects: ObjectSet, out_dir: Path, pending: l
 
     try:
         for labels in labelled_objects(config, objects, pending, packed, on_report):
-            entry = _write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, config.dataset.protocol)
+            entry = write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, config.dataset.protocol)
             new_objects.append(labels.object_id)
             if on_object is not None:
                 on_object(entry)

@@ -59,6 +59,12 @@ class ObjectSurface:
         query = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
         return self.scene.compute_occupancy(query, nsamples=3).numpy() > 0.5
 
+    @property
+    def box_centre(self) -> np.ndarray:
+        """(3,) the centre of the surface's bounding box, link frame."""
+        points = self.points.numpy()
+        return (points.min(axis=0) + points.max(axis=0)) / 2.0
+
 
 def object_mesh_link(spec: ObjectSpec):
     """The object's visual mesh as a ``trimesh.Trimesh`` in its link frame, metres, as geometry alone

@@ -1,7 +1,7 @@
 """Labelled grasp datasets: for each object and resting pose, capture once, plan, and label grasps by simulation.
 
 ``ObjectLabeller.plan_object`` captures and plans each of an object's captures once for all their
-grasps; ``ObjectLabeller.simulate`` labels a chunk of them; ``object_labels`` joins the chunks.
+grasps; ``ObjectLabeller.simulate`` labels a chunk of them; ``object_plan.object_labels`` joins the chunks.
 ``dataset_run.generate_dataset`` spreads plans and chunks over workers, writes each finished object at
 once (``dataset_directory``) and resumes where a stopped run left off.
 
@@ -14,163 +14,16 @@ apart as untested, never written as a failure.
 """
 from __future__ import annotations
 
-import math
 import time
-import xml.etree.ElementTree as ElementTree
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import TYPE_CHECKING
-
-import numpy as np
-import torch
 
 from ..config import Config
-from ..formats.frames import acronym_gripper_transforms_object
-from ..formats.object_grasps import LabelledGrasps, ObjectPhysics, UntestedGrasps
-from ..grasps import Grasp, GraspCandidates
 from ..seeds import capture_trial
 from ..types import PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
-from .cross_engine import combined_labels, engine_columns, failure_text
+from .captures import Capture, PosePlan, plan_captures
+from .cross_engine import combined_labels
+from .object_plan import ChunkOutcome, ObjectLabels, ObjectPlan, SimulationChunk, object_labels, pose_chunks
 from .protocols import label_protocol
-from .captures import DATASET_TASKS, Capture, PosePlan, plan_captures
-
-if TYPE_CHECKING:
-    import trimesh
-
-# PyBullet's lateral friction where a URDF gives none.
-PYBULLET_DEFAULT_FRICTION = 0.5
-
-
-def object_physics(spec: ObjectSpec) -> ObjectPhysics:
-    """What the simulator was given for ``spec``: an imported object's figures from its import
-    metadata (the solid's volume and full inertia, the density that made its mass), else the
-    URDF's mass, COM, inertia and friction with the volume of its collision hulls (the solid
-    PyBullet collides) and density = mass / volume."""
-    from ..world.mesh_import import METADATA_FILE
-
-    metadata_path = Path(spec.urdf_path).with_name(METADATA_FILE)
-    if metadata_path.is_file():
-        import json
-
-        metadata = json.loads(metadata_path.read_text())
-        return ObjectPhysics(float(metadata["mass_kg"]), float(metadata["density_kg_m3"]), float(metadata["friction"]),
-                             tuple(metadata["com_m"]), tuple(tuple(row) for row in metadata["inertia_kg_m2"]),
-                             float(metadata["volume_m3"]))
-    return _urdf_physics(spec)
-
-
-def _urdf_physics(spec: ObjectSpec) -> ObjectPhysics:
-    import trimesh
-
-    link = ElementTree.parse(spec.urdf_path).getroot().find("link")
-    inertial = link.find("inertial")
-    mass = float(inertial.find("mass").get("value")) if inertial is not None else spec.mass_kg
-    origin = inertial.find("origin") if inertial is not None else None
-    com = tuple(float(v) for v in (origin.get("xyz") if origin is not None else "0 0 0").split())
-    inertia_element = inertial.find("inertia") if inertial is not None else None
-    values = {key: float(inertia_element.get(key, 0.0)) if inertia_element is not None else 0.0
-              for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
-    inertia = ((values["ixx"], values["ixy"], values["ixz"]), (values["ixy"], values["iyy"], values["iyz"]),
-               (values["ixz"], values["iyz"], values["izz"]))
-    friction_element = link.find("contact/lateral_friction")
-    friction = float(friction_element.get("value")) if friction_element is not None else PYBULLET_DEFAULT_FRICTION
-    mesh_element = link.find("collision/geometry/mesh")
-    volume = 0.0
-    if mesh_element is not None:
-        scale = np.array([float(v) for v in (mesh_element.get("scale") or "1 1 1").split()])
-        mesh = trimesh.load(Path(spec.urdf_path).parent / mesh_element.get("filename"), force="mesh")
-        mesh.apply_scale(scale)
-        volume = float(sum(_hull_volume(part) for part in mesh.split(only_watertight=False)))
-    density = mass / volume if volume > 0 else math.nan
-    return ObjectPhysics(mass, density, friction, com, inertia, volume)  # type: ignore[arg-type]
-
-
-def _hull_volume(part: "trimesh.Trimesh") -> float:
-    """The volume of a mesh part's convex hull; a part lying in one plane (a stray triangle or
-    sheet in a scanned mesh) has none, and qhull refuses to build its hull."""
-    from scipy.spatial import QhullError
-
-    try:
-        return float(part.convex_hull.volume)
-    except QhullError:
-        return 0.0
-
-
-@dataclass
-class ObjectLabels:
-    """One object's labelled and untested grasps, with what making them cost."""
-
-    object_id: str
-    grasps: LabelledGrasps
-    untested: UntestedGrasps
-    rater: str
-    neutral_tasks: dict[str, str]  # task -> why its rating is neutral (the rater does not know the object)
-    skipped_poses: list[str] = field(default_factory=list)
-    times_s: dict[str, float] = field(default_factory=dict)  # reset, capture, plan, simulate (summed over workers)
-    engine_seconds: dict[str, float] = field(default_factory=dict)  # the simulate stage's share of each engine
-
-
-@dataclass
-class ObjectPlan:
-    """Every capture of one object, planned; what the captures that failed reported; planning times."""
-
-    object_id: str
-    poses: list[PosePlan]
-    skipped_poses: list[str]
-    rater: str
-    neutral_tasks: dict[str, str]
-    times_s: dict[str, float]
-
-    def chunks(self, mode: str, grasps_per_chunk: int) -> list["SimulationChunk"]:
-        """The plan's grasps in chunks of at most ``grasps_per_chunk``, each simulated on its own; in
-        ``arm`` mode one chunk a capture, its grasps in order: the arm restores the capture's saved
-        state between grasps, and PyBullet's ``restoreState`` leaves small traces of the grasp before
-        (object motions differ in the fourth decimal), so a grasp's label would depend on where a
-        chunk began."""
-        chunks = []
-        for pose in self.poses:
-            grasps = pose.simulated_grasps(mode)
-            size = grasps_per_chunk if mode == "hand" else max(1, len(grasps))
-            for first in range(0, len(grasps), size):
-                chunks.append(SimulationChunk(self.object_id, pose.pose_index, first, pose.com_position_world,
-                                              pose.com_quat_xyzw, grasps[first:first + size]))
-        return chunks
-
-
-@dataclass(frozen=True)
-class SimulationChunk:
-    """Grasps of one capture to simulate: what a worker needs and nothing of the planning worker's world."""
-
-    object_id: str
-    pose_index: int
-    first: int  # index of the chunk's first grasp among its capture's picks
-    com_position_world: tuple[float, float, float]
-    com_quat_xyzw: tuple[float, float, float, float]
-    grasps: list[Grasp]
-
-
-@dataclass
-class ChunkOutcome:
-    """A chunk's outcomes, in its order: a ``GraspLabel``, or why the grasp could not be simulated."""
-
-    chunk: SimulationChunk
-    outcomes: list
-    seconds: float
-    engine_seconds: dict[str, float] = field(default_factory=dict)
-
-
-def _motion(value: float | None) -> float:
-    """A motion the grasp never reached (it failed before that phase) is NaN, not 0."""
-    return math.nan if value is None else float(value)
-
-
-def _zone_levels(candidates: GraspCandidates, ratings: dict) -> tuple[list[str], dict[str, list[str]]]:
-    names = candidates.primary_zone_names()
-    levels = {task: [(rating.level(name) or "") if name else "" for name in names] for task, rating in ratings.items()}
-    return names, levels
-
-
 class ObjectLabeller:
     """Plans and simulates grasps of objects in one PyBullet client: a scene, a rater, the object set.
 
@@ -199,13 +52,17 @@ class ObjectLabeller:
         """Plan ``n_grasps`` grasps of the object, split over its captures."""
         n_poses = self.config.dataset.captures_per_object
         shares = [n_grasps // n_poses + (1 if k < n_grasps % n_poses else 0) for k in range(n_poses)]
-        planned, times = self._plan_poses(self.objects.get(object_id), shares)
+        from .grasp_geometry import object_surface
+
+        spec = self.objects.get(object_id)
+        planned, times = self._plan_poses(spec, shares)
         poses = [pose for pose in planned if not isinstance(pose, str)]
         neutral = {}
         for pose in poses:
             neutral.update({task: (r.issues[0] if r.issues else "neutral") for task, r in pose.ratings.items() if r.is_neutral})
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
-        return ObjectPlan(object_id, poses, [pose for pose in planned if isinstance(pose, str)], rater, neutral, times)
+        return ObjectPlan(object_id, poses, [pose for pose in planned if isinstance(pose, str)], rater, neutral,
+                          object_surface(spec).box_centre, times)
 
     def _plan_poses(self, spec: ObjectSpec, shares: list[int]) -> tuple[list[PosePlan | str], dict[str, float]]:
         """Captures 0, 1, ... taking ``shares`` grasps each, planned (``captures.plan_captures``), or why each
@@ -248,19 +105,19 @@ class ObjectLabeller:
 
         clock = time.perf_counter()
         spec = self.objects.get(chunk.object_id)
-        if (mode or self.config.dataset.mode) == "hand":
-            placement = ObjectPlacement(spec, chunk.com_position_world, chunk.com_quat_xyzw)
-            by_engine, seconds = {}, {}
-            for engine in self.config.dataset.engines:
-                started = time.perf_counter()
-                by_engine[engine] = label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol, engine)
-                seconds[engine] = time.perf_counter() - started
-            return ChunkOutcome(chunk, combined_labels(by_engine), time.perf_counter() - clock, seconds)
-        self._reset_to_pose(spec, chunk.pose_index)
-        labels = label_grasps_arm(self.scene, chunk.grasps, self.config)
-        outcomes = [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
-        seconds = time.perf_counter() - clock
-        return ChunkOutcome(chunk, outcomes, seconds, {"pybullet": seconds})
+        if (mode or self.config.dataset.mode) == "arm":
+            self._reset_to_pose(spec, chunk.pose_index)
+            labels = label_grasps_arm(self.scene, chunk.grasps, self.config)
+            outcomes = [label if label is not None else "untested: the arm found no motion that reaches it" for label in labels]
+            seconds = time.perf_counter() - clock
+            return ChunkOutcome(chunk, outcomes, seconds, {"pybullet": seconds})
+        placement = ObjectPlacement(spec, chunk.com_position_world, chunk.com_quat_xyzw)
+        by_engine, seconds = {}, {}
+        for engine in self.config.dataset.engines:
+            started = time.perf_counter()
+            by_engine[engine] = label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol, engine)
+            seconds[engine] = time.perf_counter() - started
+        return ChunkOutcome(chunk, combined_labels(by_engine), time.perf_counter() - clock, seconds)
 
     def label(self, object_id: str, n_grasps: int) -> ObjectLabels:
         """``n_grasps`` grasps of the object planned and simulated here, one chunk a capture."""
@@ -274,60 +131,19 @@ class ObjectLabeller:
         pose = self._plan_poses(self.objects.get(object_id), [n_grasps])[0][0]
         if isinstance(pose, str):
             return {"compared": 0, "both_tested": 0, "agree": 0, "hand_held": 0, "arm_held": 0, "skipped": pose}
-        plan = ObjectPlan(object_id, [pose], [], "", {}, {})
-        hand, arm = ([o for chunk in plan.chunks(mode, max(1, n_grasps)) for o in self.simulate(chunk, mode).outcomes]
+        hand, arm = ([o for chunk in pose_chunks(object_id, pose, mode, max(1, n_grasps)) for o in self.simulate(chunk, mode).outcomes]
                      for mode in ("hand", "arm"))
         both = [(h, a) for h, a in zip(hand, arm) if not isinstance(h, str) and not isinstance(a, str)]
         return {"compared": len(hand), "both_tested": len(both), "agree": sum(h.held == a.held for h, a in both),
                 "hand_held": sum(h.held for h, _ in both), "arm_held": sum(a.held for _, a in both)}
 
 
-def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome], engines: tuple[str, ...] = ("pybullet",)) -> ObjectLabels:
-    """An object's labels from its plan and the outcomes of every chunk of it (in any order), labelled by ``engines``."""
-    by_pose: dict[int, list] = {pose.pose_index: [None] * len(pose.candidates) for pose in plan.poses}
-    for outcome in outcomes:
-        by_pose[outcome.chunk.pose_index][outcome.chunk.first:outcome.chunk.first + len(outcome.outcomes)] = outcome.outcomes
-    parts = [_pose_labels(pose, by_pose[pose.pose_index], engines) for pose in plan.poses]
-    labelled = [p[0] for p in parts]
-    grasps = LabelledGrasps.concatenate(labelled) if labelled else LabelledGrasps.empty(DATASET_TASKS, engines)
-    untested = UntestedGrasps(np.concatenate([p[1].transforms for p in parts] + [np.zeros((0, 4, 4))]), sum((p[1].reason for p in parts), []))
-    times = {**plan.times_s, "simulate": sum(o.seconds for o in outcomes)}
-    engine_seconds = {engine: sum(o.engine_seconds.get(engine, 0.0) for o in outcomes) for engine in engines}
-    return ObjectLabels(plan.object_id, grasps, untested, plan.rater, plan.neutral_tasks, plan.skipped_poses, times, engine_seconds)
-
-
-def _pose_labels(pose: PosePlan, outcomes: list, engines: tuple[str, ...]) -> tuple[LabelledGrasps, UntestedGrasps]:
-    """The capture's simulated grasps as labels in the object frame, and the grasps whose simulation could not run."""
-    zoned, classified = pose.candidates, pose.classified
-    tested = [i for i, outcome in enumerate(outcomes) if not isinstance(outcome, str)]
-    object_frame = zoned.transform(pose.object_from_world, "object")
-    transforms = acronym_gripper_transforms_object(object_frame.poses())
-    untested = [i for i, outcome in enumerate(outcomes) if isinstance(outcome, str)]
-    kept = torch.as_tensor(tested, dtype=torch.int64)
-    chosen = zoned.select(kept)
-    zone_names, levels = _zone_levels(chosen, pose.ratings)
-    verdicts = classified.verdict_names()
-    simulated = [outcomes[i] for i in tested]
-    labelled = LabelledGrasps(
-        transforms=transforms[tested].reshape(-1, 4, 4),
-        width_m=chosen.width_m.double().numpy(),
-        contacts=object_frame.contacts[kept].numpy().reshape(-1, 2, 3),
-        resting_pose=np.full(len(tested), pose.pose_index, dtype=np.int64),
-        verdict=[verdicts[i] for i in tested],
-        verdict_reason=[classified.reasons[i] for i in tested],
-        held=np.array([o.held for o in simulated], dtype=bool),
-        held_fraction=np.array([float(o.held) if o.held_fraction is None else o.held_fraction for o in simulated]),
-        decided_by=["simulation" if o.simulated else "geometry" for o in simulated],
-        failure_reason=[failure_text(o) for o in simulated],
-        motion_closing_linear_m=np.array([_motion(o.object_motion_during_closing_linear) for o in simulated]),
-        motion_closing_angular_rad=np.array([_motion(o.object_motion_during_closing_angular) for o in simulated]),
-        motion_shaking_linear_m=np.array([_motion(o.object_motion_during_shaking_linear) for o in simulated]),
-        motion_shaking_angular_rad=np.array([_motion(o.object_motion_during_shaking_angular) for o in simulated]),
-        s_geom=chosen.s_geom.double().numpy(),
-        s_reach=chosen.s_reach.double().numpy(),
-        zone=zone_names,
-        zone_rating=levels,
-        **dict(zip(("engine_held", "engine_held_fraction", "engine_failure"), engine_columns(simulated, engines))),
-    )
-    rejected = UntestedGrasps(transforms[untested].reshape(-1, 4, 4), [f"{verdicts[i]}: {outcomes[i]}" for i in untested])
-    return labelled, rejected
+def mode_agreement(config: Config, objects: ObjectSet, object_ids: list[str], n_grasps: int) -> dict:
+    """Hand-vs-arm agreement on ``n_grasps`` grasps of each object of ``object_ids`` (``ObjectLabeller.compare_modes``)."""
+    labeller = ObjectLabeller(config, objects)
+    try:
+        by_object = {object_id: labeller.compare_modes(object_id, n_grasps) for object_id in object_ids}
+    finally:
+        labeller.close()
+    totals = {key: sum(row[key] for row in by_object.values()) for key in ("compared", "both_tested", "agree", "hand_held", "arm_held")}
+    return {**totals, "grasps_per_object": n_grasps, "by_object": by_object}

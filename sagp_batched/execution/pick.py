@@ -119,9 +119,9 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     execution = config.execution
     quat, waypoints, joint_path = checked_grasp(grasp, config.motion, scene.robot)
     grasp_index = grasp_waypoint_index(config.motion)
+    set_finger_friction(scene.client, scene.robot_id, scene.robot_indices.finger_joints, execution)
     outcome = _AttemptOutcome(scene, config, record_frames)
     diagnostics, finish = outcome.diagnostics, outcome.finish
-    set_finger_friction(scene.client, scene.robot_id, scene.robot_indices.finger_joints, execution)
 
     # Every joint is known before stepping: IK and checks teleport the arm, harmless while time stands still.
     start_joints = scene.arm_joints()

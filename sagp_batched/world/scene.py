@@ -8,6 +8,7 @@ poses bit for bit.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -15,7 +16,7 @@ import pybullet
 from scipy.spatial.transform import Rotation
 
 from ..config import Config, SceneConfig
-from ..robot.description import body_indices, robot_of
+from ..robot.description import RobotDescription, robot_of
 from ..seeds import scene_seed
 from ..types import CameraData
 from .objects import ObjectLoadError, ObjectSpec
@@ -69,6 +70,40 @@ def command_fingers(client: int, body_id: int, finger_joints: Sequence[int], wid
         targetPositions=[width_m / 2.0] * 2,
         forces=[force_n] * 2,
         physicsClientId=client,
+    )
+
+
+@dataclass(frozen=True)
+class BodyIndices:
+    """PyBullet's indices of a loaded robot's named joints and links (a link's index is its parent joint's)."""
+
+    arm_joints: tuple[int, ...]
+    finger_joints: tuple[int, ...]
+    hand_link: int
+    grasp_target_link: int
+    # Every non-fixed joint, in index order: the order PyBullet's IK and Jacobian use.
+    movable_joints: tuple[int, ...]
+
+
+def body_indices(robot: RobotDescription, body_id: int, client: int) -> BodyIndices:
+    """Look ``robot``'s joints and links up by name in the loaded body ``body_id``."""
+    joints, links, movable = {}, {}, []
+    for index in range(pybullet.getNumJoints(body_id, physicsClientId=client)):
+        info = pybullet.getJointInfo(body_id, index, physicsClientId=client)
+        joints[info[1].decode()] = index
+        links[info[12].decode()] = index
+        if info[2] != pybullet.JOINT_FIXED:
+            movable.append(index)
+    names = (*robot.arm_joints, *robot.finger_joints)
+    missing = [name for name in names if name not in joints] + [n for n in (robot.hand_link, robot.grasp_target_link) if n not in links]
+    if missing:
+        raise ValueError(f"{robot.urdf_path} has no joints or links named {missing}")
+    return BodyIndices(
+        arm_joints=tuple(joints[name] for name in robot.arm_joints),
+        finger_joints=tuple(joints[name] for name in robot.finger_joints),
+        hand_link=links[robot.hand_link],
+        grasp_target_link=links[robot.grasp_target_link],
+        movable_joints=tuple(movable),
     )
 
 
