@@ -31,10 +31,10 @@ import torch
 
 from ..config import Config
 from ..config.run import LABEL_PROTOCOLS
-from ..datasets.collision_urdf import urdf_origin
 from ..grasps import GraspPoses
 from ..seeds import capture_trial
 from ..world.mesh_settings import MeshImportSettings
+from ..world.mesh_sources import urdf_origin
 from ..world.objects import ObjectSet, ObjectSpec
 
 # A few of the embedded YCB set: a cavity and a handle, a thin box, a cylinder.

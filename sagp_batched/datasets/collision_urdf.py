@@ -12,9 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..robot.description import RobotDescription
+from ..world.mesh_sources import urdf_origin
 
 # PyBullet's surface of a link whose URDF gives no ``<contact>``: lateral friction 0.5, no spinning or rolling friction.
 DEFAULT_FRICTION = (0.5, 0.0, 0.0)
@@ -87,15 +87,6 @@ class LinkInertial:
     mass_kg: float
     frame_in_link: np.ndarray
     tensor_kg_m2: np.ndarray
-
-
-def urdf_origin(element: ElementTree.Element | None) -> np.ndarray:
-    """(4, 4) a URDF ``<origin>``: fixed-axis roll, pitch, yaw, then the translation; identity where absent."""
-    frame = np.eye(4)
-    if element is not None:
-        frame[:3, :3] = Rotation.from_euler("xyz", [float(v) for v in (element.get("rpy") or "0 0 0").split()]).as_matrix()
-        frame[:3, 3] = [float(v) for v in (element.get("xyz") or "0 0 0").split()]
-    return frame
 
 
 def link_inertial(link: ElementTree.Element) -> LinkInertial | None:

@@ -24,7 +24,8 @@ from scipy.spatial.transform import Rotation
 
 from ..config import Config
 from ..robot.description import RobotDescription
-from .collision_urdf import DEFAULT_FRICTION, LinkInertial, link_collision_hulls, link_friction, link_inertial, urdf_origin
+from ..world.mesh_sources import urdf_origin
+from .collision_urdf import DEFAULT_FRICTION, LinkInertial, link_collision_hulls, link_friction, link_inertial
 
 OBJECT_BODY = "object"
 # Collision bits: the hand touches the object, the object the table; the hand touches the table through explicit pairs.

@@ -36,8 +36,8 @@ from ..config import Config
 from ..execution.held import lift_failure, object_held
 from ..execution.poses import pose_change, pose_matrix, relative_pose
 from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets, shake_profile
+from ..world.mesh_sources import urdf_origin
 from ..world.objects import ObjectSpec
-from .collision_urdf import urdf_origin
 
 Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
 

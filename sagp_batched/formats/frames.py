@@ -26,11 +26,11 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
 from ..grasps import GraspPoses
 from ..robot.description import load_robot
 from ..robot.hand import hand_to_grasp_target_m
+from ..world.mesh_sources import urdf_origin
 from ..world.objects import ObjectSpec, objects_root
 
 # Turning the planner's frame +90 deg about its approach (z) maps its closing axis (y) onto x:
@@ -119,12 +119,7 @@ def mesh_reference(spec: ObjectSpec) -> MeshReference:
         mesh_path = (urdf_path.parent / mesh.get("filename").removeprefix("file://")).resolve()
         mesh_file = _relative(mesh_path, root)
         scale_xyz = np.array([float(v) for v in (mesh.get("scale") or "1 1 1").split()])
-        origin = visual.find("origin")
-        if origin is not None:
-            xyz = [float(v) for v in (origin.get("xyz") or "0 0 0").split()]
-            rpy = [float(v) for v in (origin.get("rpy") or "0 0 0").split()]
-            mesh_to_link[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()  # URDF: fixed-axis roll, pitch, yaw
-            mesh_to_link[:3, 3] = xyz
+        mesh_to_link = urdf_origin(visual.find("origin"))
         mesh_to_link[:3, :3] = mesh_to_link[:3, :3] * scale_xyz[None]
         if np.allclose(scale_xyz, scale_xyz[0]):
             scale = float(scale_xyz[0])

@@ -12,9 +12,9 @@ GraspGen's files name no gripper; its Franka gripper's frame is ACRONYM's. ``gra
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
+from ..run_directory import write_file_atomically
 from .object_grasps import LabelledGrasps
 
 
@@ -24,6 +24,4 @@ def write_graspgen_file(path: Path, mesh_file: str, mesh_scale: float, grasps: L
         "object": {"file": mesh_file, "scale": float(mesh_scale)},
         "grasps": {"transforms": grasps.transforms.tolist(), "object_in_gripper": [bool(h) for h in grasps.held]},
     }
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(document), encoding="utf-8")
-    os.replace(tmp, path)
+    write_file_atomically(path, json.dumps(document).encode("utf-8"))

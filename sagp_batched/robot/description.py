@@ -10,13 +10,13 @@ import functools
 import math
 import tomllib
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pybullet_data
 
 from ..config.settings import ConfigError
+from ..config.world import ROBOTS_DIR
 
 if TYPE_CHECKING:
     from ..config import Config
@@ -69,7 +69,7 @@ class RobotDescription:
 @functools.lru_cache(maxsize=None)
 def load_robot(name: str = "panda") -> RobotDescription:
     """The description of robot ``name`` shipped in ``sagp_batched/data/robots``."""
-    entry = resources.files("sagp_batched").joinpath(f"data/robots/{name}.toml")
+    entry = ROBOTS_DIR.joinpath(f"{name}.toml")
     if not entry.is_file():
         raise ConfigError(f"unknown robot '{name}': no data/robots/{name}.toml in the package", "scene.robot")
     values = tomllib.loads(entry.read_text())

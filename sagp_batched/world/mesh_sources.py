@@ -76,7 +76,8 @@ def _floats(text: str | None, default: tuple[float, ...]) -> tuple[float, ...]:
     return tuple(float(v) for v in text.split()) if text else default
 
 
-def _origin_matrix(element: ElementTree.Element | None) -> np.ndarray:
+def urdf_origin(element: ElementTree.Element | None) -> np.ndarray:
+    """(4, 4) a URDF ``<origin>``: fixed-axis roll, pitch, yaw, then the translation; identity where absent."""
     matrix = np.eye(4)
     if element is not None:
         matrix[:3, :3] = Rotation.from_euler("xyz", _floats(element.get("rpy"), (0.0, 0.0, 0.0))).as_matrix()  # URDF: fixed-axis roll, pitch, yaw
@@ -91,7 +92,7 @@ def _mesh_file(urdf_path: Path, filename: str) -> Path:
 
 
 def _geometry(urdf_path: Path, element: ElementTree.Element) -> _UrdfGeometry:
-    origin = _origin_matrix(element.find("origin"))
+    origin = urdf_origin(element.find("origin"))
     geometry = element.find("geometry")
     shape = geometry[0] if geometry is not None and len(geometry) else None
     if shape is None:
