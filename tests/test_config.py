@@ -116,7 +116,7 @@ def test_the_robot_is_read_from_its_file_and_an_unknown_one_is_refused_by_name()
 
     robot = load_robot("panda")
     assert robot.n_arm_joints == len(robot.arm_joints) == len(robot.home_joints) == len(robot.joint_twist_rad)
-    assert robot.base_xyz_m == (-0.05, 0.0, 0.625) and robot.gripper_boxes.finger_width_m == 0.021
+    assert robot.base_xyz_m == (-0.05, 0.0, 0.625) and robot.gripper.gripper_boxes.finger_width_m == 0.021
     with pytest.raises(ConfigError, match="scene.robot: unknown value 'ur5' \\(known: panda\\)") as caught:
         load_config(overrides={"scene": {"robot": "ur5"}})
     assert caught.value.setting == "scene.robot" and "\n" not in str(caught.value)

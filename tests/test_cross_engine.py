@@ -12,8 +12,11 @@ from sagp_batched.datasets.cross_engine import (agreement_report_lines, combined
 from sagp_batched.datasets.object_labeller import ObjectLabeller
 from sagp_batched.datasets.object_plan import object_labels
 from sagp_batched.datasets.protocols import GraspLabel
+from sagp_batched.robot import load_gripper
 from sagp_batched.world.objects import load_object_set
 from tests.ycb_paths import embedded_ycb_dir
+
+GRIPPER = load_gripper("franka_panda")
 
 
 def _label(engine: str, held: bool, phase: str = "shake") -> GraspLabel:
@@ -88,7 +91,7 @@ def test_a_dataset_labelled_in_both_engines_keeps_each_label(tmp_path):
     labeller = ObjectLabeller(config, load_object_set(embedded_ycb_dir()))
     try:
         plan = labeller.plan_object("005_tomato_soup_can", 6)
-        labels = object_labels(plan, [labeller.simulate(chunk) for chunk in plan.chunks("hand", 100)], config.dataset.engines)
+        labels = object_labels(plan, [labeller.simulate(chunk) for chunk in plan.chunks("hand", 100)], GRIPPER, config.dataset.engines)
     finally:
         labeller.close()
     grasps = labels.grasps

@@ -10,6 +10,9 @@ from sagp_batched.formats.acronym import write_object_file
 from sagp_batched.formats.graspgen import write_graspgen_file
 from sagp_batched.formats.object_grasps import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from sagp_batched.world.objects import load_object_set
+from sagp_batched.robot import load_gripper
+
+FRANKA = load_gripper("franka_panda")
 
 h5py = pytest.importorskip("h5py")
 
@@ -49,7 +52,7 @@ def test_the_object_file_carries_acronyms_keys_shapes_and_dtypes_and_its_mesh_lo
     physics = ObjectPhysics(0.118, 300.0, 0.9, (0.0, 0.0, 0.03), ((1e-4, 0, 0), (0, 1e-4, 0), (0, 0, 1e-4)), 4e-4)
     path = tmp_path / "025_mug.h5"
     write_object_file(path, "025_mug", mesh_file, scale, mesh_to_link, physics, grasps,
-                      UntestedGrasps(np.tile(np.eye(4), (2, 1, 1)), ["unreachable", "unreachable"]), "hand", "tabletop", "prior:zone_priors.json")
+                      UntestedGrasps(np.tile(np.eye(4), (2, 1, 1)), ["unreachable", "unreachable"]), "hand", "tabletop", "prior:zone_priors.json", FRANKA)
     with h5py.File(path, "r") as f:
         for key, (shape, kind) in ACRONYM_KEYS.items():
             assert f[key].shape == (9, *shape) and f[key].dtype.kind == kind, key
@@ -72,7 +75,7 @@ def test_the_object_file_carries_acronyms_keys_shapes_and_dtypes_and_its_mesh_lo
 def test_the_graspgen_json_loads_into_boolean_masks_that_match_the_hdf5(tmp_path):
     grasps = _labels(7, np.random.default_rng(1))
     path = tmp_path / "obj.json"
-    write_graspgen_file(path, "obj/mesh.obj", 1.0, grasps)
+    write_graspgen_file(path, "obj/mesh.obj", 1.0, grasps, FRANKA)
     document = json.loads(path.read_text())
     mask = np.array(document["grasps"]["object_in_gripper"])
     assert mask.dtype == bool and np.array_equal(mask, grasps.held)

@@ -10,7 +10,10 @@ import torch
 from sagp_batched.config import load_config
 from sagp_batched.datasets.object_labeller import ObjectLabeller
 from sagp_batched.datasets.object_plan import object_labels
+from sagp_batched.robot import load_gripper
 from sagp_batched.world.objects import load_object_set
+
+GRIPPER = load_gripper("franka_panda")
 
 
 @pytest.fixture(scope="module")
@@ -38,9 +41,9 @@ def test_a_plan_splits_into_chunks_that_cover_each_capture_once(plan):
 
 
 def test_chunks_simulated_in_any_order_join_to_the_labels_of_one_pass(labeller, plan):
-    whole = object_labels(plan, [labeller.simulate(chunk) for chunk in plan.chunks("hand", 100)])
+    whole = object_labels(plan, [labeller.simulate(chunk) for chunk in plan.chunks("hand", 100)], GRIPPER)
     shuffled = [labeller.simulate(chunk) for chunk in reversed(plan.chunks("hand", 3))]
-    parts = object_labels(plan, shuffled)
+    parts = object_labels(plan, shuffled, GRIPPER)
     for field in dataclasses.fields(whole.grasps):
         a, b = getattr(whole.grasps, field.name), getattr(parts.grasps, field.name)
         assert _same(a, b), field.name
@@ -65,7 +68,7 @@ def test_a_capture_without_candidates_is_skipped_with_its_reason(labeller):
         skipping.close()
     assert plan.poses == [] and len(plan.skipped_poses) == 1
     assert "no antipodal candidate" in plan.skipped_poses[0] and "70-70 mm" in plan.skipped_poses[0]
-    assert object_labels(plan, []).grasps.transforms.shape[0] == 0
+    assert object_labels(plan, [], GRIPPER).grasps.transforms.shape[0] == 0
 
 
 def test_a_table_check_of_no_poses_returns_no_verdicts():
@@ -88,7 +91,7 @@ def test_the_floating_protocol_plans_grasps_all_around_the_object_and_labels_the
     floating = ObjectLabeller(config, labeller.objects)
     try:
         plan = floating.plan_object("005_tomato_soup_can", 24)
-        labels = object_labels(plan, [floating.simulate(chunk) for chunk in plan.chunks("hand", 100)])
+        labels = object_labels(plan, [floating.simulate(chunk) for chunk in plan.chunks("hand", 100)], GRIPPER)
     finally:
         floating.close()
     approach = plan.poses[0].candidates.approach

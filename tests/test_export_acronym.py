@@ -10,6 +10,9 @@ from sagp_batched.formats.acronym import trial_file_bytes
 from sagp_batched.grasps import GraspCandidates
 from sagp_batched.types import GraspAttempt, PerceivedCloud
 from sagp_batched.world.objects import ObjectSpec
+from sagp_batched.robot import load_gripper
+
+FRANKA = load_gripper("franka_panda")
 
 h5py = pytest.importorskip("h5py")
 
@@ -102,12 +105,12 @@ def test_exported_grasps_hold_both_contacts_between_the_fingers_of_acronyms_fran
     ranked = candidates.ranked_by(candidates.score)
     path = tmp_path / "box_t1_0000.h5"
     path.write_bytes(trial_file_bytes(spec, cloud, candidates, {"go": ranked},
-                                      {"go": [GraspAttempt(False, "slipped", 0.0), GraspAttempt(True, None, 2.0)]}))
+                                      {"go": [GraspAttempt(False, "slipped", 0.0), GraspAttempt(True, None, 2.0)]}, FRANKA))
 
     # Every candidate's pose is under candidates/; the simulated ones are read as acronym's load_grasps and load_mesh do.
     with h5py.File(path, "r") as f:
         transforms = np.array(f["candidates/transforms"])
-        panda_hand = np.array(f["candidates/panda_hand_transforms"])
+        panda_hand = np.array(f["candidates/base_link_transforms"])
         tested = np.array(f["candidates/tested"])
         labelled = np.array(f["grasps/transforms"])
         success = np.array(f["grasps/qualities/flex/object_in_gripper"])
@@ -160,7 +163,7 @@ def test_exported_ycb_mug_names_its_textured_mesh_relative_to_the_objects_root(t
     spec = ObjectSpec("025_mug", "mug", ycb_dir / index["025_mug"]["urdf"], "containers", True, 0.118, (0.117, 0.0931, 0.0813))
     candidates, cloud, _, _ = _trial(np.random.default_rng(1), 4)
     path = tmp_path / "mug.h5"
-    path.write_bytes(trial_file_bytes(spec, cloud, candidates, {}, {}))
+    path.write_bytes(trial_file_bytes(spec, cloud, candidates, {}, {}, FRANKA))
     with h5py.File(path, "r") as f:
         mesh_file, mesh_scale = f["object/file"][()].decode(), f["object/scale"][()]
     assert mesh_file == "025_mug/textured.obj" and mesh_scale == 1.0
@@ -173,9 +176,9 @@ def test_acronym_poses_map_back_to_the_planners_grasp_frames():
 
     candidates, cloud, _, _ = _trial(np.random.default_rng(2), 12)
     in_object = candidates.transform(cloud.object_from_world, "object")
-    back = grasp_poses_from_acronym(acronym_gripper_transforms_object(in_object.poses()))
+    back = grasp_poses_from_acronym(acronym_gripper_transforms_object(in_object.poses(), FRANKA), FRANKA)
     assert back.frame == "object"
     assert np.allclose(back.position.numpy(), in_object.position.numpy(), atol=1e-6)
     assert np.allclose(back.rotation.numpy(), in_object.rotation.numpy(), atol=1e-6)
     with pytest.raises(ValueError, match="object frame, got poses in the world frame"):
-        acronym_gripper_transforms_object(candidates.poses())
+        acronym_gripper_transforms_object(candidates.poses(), FRANKA)

@@ -13,6 +13,9 @@ from sagp_batched.formats.grasp_file import GraspFileError, read_grasp_file
 from sagp_batched.formats.graspgen import write_graspgen_file
 from sagp_batched.formats.object_grasps import LabelledGrasps, ObjectPhysics, UntestedGrasps
 from sagp_batched.grasps import GraspCandidates, GraspPoses
+from sagp_batched.robot import load_gripper
+
+FRANKA = load_gripper("franka_panda")
 
 h5py = pytest.importorskip("h5py")
 
@@ -77,7 +80,7 @@ def test_our_file_reads_back_in_the_scaled_meshs_frame_with_its_widths(tmp_path)
     physics = ObjectPhysics(0.2, 150.0, 0.8, (0.0, 0.0, 0.04), ((1e-4, 0, 0), (0, 1e-4, 0), (0, 0, 1e-4)), 1e-4)
     path = tmp_path / "ours.h5"
     write_object_file(path, "box", "box/box.obj", scale, mesh_to_link, physics, _ours(5, link_transforms, held),
-                      UntestedGrasps(np.zeros((0, 4, 4)), []), "hand", "floating", "prior")
+                      UntestedGrasps(np.zeros((0, 4, 4)), []), "hand", "floating", "prior", FRANKA)
     grasps = read_grasp_file(path)
     assert np.allclose(rigid @ grasps.transforms, link_transforms), "the grasps, moved back by the rigid part, are the link-frame ones"
     assert np.allclose(rigid @ np.append(grasps.com_m, 1.0), [0.0, 0.0, 0.04, 1.0])
@@ -87,7 +90,7 @@ def test_our_file_reads_back_in_the_scaled_meshs_frame_with_its_widths(tmp_path)
 
 def test_graspgen_and_acronym_json_read_the_same_grasps(tmp_path):
     transforms, held = _transforms(4), np.array([True, True, False, True])
-    write_graspgen_file(tmp_path / "gg.json", "objects/a.obj", 0.5, _ours(4, transforms, held))
+    write_graspgen_file(tmp_path / "gg.json", "objects/a.obj", 0.5, _ours(4, transforms, held), FRANKA)
     (tmp_path / "acr.json").write_text(json.dumps({"object": "objects/a.obj", "object_scale": 0.5, "transforms": transforms.tolist(),
                                                    "quality_flex_object_in_gripper": held.astype(int).tolist()}))
     graspgen, acronym = read_grasp_file(tmp_path / "gg.json"), read_grasp_file(tmp_path / "acr.json")
@@ -140,7 +143,7 @@ SHEARED[2, 0, 1] += 0.1
     (lambda p: _json(p, [1, 2]), "JSON is not an object"),
     (lambda p: _json(p, {**GOOD_GRASPGEN, "grasps": {"transforms": []}}), "missing grasps.object_in_gripper"),
     (lambda p: _json(p, {**GOOD_GRASPGEN, "object": {"file": "a.obj"}}), "missing object.scale"),
-    (lambda p: _json(p, {**GOOD_GRASPGEN, "object": {"file": "", "scale": 1.0}}), "object.file must be a non-empty mesh path"),
+    (lambda p: _json(p, {**GOOD_GRASPGEN, "object": {"file": "", "scale": 1.0}}), "object.file must be a non-empty string"),
     (lambda p: _json(p, {**GOOD_GRASPGEN, "grasps": {"transforms": [["a"]], "object_in_gripper": [True]}}), "not an array of numbers"),
     (lambda p: _json(p, {"transforms": []}), "missing object"),
 ])

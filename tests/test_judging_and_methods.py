@@ -50,7 +50,6 @@ def test_every_method_name_has_one_registered_ranking_only_vlm_direct_asks_a_mod
 def test_the_robot_is_described_once_and_its_joints_are_found_by_name_in_the_loaded_urdf():
     import pybullet
 
-    from sagp_batched.robot.hand import hand_to_grasp_target_m
     from sagp_batched.robot.description import load_robot
     from sagp_batched.world.scene import body_indices
 
@@ -62,8 +61,8 @@ def test_the_robot_is_described_once_and_its_joints_are_found_by_name_in_the_loa
         indices = body_indices(robot, body, client)
         names = {pybullet.getJointInfo(body, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(body, physicsClientId=client))}
         assert indices.arm_joints == tuple(names[name] for name in robot.arm_joints) and len(indices.arm_joints) == 7
-        assert pybullet.getJointInfo(body, indices.grasp_target_link, physicsClientId=client)[12].decode() == robot.grasp_target_link
+        assert pybullet.getJointInfo(body, indices.grasp_target_link, physicsClientId=client)[12].decode() == robot.gripper.grasp_target_link
     finally:
         pybullet.disconnect(client)
     # The grasp target's offset from the hand comes from the URDF (pybullet_data's is 0.105 m).
-    assert abs(hand_to_grasp_target_m(robot) - 0.105) < 1e-6
+    assert abs(robot.gripper.grasp_depth_m - 0.105) < 1e-6

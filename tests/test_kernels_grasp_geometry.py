@@ -6,6 +6,8 @@ import torch
 from planner_clouds import box_surface
 from sagp_batched.config import Config
 from sagp_batched.planning import gripper_geometry, hand_geometry
+from sagp_batched.planning import widest_pair_m
+from sagp_batched.robot import load_robot
 from sagp_batched.robot.description import load_robot
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations, scene_points_about
@@ -16,6 +18,8 @@ from sagp_batched_kernels.table_penetration import table_penetration
 ROBOT = load_robot()
 
 PLANNER = Config().planner
+# The widest pair the planner draws for the default gripper (the Panda hand: 0.08 m).
+WIDEST_M = widest_pair_m(load_robot(), PLANNER)
 DOWN = torch.tensor([0.0, 0.0, -1.0])
 
 
@@ -25,7 +29,7 @@ def _box(size=(0.05, 0.06, 0.1)):
 
 
 def _evaluate(points, normals, pairs):
-    return antipodal_pairs(points, normals, pairs, PLANNER.min_width_m, PLANNER.max_width_m, PLANNER.max_contact_angle_deg)
+    return antipodal_pairs(points, normals, pairs, PLANNER.min_width_m, WIDEST_M, PLANNER.max_contact_angle_deg)
 
 
 def _face(normals, axis, sign):

@@ -9,6 +9,8 @@ import torch
 from planner_clouds import box_surface
 from sagp_batched.config import Config
 from sagp_batched.planning import gripper_geometry
+from sagp_batched.planning import widest_pair_m
+from sagp_batched.robot import load_robot
 from sagp_batched.robot.description import load_robot
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.grasp_frames import approach_directions, grasp_rotations
@@ -19,12 +21,14 @@ from sagp_batched_kernels.sampling import sample_pair_indices
 ROBOT = load_robot()
 
 PLANNER = Config().planner
+# The widest pair the planner draws for the default gripper (the Panda hand: 0.08 m).
+WIDEST_M = widest_pair_m(load_robot(), PLANNER)
 DOWN = torch.tensor([0.0, 0.0, -1.0])
 
 
 def _grasps(points, normals, seed):
     pairs = sample_pair_indices(len(points), 4000, torch.Generator().manual_seed(seed))
-    result = antipodal_pairs(points, normals, pairs, PLANNER.min_width_m, PLANNER.max_width_m, PLANNER.max_contact_angle_deg)
+    result = antipodal_pairs(points, normals, pairs, PLANNER.min_width_m, WIDEST_M, PLANNER.max_contact_angle_deg)
     keep = result["antipodal"]
     centre = points[pairs[keep]].mean(dim=1)
     rotation = grasp_rotations(result["closing_axis"][keep][:, None, :], approach_directions(result["closing_axis"][keep], 8, DOWN))

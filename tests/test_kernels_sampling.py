@@ -5,10 +5,14 @@ import torch
 
 from planner_clouds import box_surface
 from sagp_batched.config import Config
+from sagp_batched.planning import widest_pair_m
+from sagp_batched.robot import load_robot
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.sampling import sample_guided_pair_indices, sample_pair_indices
 
 PLANNER = Config().planner
+# The widest pair the planner draws for the default gripper (the Panda hand: 0.08 m).
+WIDEST_M = widest_pair_m(load_robot(), PLANNER)
 CHUNK = Config().memory.pair_proposal_chunk_elements
 
 
@@ -18,12 +22,12 @@ def _tensors(points, normals):
 
 def _guided(points, normals, n_pairs, seed, n_proposals=PLANNER.pair_proposals, chunk=CHUNK):
     return sample_guided_pair_indices(
-        points, normals, n_pairs, n_proposals, PLANNER.min_width_m, PLANNER.max_width_m, torch.Generator().manual_seed(seed), chunk
+        points, normals, n_pairs, n_proposals, PLANNER.min_width_m, WIDEST_M, torch.Generator().manual_seed(seed), chunk
     )
 
 
 def _antipodal(points, normals, pairs):
-    return antipodal_pairs(points, normals, pairs, PLANNER.min_width_m, PLANNER.max_width_m, PLANNER.max_contact_angle_deg)["antipodal"]
+    return antipodal_pairs(points, normals, pairs, PLANNER.min_width_m, WIDEST_M, PLANNER.max_contact_angle_deg)["antipodal"]
 
 
 def test_guided_pairs_on_a_box_are_far_more_often_antipodal_than_uniform_ones():
@@ -70,7 +74,7 @@ def test_pair_count_distinct_indices_and_generator_draws_are_fixed():
     for points in (box_points, far_points):
         generator = torch.Generator().manual_seed(9)
         pairs = sample_guided_pair_indices(
-            points, box_normals, 4000, 16, PLANNER.min_width_m, PLANNER.max_width_m, generator, CHUNK
+            points, box_normals, 4000, 16, PLANNER.min_width_m, WIDEST_M, generator, CHUNK
         )
         assert pairs.shape == (4000, 2) and pairs.dtype == torch.int64
         assert (pairs[:, 0] != pairs[:, 1]).all()
@@ -85,7 +89,7 @@ def test_pairs_stay_in_reach_when_a_proposal_is_in_reach():
     pairs = _guided(points, normals, 2000, 4, n_proposals=8)
     width = (points[pairs[:, 1]] - points[pairs[:, 0]]).norm(dim=1)
     # The cube's diagonal (5.2 cm) is in reach, so only proposals under 5 mm can be missed.
-    assert (width <= PLANNER.max_width_m).all()
+    assert (width <= WIDEST_M).all()
     assert (width >= PLANNER.min_width_m).float().mean() > 0.99
 
 
@@ -128,11 +132,11 @@ def test_proposals_read_from_the_quality_table_give_the_pairs_scoring_each_propo
     n_pairs = 3000  # 3,000 x 64 proposals > 400 x 399 table entries: the table is used
     assert len(points) * (len(points) - 1) < n_pairs * PLANNER.pair_proposals
     generator = torch.Generator().manual_seed(4)
-    from_table = sample_guided_pair_indices(points, normals, n_pairs, PLANNER.pair_proposals, PLANNER.min_width_m, PLANNER.max_width_m, generator, 5000)
+    from_table = sample_guided_pair_indices(points, normals, n_pairs, PLANNER.pair_proposals, PLANNER.min_width_m, WIDEST_M, generator, 5000)
     table_state = torch.rand(4, generator=generator)
     monkeypatch.setattr("sagp_batched_kernels.sampling.QUALITY_TABLE_MAX_ENTRIES", 0)
     generator = torch.Generator().manual_seed(4)
-    scored = sample_guided_pair_indices(points, normals, n_pairs, PLANNER.pair_proposals, PLANNER.min_width_m, PLANNER.max_width_m, generator, 5000)
+    scored = sample_guided_pair_indices(points, normals, n_pairs, PLANNER.pair_proposals, PLANNER.min_width_m, WIDEST_M, generator, 5000)
     assert torch.equal(from_table, scored)
     assert torch.equal(table_state, torch.rand(4, generator=generator))
     assert (from_table[:, 0] != from_table[:, 1]).all()
@@ -149,10 +153,10 @@ def test_quality_table_scored_on_one_triangle_equals_scoring_every_pair(monkeypa
     normals = torch.nn.functional.normalize(torch.randn(300, 3, generator=generator), dim=1)
     # Blocks of a few rows, growing as the rows shorten: the mirrored blocks must tile the table.
     monkeypatch.setattr(sampling, "SCORE_BLOCK_ELEMENTS", 1000)
-    table = sampling._proposal_quality_table(points, normals, min_width_m, PLANNER.max_width_m)
+    table = sampling._proposal_quality_table(points, normals, min_width_m, WIDEST_M)
     everything = torch.arange(len(points))
     full = sampling._proposal_quality(
-        points, normals, everything, None, sampling._ScoreWork(len(points) ** 2, points.dtype, points.device), min_width_m, PLANNER.max_width_m
+        points, normals, everything, None, sampling._ScoreWork(len(points) ** 2, points.dtype, points.device), min_width_m, WIDEST_M
     )
     expected = full[~torch.eye(len(points), dtype=torch.bool)].view(len(points), len(points) - 1)
     # Bit for bit, except that a coincident pair's zero quality (in reach when the minimum width

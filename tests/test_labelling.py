@@ -260,9 +260,9 @@ def test_the_floating_hand_urdf_is_the_robot_s_hand_alone_with_absolute_mesh_pat
     path = floating_hand_urdf(ROBOT, tmp_path)
     assert floating_hand_urdf(ROBOT, tmp_path) == path and len(list(tmp_path.iterdir())) == 1
     robot = ElementTree.parse(path).getroot()
-    assert {link.get("name") for link in robot.iter("link")} == {ROBOT.hand_link, *ROBOT.finger_links, ROBOT.grasp_target_link}
+    assert {link.get("name") for link in robot.iter("link")} == {ROBOT.gripper.base_link, *ROBOT.gripper.pad_links, ROBOT.gripper.grasp_target_link}
     assert {joint.get("name"): joint.get("type") for joint in robot.iter("joint") if joint.get("type") != "fixed"} == {
-        name: "prismatic" for name in ROBOT.finger_joints
+        name: "prismatic" for name in ROBOT.gripper.finger_joints
     }
     assert not list(robot.iter("visual"))
     meshes = [Path(mesh.get("filename")) for mesh in robot.iter("mesh")]

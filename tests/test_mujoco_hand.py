@@ -108,9 +108,9 @@ def test_the_hand_is_the_robot_description_s_open_hand_at_the_commanded_grasp(de
         engine.build(WorldStart(designed_box, ((0.0, 0.0, 0.0), (0, 0, 0, 1)), "link", np.array([0.1, 0.2, 0.5]), turn.as_quat(),
                                 table=False, gravity=False))
         world, data = engine.world, engine.data
-        assert len(world.finger_qpos) == len(robot.finger_joints) == 2
-        assert data.qpos[list(world.finger_qpos)].sum() == pytest.approx(robot.open_width_m)
-        assert world.model.jnt_range[world.model.jnt_qposadr.tolist().index(world.finger_qpos[0])][1] * 2 == pytest.approx(robot.open_width_m)
+        assert len(world.finger_qpos) == len(robot.gripper.finger_joints) == 2
+        assert data.qpos[list(world.finger_qpos)].sum() == pytest.approx(robot.gripper.open_width_m)
+        assert world.model.jnt_range[world.model.jnt_qposadr.tolist().index(world.finger_qpos[0])][1] * 2 == pytest.approx(robot.gripper.open_width_m)
         position, quat = engine.hand_pose()
         assert np.allclose(position, [0.1, 0.2, 0.5]) and (Rotation.from_quat(quat) * turn.inv()).magnitude() < 1e-9
         assert engine.hand_in_contact() == (False, False)

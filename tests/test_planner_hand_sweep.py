@@ -109,7 +109,7 @@ def test_the_hand_geometry_is_the_urdf_collision_shapes_as_pybullet_places_them(
         for joint, angle in zip(range(7), ROBOT.ik_reference_joints):
             pybullet.resetJointState(robot, joint, angle, physicsClientId=client)
         for finger in ("panda_leftfinger", "panda_rightfinger"):
-            pybullet.resetJointState(robot, names[finger], ROBOT.open_width_m / 2, physicsClientId=client)
+            pybullet.resetJointState(robot, names[finger], ROBOT.gripper.open_width_m / 2, physicsClientId=client)
         state = pybullet.getLinkState(robot, names["panda_grasptarget"], computeForwardKinematics=True, physicsClientId=client)
         rotation = np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3)
         for name, hull in zip(geometry.links, geometry.hull_vertices):

@@ -4,7 +4,7 @@ import torch
 
 from planner_clouds import box_surface, make_cloud
 from sagp_batched.config import Config, ConfigError, load_config
-from sagp_batched.planning import sample_inputs
+from sagp_batched.planning import sample_inputs, widest_pair_m
 from sagp_batched.robot.description import load_robot
 from sagp_batched_kernels.antipodal import antipodal_pairs
 from sagp_batched_kernels.sampling import sample_pair_indices
@@ -34,7 +34,7 @@ def test_sample_inputs_follows_the_configured_mode():
     def n_antipodal(pairs):
         planner = guided_config
         result = antipodal_pairs(
-            cloud.points_world, cloud.normals_world, pairs, planner.min_width_m, planner.max_width_m, planner.max_contact_angle_deg
+            cloud.points_world, cloud.normals_world, pairs, planner.min_width_m, widest_pair_m(ROBOT, planner), planner.max_contact_angle_deg
         )
         return int(result["antipodal"].sum())
 

@@ -16,6 +16,9 @@ from sagp_batched.datasets.agreement import grasp_regions, label_agreement
 from sagp_batched.datasets.protocols import GraspLabel
 from sagp_batched.formats.grasp_file import read_grasp_file
 from sagp_batched.world.objects import CACHE_DIR_ENV, load_object_set
+from sagp_batched.robot import load_gripper
+
+FRANKA = load_gripper("franka_panda")
 
 h5py = pytest.importorskip("h5py")
 
@@ -292,7 +295,7 @@ def test_our_own_file_relabelled_for_real_gets_its_own_labels_back(tmp_path, mon
     mesh_file, scale, mesh_to_link = copy_object_mesh(spec, tmp_path / "meshes")
     n = len(poses)
     grasps = LabelledGrasps(
-        transforms=acronym_gripper_transforms_object(poses), width_m=np.full(n, 0.03), contacts=np.zeros((n, 2, 3)),
+        transforms=acronym_gripper_transforms_object(poses, FRANKA), width_m=np.full(n, 0.03), contacts=np.zeros((n, 2, 3)),
         resting_pose=np.zeros(n, dtype=np.int64), verdict=["feasible"] * n, verdict_reason=[""] * n, held=held,
         held_fraction=held.astype(float), decided_by=["simulation"] * n,
         failure_reason=[label.failure_reason or "" for label in labels], motion_closing_linear_m=np.zeros(n),
@@ -300,7 +303,7 @@ def test_our_own_file_relabelled_for_real_gets_its_own_labels_back(tmp_path, mon
         s_geom=np.zeros(n), s_reach=np.zeros(n), zone=[""] * n, zone_rating={},
     )
     path = tmp_path / "box.h5"
-    write_object_file(path, "box", mesh_file, scale, mesh_to_link, object_physics(spec), grasps, UntestedGrasps(np.zeros((0, 4, 4)), []), "hand", "floating", "prior")
+    write_object_file(path, "box", mesh_file, scale, mesh_to_link, object_physics(spec), grasps, UntestedGrasps(np.zeros((0, 4, 4)), []), "hand", "floating", "prior", FRANKA)
     profile = tmp_path / "one_simulation.toml"
     profile.write_text('[labelling]\nperturbed_simulations = 1\n')
     out = tmp_path / "out"

@@ -96,7 +96,7 @@ def test_the_table_check_decides_every_pose_as_checking_every_hull_point_does(yc
     centre, rotation = screened.centre_world, screened.rotation_world
     # A grid of table heights puts the table top close to many poses' lowest points.
     for table_z in np.linspace(TABLE_Z - 0.02, TABLE_Z + 0.06, 9):
-        for links in (ROBOT.finger_links, tuple(n for n in hand.links if n not in ROBOT.finger_links)):
+        for links in (ROBOT.gripper.pad_links, tuple(n for n in hand.links if n not in ROBOT.gripper.pad_links)):
             points = hand.vertices(links)
             through = table_penetration(centre, rotation, points, CONFIG.motion.pregrasp_offset_m, float(table_z))
             assert torch.equal(through, dense_table_penetration(centre, rotation, points, CONFIG.motion.pregrasp_offset_m, float(table_z)))
@@ -113,7 +113,7 @@ def test_the_table_check_decides_poses_whose_lowest_point_lies_exactly_at_the_ta
     hand = hand_geometry(ROBOT)
     centre, rotation = screened.centre_world + torch.tensor(shift_m), screened.rotation_world
     retreat = CONFIG.motion.pregrasp_offset_m
-    for links in (ROBOT.finger_links, tuple(n for n in hand.links if n not in ROBOT.finger_links)):
+    for links in (ROBOT.gripper.pad_links, tuple(n for n in hand.links if n not in ROBOT.gripper.pad_links)):
         points = hand.vertices(links)
         lowest = (centre[:, 2, None, None] + rotation[..., 2, :] @ points.T).amin(dim=-1)
         heights = torch.cat((lowest.flatten()[::997], (lowest - retreat * rotation[..., 2, 2]).flatten()[::997]))

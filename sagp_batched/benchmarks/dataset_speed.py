@@ -112,7 +112,6 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
                            steps: int = 240, spacing_m: float = 3.0) -> list[dict[str, Any]]:
     """Milliseconds per PyBullet step, in total and per pair, for worlds of 1..N floating hands each
     closed on its own copy of the object (resting on its own table), the pairs ``spacing_m`` apart."""
-    from ..robot.hand import hand_to_grasp_target_m
     from ..datasets.collision_urdf import floating_hand_urdf
     from ..datasets.labelling import ObjectPlacement
     from ..robot.description import robot_of
@@ -124,7 +123,7 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
         top_z = pybullet.getAABB(scene.target_id, physicsClientId=scene.client)[1][2]
     robot = robot_of(config)
     hand_urdf = str(floating_hand_urdf(robot, config.labelling.hand_urdf_cache_dir))
-    grasp_offset_m = hand_to_grasp_target_m(robot)
+    grasp_offset_m = robot.gripper.grasp_depth_m
     down = (1.0, 0.0, 0.0, 0.0)  # the hand's approach axis pointing at the table
     rows = []
     for count in pair_counts:
@@ -150,7 +149,7 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
                                           physicsClientId=client)
                 names = {pybullet.getJointInfo(hand, j, physicsClientId=client)[1].decode(): j
                          for j in range(pybullet.getNumJoints(hand, physicsClientId=client))}
-                command_fingers(client, hand, [names[n] for n in robot.finger_joints], 0.0, config.execution.gripper_force_n)
+                command_fingers(client, hand, [names[n] for n in robot.gripper.finger_joints], 0.0, config.execution.gripper_force_n)
             for _ in range(steps // 4):  # the fingers close and the contacts form before the timing
                 pybullet.stepSimulation(physicsClientId=client)
             contacts = len(pybullet.getContactPoints(physicsClientId=client))

@@ -72,7 +72,7 @@ def _grasps_to_label(config: Config, objects: ObjectSet, object_ids: Sequence[st
             note(f"{object_id}: skipped, {poses}")
             continue
         spec = objects.get(object_id)
-        widths = contact_widths(object_surface(spec), poses, robot_of(config).open_width_m)
+        widths = contact_widths(object_surface(spec), poses, robot_of(config).gripper.open_width_m)
         placements = {"tabletop": tabletop_placement(spec, config, trial=capture_trial(config, 0)), "floating": FloatingPlacement(spec)}
         grasps[object_id] = (spec, poses, widths, placements)
     return grasps

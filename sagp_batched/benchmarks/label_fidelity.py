@@ -186,7 +186,7 @@ def object_label_fidelity(spec: ObjectSpec, poses: GraspPoses, config: Config) -
     from ..robot.description import robot_of
 
     # Measured once, outside the timed labelling: the widths only check a grasp, the hand closes fully.
-    widths = contact_widths(object_surface(spec), poses, robot_of(config).open_width_m)
+    widths = contact_widths(object_surface(spec), poses, robot_of(config).gripper.open_width_m)
     first = tabletop_placement(spec, config, resting_pose=0, trial=capture_trial(config, 0))
     trial, resting_pose, placements = _second_capture(spec, config)
     second = tabletop_placement(spec, config, resting_pose=resting_pose, trial=trial)

@@ -5,6 +5,7 @@ import re
 from dataclasses import dataclass
 
 from .settings import ConfigError, _Section, setting
+from .world import GRIPPERS
 
 # Ten times the largest pair count benchmarked (500,000): a larger one is a typo, and two billion
 # pairs exhaust memory in every trial.
@@ -23,6 +24,9 @@ PLANNER_DEVICE_PATTERN = re.compile(r"cpu|cuda(:\d+)?")
 class PlannerConfig(_Section):
     SECTION = "planner"
 
+    # The gripper planned for (``sagp_batched/data/grippers/<gripper>.toml``); the arm's IK and motion checks
+    # apply only to the one the robot carries.
+    gripper: str = setting("franka_panda", choices=GRIPPERS)
     n_pairs: int = setting(5000, at_least=1, at_most=MAX_PAIRS)
     # The published method fixes how many pairs, not how they are drawn. "guided" (Dex-Net/GPD antipodal sampling)
     # gives ~7x more antipodal pairs (~25x more on a mug handle) and, with the gripper volume screened
@@ -33,7 +37,8 @@ class PlannerConfig(_Section):
     # Second-point proposals per guided pair: 64 doubles the handle pairs of 32 at little cost.
     pair_proposals: int = setting(64, at_least=1)
     min_width_m: float = setting(0.005, at_least=0)
-    max_width_m: float = setting(0.08, above=0)
+    # The widest contact pair drawn; 0: the gripper's opening (``planner.gripper``).
+    max_width_m: float = setting(0.0, at_least=0)
     max_contact_angle_deg: float = setting(45.0, at_least=0, at_most=90)
     n_approaches: int = setting(8, at_least=1)
     occupancy_max_fraction: float = setting(0.12, at_least=0, at_most=1)

@@ -10,6 +10,9 @@ from .settings import _Section, setting
 # The robots the package describes, a file each (``<name>.toml`` here, read by ``robot.description``).
 ROBOTS_DIR = resources.files("sagp_batched").joinpath("data/robots")
 ROBOTS: tuple[str, ...] = tuple(sorted(entry.name.removesuffix(".toml") for entry in ROBOTS_DIR.iterdir() if entry.name.endswith(".toml")))
+# The grippers the package describes, a file each (``<name>.toml`` here, read by ``robot.gripper_description``).
+GRIPPERS_DIR = resources.files("sagp_batched").joinpath("data/grippers")
+GRIPPERS: tuple[str, ...] = tuple(sorted(entry.name.removesuffix(".toml") for entry in GRIPPERS_DIR.iterdir() if entry.name.endswith(".toml")))
 # Each view renders RGB, depth and segmentation buffers, ~12 bytes a pixel: ~200 MB a view at 4,096 px a side.
 MAX_IMAGE_SIDE_PX = 4096
 

@@ -21,7 +21,8 @@ from sagp_batched_kernels.antipodal import antipodal_pairs
 
 from ..config import Config
 from ..grasps import GraspCandidates, GraspPoses
-from ..robot.description import RobotDescription
+from ..planning import widest_pair_m
+from ..robot.description import RobotDescription, robot_of
 from .grasp_geometry import ObjectSurface, finger_contacts, open_hand_clear
 from .verdicts import VERDICTS, ClassifiedGrasps
 
@@ -41,7 +42,7 @@ def add_boundary_grasps(classified: ClassifiedGrasps, count: int, surface: Objec
     world_from_object = np.linalg.inv(object_from_world)
     source = classified.candidates.transform(object_from_world, "object")
     drawn = _variant_frames(source, rng.integers(len(source), size=count * DRAWS_PER_VARIANT), rng, config)
-    contacts = finger_contacts(surface, GraspPoses(torch.as_tensor(drawn[0]), torch.as_tensor(drawn[1]), "object"), robot.open_width_m)
+    contacts = finger_contacts(surface, GraspPoses(torch.as_tensor(drawn[0]), torch.as_tensor(drawn[1]), "object"), robot.gripper.open_width_m)
     centre = np.nan_to_num(contacts.points.mean(axis=1))
     width = np.linalg.norm(contacts.points[:, 1] - contacts.points[:, 0], axis=1)
     usable = contacts.both_met & (np.nan_to_num(width) >= config.planner.min_width_m)
@@ -90,7 +91,7 @@ def _candidates(points: np.ndarray, normals: np.ndarray, rotation: np.ndarray, l
     count = len(points)
     pairs = torch.arange(2 * count).reshape(count, 2)
     measured = antipodal_pairs(torch.as_tensor(points.reshape(-1, 3)), torch.as_tensor(normals.reshape(-1, 3)), pairs,
-                               planner.min_width_m, planner.max_width_m, planner.max_contact_angle_deg)
+                               planner.min_width_m, widest_pair_m(robot_of(config), planner), planner.max_contact_angle_deg)
     zeros = torch.zeros(count, dtype=torch.float64)
     rotation_t = torch.as_tensor(rotation)
     joint_path = None if like.joint_path is None else torch.zeros((count, *like.joint_path.shape[1:]))

@@ -13,6 +13,8 @@ import torch
 
 from ..config import Config
 from ..grasps import Grasp, GraspCandidates, GraspPoses
+from ..planning import widest_pair_m
+from ..robot.description import robot_of
 from ..seeds import labelling_seed
 from ..types import PerceivedCloud
 from ..world.objects import ObjectSpec
@@ -90,7 +92,7 @@ def _plan_capture(capture: Capture, verdicts: CaptureVerdicts, spec: ObjectSpec,
         planner = config.planner
         if not classified.pool_size:
             return (f"capture {capture.pose_index}: no antipodal candidate (opposed contacts "
-                    f"{planner.min_width_m * 1000:.0f}-{planner.max_width_m * 1000:.0f} mm apart) in its cloud")
+                    f"{planner.min_width_m * 1000:.0f}-{widest_pair_m(robot_of(config), planner) * 1000:.0f} mm apart) in its cloud")
         return f"capture {capture.pose_index}: each of its {classified.pool_size} candidate poses repeats a grasp of an earlier capture"
     decomposition, zoned = assign_zones(cloud, classified.candidates, config.zones)
     shown = rating_image(cloud, decomposition, config.rating)
@@ -102,7 +104,6 @@ def _plan_capture(capture: Capture, verdicts: CaptureVerdicts, spec: ObjectSpec,
 def _classified(spec: ObjectSpec, capture: Capture, verdicts: CaptureVerdicts, config: Config, taken: GraspPoses) -> ClassifiedGrasps:
     """A capture's grasps with the planner's verdicts (``classify_grasps``); in the floating protocol
     among the open hands the mesh leaves clear, ``dataset.boundary_fraction`` of them boundary variants."""
-    from ..robot.description import robot_of
     from .boundary_grasps import add_boundary_grasps
     from .grasp_geometry import object_surface
 

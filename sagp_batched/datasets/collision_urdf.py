@@ -27,7 +27,7 @@ def floating_hand_urdf(robot: RobotDescription, cache_dir: str | Path) -> Path:
     tree = ElementTree.parse(robot.urdf_path)
     source = tree.getroot()
     joints = [element for element in source if element.tag == "joint"]
-    keep = {robot.hand_link}
+    keep = {robot.gripper.base_link}
     grown = True
     while grown:
         below = {joint.find("child").get("link") for joint in joints if joint.find("parent").get("link") in keep}

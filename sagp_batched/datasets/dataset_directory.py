@@ -31,6 +31,7 @@ from ..formats.acronym import write_object_file
 from ..formats.frames import grasp_poses_from_acronym, mesh_reference
 from ..formats.graspgen import write_graspgen_file
 from ..formats.object_grasps import ObjectPhysics
+from ..robot.gripper_description import GripperDescription
 from ..world.objects import ObjectSpec, objects_root
 from .cross_engine import object_engine_agreement
 
@@ -45,9 +46,9 @@ DISTINCT_TRANSLATION_M = 0.01
 DISTINCT_ROTATION_DEG = 20.0
 
 
-def write_object(out_dir: Path, spec: ObjectSpec, labels: "ObjectLabels", mode: str, protocol: str) -> dict:
-    """Write one finished object: its mesh, its ACRONYM and GraspGen files, then its progress line (what the
-    report and a resume read), which is returned."""
+def write_object(out_dir: Path, spec: ObjectSpec, labels: "ObjectLabels", mode: str, protocol: str, gripper: GripperDescription) -> dict:
+    """Write one finished object (its grasps made by ``gripper``): its mesh, its ACRONYM and GraspGen files, then
+    its progress line (what the report and a resume read), which is returned."""
     from sagp_batched_kernels.pose_nms import distinct_grasp_count
 
     clock = time.perf_counter()
@@ -57,10 +58,10 @@ def write_object(out_dir: Path, spec: ObjectSpec, labels: "ObjectLabels", mode: 
     mesh_file, scale, mesh_to_link = copy_object_mesh(spec, out_dir / "meshes")
     grasps = labels.grasps
     write_object_file(out_dir / "grasps" / f"{spec.id}.h5", spec.id, mesh_file, scale, mesh_to_link, physics,
-                      grasps, labels.untested, mode, protocol, labels.rater)
-    poses = grasp_poses_from_acronym(grasps.transforms)
+                      grasps, labels.untested, mode, protocol, labels.rater, gripper)
+    poses = grasp_poses_from_acronym(grasps.transforms, gripper)
     distinct = distinct_grasp_count(poses.position, poses.rotation, DISTINCT_TRANSLATION_M, math.radians(DISTINCT_ROTATION_DEG))
-    write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps)
+    write_graspgen_file(out_dir / "graspgen" / f"{spec.id}.json", mesh_file, scale, grasps, gripper)
     write_s = time.perf_counter() - clock
     # Whether positives spread over the object or gather on one part: how many of the eight octants of the
     # object's bounding box hold the contact midpoint of a held grasp.

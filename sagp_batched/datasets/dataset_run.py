@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from ..config import Config
+from ..robot.description import robot_of
 from ..run_directory import WorkerReport
 from ..workers import Recipe, WorkerPool
 from ..world.objects import ObjectSet
@@ -112,7 +113,7 @@ def labelled_objects(config: Config, objects: ObjectSet, object_ids: list[str], 
             plan, outcomes, n_chunks = unfinished[object_id]
             if len(outcomes) == n_chunks:
                 del unfinished[object_id]
-                yield object_labels(plan, outcomes, config.dataset.engines)
+                yield object_labels(plan, outcomes, robot_of(config).gripper, config.dataset.engines)
 
 
 def generate_dataset(config: Config, objects: ObjectSet, out_dir: Path, *, progress: bool = True,
@@ -178,7 +179,8 @@ def _label_pending(config: Config, objects: ObjectSet, out_dir: Path, pending: l
 
     try:
         for labels in labelled_objects(config, objects, pending, packed, on_report):
-            entry = write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, config.dataset.protocol)
+            entry = write_object(out_dir, objects.get(labels.object_id), labels, config.dataset.mode, config.dataset.protocol,
+                                     robot_of(config).gripper)
             new_objects.append(labels.object_id)
             if on_object is not None:
                 on_object(entry)

@@ -133,7 +133,7 @@ def _hand_hulls(robot: RobotDescription, links: tuple[str, ...]) -> _HandHulls:
 
 def floating_hand_links(robot: RobotDescription) -> tuple[str, ...]:
     """The links of the hand hand-mode labels simulate: the hand and its fingers, not the arm above them."""
-    return (robot.hand_link, *robot.finger_links)
+    return (robot.gripper.base_link, *robot.gripper.pad_links)
 
 
 def open_hand_clear(surface: ObjectSurface, poses: GraspPoses, robot: RobotDescription, tolerance_m: float) -> np.ndarray:

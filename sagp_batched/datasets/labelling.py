@@ -156,7 +156,7 @@ def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, prot
         needed = label_as.placement_type.__name__
         raise ValueError(f"the {protocol} protocol needs {'an' if needed[0] in 'AEIOU' else 'a'} {needed}")
     robot = robot_of(config)
-    widths = contact_widths(object_surface(spec), poses, robot.open_width_m) if widths_m is None else widths_m
+    widths = contact_widths(object_surface(spec), poses, robot.gripper.open_width_m) if widths_m is None else widths_m
     world = poses.transform(placement.link_pose_world(), "world")
     grasps = grasps_from_poses(world, widths)
     if label_as.approaches:

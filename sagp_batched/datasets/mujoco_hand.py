@@ -74,8 +74,8 @@ class MuJoCoHand:
         self._set_free_joint(world.object_qpos, link)
         self._set_free_joint(world.hand_qpos, pose_matrix(start.hand_position, start.hand_quat) @ world.hand_in_target)
         # The fingers open, and their servos' set points with them.
-        data.qpos[list(world.finger_qpos)] = data.act[:] = self.robot.open_width_m / 2.0
-        self.command_fingers(self.robot.open_width_m)
+        data.qpos[list(world.finger_qpos)] = data.act[:] = self.robot.gripper.open_width_m / 2.0
+        self.command_fingers(self.robot.gripper.open_width_m)
         self.quat = np.asarray(start.hand_quat, dtype=float)
         self.move(start.hand_position)
         mujoco.mj_forward(model, data)

@@ -113,7 +113,7 @@ def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, obj
     def add(parent: mujoco.MjsBody, name: str, frame: np.ndarray) -> mujoco.MjsBody:
         body = parent.add_body(name=name, pos=frame[:3, 3], quat=_wxyz(frame[:3, :3]))
         _set_inertial(body, link_inertial(links[name]))
-        pad = name in robot.finger_links
+        pad = name in robot.gripper.pad_links
         surface = (execution.finger_lateral_friction, execution.finger_spinning_friction, 0.0) if pad else link_friction(links[name])
         geoms = _add_hulls(spec, body, link_collision_hulls(links[name], hand_urdf.parent), name, contype=HAND_BIT, conaffinity=0,
                            priority=2, condim=options.finger_condim if pad else 3,
@@ -131,7 +131,7 @@ def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, obj
                 raise ValueError(f"hand joint '{joint.get('name')}' is {joint.get('type')}; the MuJoCo hand takes prismatic and fixed joints")
         return body
 
-    add(spec.worldbody, robot.hand_link, np.eye(4)).add_freejoint()
+    add(spec.worldbody, robot.gripper.base_link, np.eye(4)).add_freejoint()
     return surfaces
 
 
@@ -146,9 +146,9 @@ def _add_finger_servos(spec: mujoco.MjSpec, robot: RobotDescription, config: Con
     finger would strike the object like a hammer."""
     force, options = config.execution.gripper_force_n, config.labelling.mujoco
     stiffness = force / options.finger_servo_saturation_m
-    finger_mass = next(body.mass for body in spec.bodies if body.name == robot.finger_links[0])
+    finger_mass = next(body.mass for body in spec.bodies if body.name == robot.gripper.pad_links[0])
     damping = 2.0 * options.finger_servo_damping_ratio * np.sqrt(stiffness * finger_mass)
-    for joint in robot.finger_joints:
+    for joint in robot.gripper.finger_joints:
         actuator = spec.add_actuator(name=joint, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         actuator.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
         # Whole arrays: newer bindings hand out copies of these parameters (and longer ones), not views.
@@ -216,7 +216,7 @@ def compile_world(hand_urdf: Path, robot: RobotDescription, object_urdf: Path, t
         _add_table(spec, hand_surfaces, config)
     spec.worldbody.add_body(name=HAND_TARGET_BODY, mocap=True)
     # The grasp target's frame held on the mocap body's (anchor, relative position, relative quaternion, torque scale).
-    weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY, name1=robot.grasp_target_link,
+    weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY, name1=robot.gripper.grasp_target_link,
                              name2=HAND_TARGET_BODY, solref=options.hand_weld_solref, solimp=options.hand_weld_solimp)
     weld.data = _leading(weld.data, [0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 1])
     return _located(spec.compile(), robot, inertial)
@@ -226,7 +226,7 @@ def _located(model: mujoco.MjModel, robot: RobotDescription, inertial: LinkInert
     def body(name: str) -> int:
         return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
 
-    hand, target = body(robot.hand_link), body(robot.grasp_target_link)
+    hand, target = body(robot.gripper.base_link), body(robot.gripper.grasp_target_link)
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     hand_in_target = np.eye(4)
@@ -240,8 +240,8 @@ def _located(model: mujoco.MjModel, robot: RobotDescription, inertial: LinkInert
     return HandWorld(
         model=model, object_body=object_body, object_qpos=int(model.jnt_qposadr[model.body_jntadr[object_body]]),
         hand_qpos=int(model.jnt_qposadr[model.body_jntadr[hand]]),
-        finger_qpos=tuple(int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]) for j in robot.finger_joints),
-        finger_bodies=tuple(body(name) for name in robot.finger_links), grasp_target_body=target, hand_body_mask=hand_bodies,
+        finger_qpos=tuple(int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]) for j in robot.gripper.finger_joints),
+        finger_bodies=tuple(body(name) for name in robot.gripper.pad_links), grasp_target_body=target, hand_body_mask=hand_bodies,
         table_geom=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM),
         com_in_link=(frame[:3, 3].copy(), _wxyz(frame[:3, :3])), hand_in_target=hand_in_target,
     )

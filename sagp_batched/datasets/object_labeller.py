@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 
 from ..config import Config
+from ..robot.description import robot_of
 from ..seeds import capture_trial
 from ..types import PerceptionFailure
 from ..world.objects import ObjectSet, ObjectSpec
@@ -123,7 +124,7 @@ class ObjectLabeller:
         """``n_grasps`` grasps of the object planned and simulated here, one chunk a capture."""
         plan = self.plan_object(object_id, n_grasps)
         chunks = plan.chunks(self.config.dataset.mode, n_grasps)
-        return object_labels(plan, [self.simulate(chunk) for chunk in chunks], self.config.dataset.engines)
+        return object_labels(plan, [self.simulate(chunk) for chunk in chunks], robot_of(self.config).gripper, self.config.dataset.engines)
 
     def compare_modes(self, object_id: str, n_grasps: int) -> dict[str, int]:
         """The same ``n_grasps`` grasps of the object's first capture simulated in hand and in arm mode:

@@ -16,6 +16,7 @@ import torch
 from ..formats.frames import acronym_gripper_transforms_object
 from ..formats.object_grasps import LabelledGrasps, UntestedGrasps
 from ..grasps import Grasp, GraspCandidates
+from ..robot.gripper_description import GripperDescription
 from .captures import DATASET_TASKS, PosePlan
 from .cross_engine import engine_columns, failure_text
 
@@ -97,12 +98,13 @@ def _zone_levels(candidates: GraspCandidates, ratings: dict) -> tuple[list[str],
     return names, levels
 
 
-def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome], engines: tuple[str, ...] = ("pybullet",)) -> ObjectLabels:
-    """An object's labels from its plan and the outcomes of every chunk of it (in any order), labelled by ``engines``."""
+def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome], gripper: GripperDescription, engines: tuple[str, ...] = ("pybullet",)) -> ObjectLabels:
+    """An object's labels from its plan and the outcomes of every chunk of it (in any order), made by ``gripper`` and
+    labelled by ``engines``."""
     by_pose: dict[int, list] = {pose.pose_index: [None] * len(pose.candidates) for pose in plan.poses}
     for outcome in outcomes:
         by_pose[outcome.chunk.pose_index][outcome.chunk.first:outcome.chunk.first + len(outcome.outcomes)] = outcome.outcomes
-    parts = [_pose_labels(pose, by_pose[pose.pose_index], engines) for pose in plan.poses]
+    parts = [_pose_labels(pose, by_pose[pose.pose_index], gripper, engines) for pose in plan.poses]
     labelled = [p[0] for p in parts]
     grasps = LabelledGrasps.concatenate(labelled) if labelled else LabelledGrasps.empty(DATASET_TASKS, engines)
     untested = UntestedGrasps(np.concatenate([p[1].transforms for p in parts] + [np.zeros((0, 4, 4))]), sum((p[1].reason for p in parts), []))
@@ -112,12 +114,12 @@ def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome], engines: tuple
                         times, engine_seconds)
 
 
-def _pose_labels(pose: PosePlan, outcomes: list, engines: tuple[str, ...]) -> tuple[LabelledGrasps, UntestedGrasps]:
+def _pose_labels(pose: PosePlan, outcomes: list, gripper: GripperDescription, engines: tuple[str, ...]) -> tuple[LabelledGrasps, UntestedGrasps]:
     """The capture's simulated grasps as labels in the object frame, and the grasps whose simulation could not run."""
     zoned, classified = pose.candidates, pose.classified
     tested = [i for i, outcome in enumerate(outcomes) if not isinstance(outcome, str)]
     object_frame = zoned.transform(pose.object_from_world, "object")
-    transforms = acronym_gripper_transforms_object(object_frame.poses())
+    transforms = acronym_gripper_transforms_object(object_frame.poses(), gripper)
     untested = [i for i, outcome in enumerate(outcomes) if isinstance(outcome, str)]
     kept = torch.as_tensor(tested, dtype=torch.int64)
     chosen = zoned.select(kept)

@@ -22,7 +22,6 @@ import pybullet
 from ..config import Config
 from ..execution.pick import fingers_touching, push_n, set_finger_friction
 from ..robot.description import robot_of
-from ..robot.hand import hand_to_grasp_target_m
 from ..world.objects import ObjectLoadError, ObjectSpec
 from ..world.scene import command_fingers, configure_physics, create_table
 from .collision_urdf import collision_only_urdf, floating_hand_urdf
@@ -40,7 +39,7 @@ class PyBulletHand:
         self.client = pybullet.connect(pybullet.DIRECT)
         self.robot = robot_of(config)
         self.hand_urdf = str(floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir))
-        self.grasp_offset_m = hand_to_grasp_target_m(self.robot)
+        self.grasp_offset_m = self.robot.gripper.grasp_depth_m
         self._object_urdfs: dict[str, str] = {}
         self.table: int | None = None
 
@@ -80,15 +79,15 @@ class PyBulletHand:
             pybullet.resetBasePositionAndOrientation(self.target, object_pose[0], object_pose[1], physicsClientId=client)
         self.hand = pybullet.loadURDF(self.hand_urdf, physicsClientId=client)
         names = {pybullet.getJointInfo(self.hand, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(self.hand, physicsClientId=client))}
-        self.finger_joints = tuple(names[name] for name in self.robot.finger_joints)
+        self.finger_joints = tuple(names[name] for name in self.robot.gripper.finger_joints)
         # The constraint holds the grasp target; PyBullet pins a base by its inertial frame.
         inertial = pybullet.getDynamicsInfo(self.hand, -1, physicsClientId=client)[3:5]
         self.target_in_base = pybullet.multiplyTransforms(*pybullet.invertTransform(*inertial), [0.0, 0.0, self.grasp_offset_m], [0.0, 0.0, 0.0, 1.0])
         base = pybullet.multiplyTransforms(list(hand_position), list(quat), *pybullet.invertTransform(*self.target_in_base))
         pybullet.resetBasePositionAndOrientation(self.hand, *base, physicsClientId=client)
         for joint in self.finger_joints:
-            pybullet.resetJointState(self.hand, joint, self.robot.open_width_m / 2.0, physicsClientId=client)
-        self.command_fingers(self.robot.open_width_m)
+            pybullet.resetJointState(self.hand, joint, self.robot.gripper.open_width_m / 2.0, physicsClientId=client)
+        self.command_fingers(self.robot.gripper.open_width_m)
         set_finger_friction(client, self.hand, self.finger_joints, config.execution)
         self.constraint = pybullet.createConstraint(
             self.hand, -1, -1, -1, pybullet.JOINT_FIXED, [0.0, 0.0, 0.0],

@@ -22,6 +22,7 @@ from ..config import Config, load_config
 from ..formats.acronym import relabel_file_bytes
 from ..formats.frames import grasp_poses_from_acronym
 from ..formats.grasp_file import GraspFile, read_grasp_file
+from ..robot.description import robot_of
 from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_file_atomically, write_json
 from ..workers import Recipe, WorkerPool
 from ..world.mesh_sources import MESH_SUFFIXES
@@ -210,7 +211,7 @@ def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarra
     values: held where every engine held (``cross_engine.combined_labels``), each engine's own under "by_engine"."""
     if isinstance(config, dict):  # in a worker process: the config travels as its dict
         config = load_config(overrides=config)
-    poses = grasp_poses_from_acronym(transforms_link)
+    poses = grasp_poses_from_acronym(transforms_link, robot_of(config).gripper)
     labels = combined_labels({engine: label_object_grasps(spec, poses, widths, protocol, config, engine=engine) for engine in engines})
     if len(labels) != len(transforms_link):
         raise RuntimeError(f"{len(labels)} labels for {len(transforms_link)} grasps")
@@ -306,7 +307,7 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
         widths = None if inputs.grasp_file.width_m is None else inputs.grasp_file.width_m[inputs.selection]
         labels = label_pending(spec, transforms_link, widths, inputs, config, out_dir,
                                lambda done, total: note(f"chunk {done}/{total} labelled"))
-        regions = grasp_regions(grasp_poses_from_acronym(transforms_link).position.numpy(), object_bounds(spec))
+        regions = grasp_regions(grasp_poses_from_acronym(transforms_link, robot_of(config).gripper).position.numpy(), object_bounds(spec))
         phases = [label["failed_at"] for label in labels]
         result = label_agreement(inputs.grasp_file.labels[inputs.selection], np.array([label["held"] for label in labels]), phases, regions)
         result.update(file=record["file"], protocol=inputs.protocol, engine=inputs.engine, object_id=spec.id)
@@ -314,7 +315,7 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
             result.update(_engine_agreements(inputs.grasp_file.labels[inputs.selection], labels, regions, inputs.engines))
         write_file_atomically(out_dir / RELABEL_FILE, relabel_file_bytes(
             inputs.grasp_file, inputs.selection, link_from_file, labels, regions, object_id=spec.id, mass_kg=spec.mass_kg,
-            protocol=inputs.protocol, engine=inputs.engine))
+            protocol=inputs.protocol, engine=inputs.engine, gripper=robot_of(config).gripper))
         write_json(out_dir / AGREEMENT_FILE, result)
         name = f"{inputs.grasp_file.path.name} ({inputs.grasp_file.format})"
         markdown = agreement_markdown(result, f"Label agreement: {name} vs ours ({inputs.protocol}, {inputs.engine})")

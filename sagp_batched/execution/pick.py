@@ -151,7 +151,7 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
 def _pregrasp_in_contact(scene: Scene, pregrasp_joints: np.ndarray) -> bool:
     """Open the gripper, teleport the arm to the pre-grasp and tell whether it touches the table,
     the target or a distractor there."""
-    scene.set_finger_width(scene.robot.open_width_m)
+    scene.set_finger_width(scene.robot.gripper.open_width_m)
     scene.set_arm_joints(pregrasp_joints)
     pybullet.performCollisionDetection(physicsClientId=scene.client)
     return any(_robot_contacts(scene, body) for body in (scene.table_id, scene.target_id, *scene.distractor_ids))
@@ -235,8 +235,8 @@ def checked_grasp(grasp: Grasp, motion: MotionConfig, robot: RobotDescription) -
     approach = as_finite_vector(grasp.approach, 3, "approach")
     if np.linalg.norm(quat) < 1e-9 or np.linalg.norm(approach) < 1e-9:
         raise InvalidGraspError("quat_xyzw and approach must be non-zero")
-    if not 0.0 <= grasp.width_m <= robot.open_width_m:
-        raise InvalidGraspError(f"width_m {grasp.width_m} is outside the gripper's 0..{robot.open_width_m} m")
+    if not 0.0 <= grasp.width_m <= robot.gripper.open_width_m:
+        raise InvalidGraspError(f"width_m {grasp.width_m} is outside the gripper's 0..{robot.gripper.open_width_m} m")
     quat = quat / np.linalg.norm(quat)
     approach = approach / np.linalg.norm(approach)
     waypoints = motion_waypoints(torch.tensor(position).view(1, 3), torch.tensor(approach).view(1, 3), motion)[0].double().numpy()

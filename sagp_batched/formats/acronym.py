@@ -3,9 +3,9 @@ object file and a relabelled grasp file.
 
 ACRONYM's files are read by grasp-learning code (Contact-GraspNet, GraspGen, the `acronym` tools). We keep its keys,
 so those loaders read our files unchanged, and add our own fields beside them. Frames are those of `frames`:
-*gripper* poses are ACRONYM's Franka gripper frame (z = approach, x = closing axis, origin at the gripper base
-0.105 m behind the contacts), *hand* poses PyBullet's `panda_hand` (`transforms @ Rz(-90 deg)`: what the planner
-commanded, for replaying in PyBullet). Lengths are metres, masses kilograms, angles radians; strings are UTF-8.
+*gripper* poses are ACRONYM's gripper frame (z = approach, x = closing axis, origin at the gripper base, the
+gripper's grasp depth behind the grasp target), *base link* poses the gripper's URDF base link (`transforms @
+Rz(-90 deg)`: what the engines place, for replaying in PyBullet). Lengths are metres, masses kilograms, angles radians; strings are UTF-8.
 N is the number of grasps.
 
 Keys every file holds:
@@ -13,14 +13,14 @@ Keys every file holds:
 | key | dtype, shape | meaning |
 |---|---|---|
 | `grasps/transforms` | float64 (N, 4, 4) | gripper poses: in the object's link frame (trial, dataset), in the relabelled file's own frame (relabel) |
-| `grasps/panda_hand_transforms` | float64 (N, 4, 4) | the same grasps as hand poses |
+| `grasps/base_link_transforms` | float64 (N, 4, 4) | the same grasps as base link poses |
 | `grasps/qualities/flex/object_in_gripper` | int8 (trial) or int64, (N,) | 1 the grasp held the object, 0 it dropped it: an outcome, never a default (grasps not tested are kept apart) |
 | `object/file` | string | the visual mesh, relative to the mesh root the reader is given ("" for a primitive visual) |
 | `object/scale` | float64 | the mesh's uniform scale (1.0 for every YCB and imported object; a relabelled file's own) |
 | `object/mesh_to_link` | float64 (4, 4) | mesh vertices -> link frame, the scale included (`frames.mesh_reference`); a loader applying only `object/scale` gets the link frame exactly where this is a uniform scale |
 | `object/id` | string | the object's id |
 | `object/mass` | float64 | kg |
-| `gripper/type` | string | "panda" (trial), "franka_panda" (dataset, relabel): the Franka Panda gripper whichever robot ran the grasps |
+| `gripper/type` | string | the gripper that made the grasps: "franka_panda", "robotiq_2f_85" or "robotiq_2f_140" (files written before grippers were data: "panda" for the Franka's) |
 
 **A study trial's grasps** (`trial_file_bytes`; `grasps/<object>_<task>_<trial>.h5` of a study run). The grasps
 some method executed are under `grasps/`; every candidate the planner scored is under `candidates/`, in the planner's
@@ -28,7 +28,7 @@ order, so a loader reading `grasps/` never takes an untested grasp for a failure
 
 | key | dtype, shape | meaning |
 |---|---|---|
-| `transforms`, `panda_hand_transforms` | float64 (N, 4, 4) | as above |
+| `transforms`, `base_link_transforms` | float64 (N, 4, 4) | as above |
 | `width` | float32 (N,) | contact width, m |
 | `contacts` | float64 (N, 2, 3) | the two contacts in the link frame, m; contact 0 at gripper -x |
 | `zone` | string (N,) | the zone the grasp's contacts lie in |
@@ -91,13 +91,12 @@ import numpy as np
 from ..grasps import GraspCandidates
 from ..types import GraspAttempt, PerceivedCloud
 from ..world.objects import ObjectSpec
-from .frames import acronym_gripper_transforms_object, mesh_reference, panda_hand_transforms_object
+from ..robot.gripper_description import GripperDescription
+from .frames import acronym_gripper_transforms_object, base_link_transforms_object, mesh_reference
 from .grasp_file import FLEX, GraspFile
 from .hdf5 import hdf5_bytes, write_hdf5
 from .object_grasps import LabelledGrasps, ObjectPhysics, UntestedGrasps
 
-# The Franka gripper as GraspGen's files and ours name it; a study trial's file names it "panda".
-GRIPPER_TYPE = "franka_panda"
 # A candidate no simulation has run: kept under ``candidates/`` only, never as a grasp label.
 UNTESTED = -1
 
@@ -121,22 +120,23 @@ def trial_file_bytes(
     candidates: GraspCandidates,
     ranked_by_method: dict[str, GraspCandidates],
     attempts_by_method: dict[str, Sequence[GraspAttempt]],
+    gripper: GripperDescription,
 ) -> bytes:
     """One study trial's grasps as the bytes of an HDF5 file: the executed ones under ``grasps/``, every scored
     candidate under ``candidates/``.
 
     ``candidates`` is the planner's output; ``ranked_by_method`` holds each method's ranking of them and
-    ``attempts_by_method`` the outcomes of its leading grasps, in ranked order.
+    ``attempts_by_method`` the outcomes of its leading grasps, in ranked order; ``gripper`` made them.
     """
     n = len(candidates)
     candidates_object = candidates.transform(cloud.object_from_world, "object")
-    transforms = acronym_gripper_transforms_object(candidates_object.poses())
+    transforms = acronym_gripper_transforms_object(candidates_object.poses(), gripper)
     reference = mesh_reference(spec)
     outcome, executed_by_method = _outcomes(n, ranked_by_method, attempts_by_method)
     tested = np.flatnonzero(outcome != UNTESTED)
     zone_names = candidates.primary_zone_names()
     rows: dict[str, Any] = {
-        "transforms": transforms, "panda_hand_transforms": panda_hand_transforms_object(transforms),
+        "transforms": transforms, "base_link_transforms": base_link_transforms_object(transforms),
         "width": candidates.width_m.numpy(), "contacts": candidates_object.contacts.numpy(),
         "qualities/terms/geom": candidates.s_geom.numpy(), "qualities/terms/reach": candidates.s_reach.numpy(),
     }
@@ -157,7 +157,7 @@ def trial_file_bytes(
     datasets.update({
         "candidates/tested": outcome, "object/file": reference.mesh_file, "object/scale": reference.scale,
         "object/mesh_to_link": reference.mesh_to_link, "object/urdf": reference.urdf_file, "object/id": spec.id,
-        "object/mass": float(spec.mass_kg), "gripper/type": "panda",
+        "object/mass": float(spec.mass_kg), "gripper/type": gripper.file_name,
     })
     return hdf5_bytes(datasets)
 
@@ -174,12 +174,13 @@ def write_object_file(
     mode: str,
     protocol: str,
     rater: str,
+    gripper: GripperDescription,
 ) -> None:
-    """One object's labelled grasps as a dataset's object file at ``path``, replaced atomically."""
+    """One object's labelled grasps (made by ``gripper``) as a dataset's object file at ``path``, replaced atomically."""
     flex = "grasps/qualities/flex"
     datasets: dict[str, Any] = {
         "grasps/transforms": grasps.transforms.astype(np.float64),
-        "grasps/panda_hand_transforms": panda_hand_transforms_object(grasps.transforms.astype(np.float64)),
+        "grasps/base_link_transforms": base_link_transforms_object(grasps.transforms.astype(np.float64)),
         f"{flex}/object_in_gripper": grasps.held.astype(np.int64),
         f"{flex}/held_fraction": grasps.held_fraction.astype(np.float64),
         f"{flex}/object_motion_during_closing_linear": grasps.motion_closing_linear_m.astype(np.float64),
@@ -204,13 +205,14 @@ def write_object_file(
         "object/id": object_id, "object/mass": float(physics.mass_kg), "object/density": float(physics.density_kg_m3),
         "object/friction": float(physics.friction), "object/com": np.asarray(physics.com_m, dtype=np.float64),
         "object/inertia": np.asarray(physics.inertia_kg_m2, dtype=np.float64), "object/volume": float(physics.volume_m3),
-        "gripper/type": GRIPPER_TYPE, "mode": mode, "protocol": protocol, "rater": rater,
+        "gripper/type": gripper.file_name, "mode": mode, "protocol": protocol, "rater": rater,
     })
     write_hdf5(path, datasets)
 
 
 def relabel_file_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: np.ndarray, labels: list[dict[str, Any]],
-                       regions: list[str], *, object_id: str, mass_kg: float, protocol: str, engine: str) -> bytes:
+                       regions: list[str], *, object_id: str, mass_kg: float, protocol: str, engine: str,
+                       gripper: GripperDescription) -> bytes:
     """A relabelled file's rows ``rows`` as HDF5 bytes: the grasps as the file gives them (its mesh, scale and frame,
     so ACRONYM's loaders and ``grasp_file.read_grasp_file`` read them as they read the file), our label as
     ``object_in_gripper`` and the file's under ``grasps/reference/``.
@@ -222,7 +224,7 @@ def relabel_file_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: 
     transforms = grasp_file.transforms[rows]
     datasets: dict[str, Any] = {
         "grasps/transforms": transforms,
-        "grasps/panda_hand_transforms": panda_hand_transforms_object(transforms),
+        "grasps/base_link_transforms": base_link_transforms_object(transforms),
         "grasps/link_transforms": link_from_file @ transforms,
         "grasps/source_index": np.asarray(rows, dtype=np.int64),
         FLEX: np.array([label["held"] for label in labels], dtype=np.int64),
@@ -243,7 +245,7 @@ def relabel_file_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: 
         "object/file": grasp_file.mesh_file, "object/scale": grasp_file.scale,
         "object/mesh_to_link": np.diag([grasp_file.scale] * 3 + [1.0]),  # the file's frame is the scaled mesh's
         "object/link_from_file": link_from_file, "object/id": object_id, "object/mass": float(mass_kg),
-        "gripper/type": GRIPPER_TYPE, "protocol": protocol, "engine": engine,
+        "gripper/type": gripper.file_name, "protocol": protocol, "engine": engine,
         "reference/file": str(grasp_file.path), "reference/format": grasp_file.format,
     })
     return hdf5_bytes(datasets)

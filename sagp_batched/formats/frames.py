@@ -1,17 +1,18 @@
-"""The frames of the grasp files: ACRONYM's Franka gripper frame, PyBullet's ``panda_hand`` and the planner's grasp
-frame, and where an object's mesh lies in its link frame.
+"""The frames of the grasp files: ACRONYM's and GraspGen's gripper frame, the gripper's base link and the planner's
+grasp frame, and where an object's mesh lies in its link frame.
 
-Grasp frames, all right-handed, in metres:
+Grasp frames, all right-handed, in metres; `depth` is the gripper's grasp depth (`GripperDescription.grasp_depth_m`:
+0.105 m for `franka_panda`, 0.1421 m for `robotiq_2f85`, 0.1952 m for `robotiq_2f140`):
 
 | frame | origin | x | y | z |
 |---|---|---|---|---|
-| planner grasp (`GraspPoses`) | contact midpoint | closing x approach | closing axis | approach |
-| ACRONYM / GraspGen Franka gripper | gripper base, 0.105 m behind the contacts | closing axis | approach x closing | approach |
-| PyBullet `panda_hand` | gripper base (the same point) | -closing x approach | closing axis | approach |
+| planner grasp (`GraspPoses`) | the grasp target, between the pads | closing x approach | closing axis | approach |
+| ACRONYM / GraspGen gripper | gripper base, `depth` behind the grasp target | closing axis | approach x closing | approach |
+| the gripper's base link (`panda_hand`, `robotiq_arg2f_base_link`) | gripper base (the same point) | -closing x approach | closing axis | approach |
 
-ACRONYM's gripper is the same hand as `panda_hand` (finger joints 0.0584 m above the base, pads reaching about
-0.105 m), but its fingers open along x where `panda_hand`'s close along y: in the gripper frame contact 0 lies at
-`(-width/2, 0, 0.105)` and contact 1 at `(+width/2, 0, 0.105)`.
+ACRONYM's and GraspGen's gripper frames open the fingers along x where the base links close them along y: in the
+gripper frame contact 0 lies at `(-width/2, 0, depth)` and contact 1 at `(+width/2, 0, depth)`. The file's
+`gripper/type` (ACRONYM) or `gripper.name` (GraspGen) names the gripper (`GripperDescription.file_name`).
 
 Mesh frames: a file names its object as a mesh (`object/file`) and a scale (`object/scale`). The *mesh frame* is the
 mesh file's own coordinates; the *scaled mesh frame* is the same axes with coordinates times the scale (metres), the
@@ -28,38 +29,32 @@ import numpy as np
 import torch
 
 from ..grasps import GraspPoses
-from ..robot.description import load_robot
-from ..robot.hand import hand_to_grasp_target_m
+from ..robot.gripper_description import GripperDescription
 from ..world.mesh_sources import urdf_origin
 from ..world.objects import ObjectSpec, objects_root
 
 # Turning the planner's frame +90 deg about its approach (z) maps its closing axis (y) onto x:
 # columns (x, y, z) = (closing, approach x closing, approach) = (y_p, -x_p, z_p) = R_planner @ Rz(+90).
-# The gripper is symmetric, so the sign only fixes which contact lies at -x (contact 0) and +x.
+# The grippers are symmetric, so the sign only fixes which contact lies at -x (contact 0) and +x.
 ACRONYM_FROM_PLANNER_ROTATION = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 # Rotation blocks further than this from orthonormal are refused: a pose that is not one cannot be simulated.
 ROTATION_TOLERANCE = 1e-4
 
 
-def _acronym_hand_offset_m() -> float:
-    """How far ACRONYM's gripper origin (the Franka hand's) lies behind the contacts: the files
-    describe the Franka Panda's gripper (``gripper/type``) whichever robot ran the grasps."""
-    return hand_to_grasp_target_m(load_robot("panda"))
-
-
-def acronym_gripper_transforms_object(poses_object: GraspPoses) -> np.ndarray:
-    """Grasp poses in ACRONYM's Franka gripper convention.
+def acronym_gripper_transforms_object(poses_object: GraspPoses, gripper: GripperDescription) -> np.ndarray:
+    """Grasp poses in ACRONYM's (and GraspGen's) gripper convention.
 
     Args:
         poses_object: C planner grasp poses in the object's link frame
             (``candidates.transform(cloud.object_from_world, "object").poses()``): columns of ``rotation``
             (C, 3, 3) are (closing x approach, closing axis, approach); ``position`` (C, 3) is the contact
             midpoint, metres.
+        gripper: the gripper that makes them.
 
     Returns:
         (C, 4, 4) float64 gripper poses in the link frame: rotation ``R_planner @ Rz(+90 deg)`` (x = closing axis
-        from contact 0 to contact 1, z = approach), origin ``midpoint - 0.105 m * approach`` (the gripper base,
-        which is ``panda_hand``'s origin), so contact k lies at ``(-+width/2, 0, 0.105)`` in the gripper frame.
+        from contact 0 to contact 1, z = approach), origin ``midpoint - depth * approach`` (the gripper base,
+        its base link's origin), so contact k lies at ``(-+width/2, 0, depth)`` in the gripper frame.
 
     Raises:
         ValueError: the poses are not in the object frame.
@@ -67,26 +62,26 @@ def acronym_gripper_transforms_object(poses_object: GraspPoses) -> np.ndarray:
     if poses_object.frame != "object":
         raise ValueError(f"ACRONYM grasps are written in the object frame, got poses in the {poses_object.frame} frame")
     rotation_planner = poses_object.rotation.numpy()
-    # The executed grasp closed its fingers at the grasp target, 0.105 m along panda_hand's z axis
-    # in the robot's URDF, so the exported poses put the contacts there too.
-    hand_offset = _acronym_hand_offset_m()
+    # The simulated grasp closed its fingers at the grasp target, the grasp depth along the base link's z axis,
+    # so the exported poses put the contacts there too.
+    hand_offset = gripper.grasp_depth_m
     transforms = np.tile(np.eye(4), (len(poses_object), 1, 1))
     transforms[:, :3, :3] = rotation_planner @ ACRONYM_FROM_PLANNER_ROTATION
     transforms[:, :3, 3] = poses_object.position.numpy() - hand_offset * rotation_planner[:, :, 2]
     return transforms
 
 
-def grasp_poses_from_acronym(acronym_transforms_object: np.ndarray) -> GraspPoses:
-    """The planner's grasp poses (origin at the contact midpoint, y = closing axis, z = approach) of (C, 4, 4)
-    ACRONYM gripper poses in the object frame: the inverse of ``acronym_gripper_transforms_object``."""
+def grasp_poses_from_acronym(acronym_transforms_object: np.ndarray, gripper: GripperDescription) -> GraspPoses:
+    """The planner's grasp poses (origin at the grasp target, y = closing axis, z = approach) of (C, 4, 4)
+    ACRONYM gripper poses of ``gripper`` in the object frame: the inverse of ``acronym_gripper_transforms_object``."""
     rotation = acronym_transforms_object[:, :3, :3] @ ACRONYM_FROM_PLANNER_ROTATION.T
-    centre = acronym_transforms_object[:, :3, 3] + _acronym_hand_offset_m() * acronym_transforms_object[:, :3, 2]
+    centre = acronym_transforms_object[:, :3, 3] + gripper.grasp_depth_m * acronym_transforms_object[:, :3, 2]
     return GraspPoses(torch.as_tensor(centre, dtype=torch.float64), torch.as_tensor(rotation, dtype=torch.float64), "object")
 
 
-def panda_hand_transforms_object(acronym_transforms_object: np.ndarray) -> np.ndarray:
-    """(C, 4, 4) ``panda_hand`` poses from (C, 4, 4) ACRONYM gripper poses in the same frame: the same origin,
-    rotated back -90 deg about the approach so y is the closing axis again."""
+def base_link_transforms_object(acronym_transforms_object: np.ndarray) -> np.ndarray:
+    """(C, 4, 4) base link poses (``panda_hand``'s, ``robotiq_arg2f_base_link``'s) from (C, 4, 4) ACRONYM gripper
+    poses in the same frame: the same origin, rotated back -90 deg about the approach so y is the closing axis again."""
     gripper_from_hand = np.eye(4)
     gripper_from_hand[:3, :3] = ACRONYM_FROM_PLANNER_ROTATION.T
     return acronym_transforms_object @ gripper_from_hand

@@ -1,17 +1,17 @@
 """The one reader of grasp files: ACRONYM's HDF5 and JSON, GraspGen's JSON, ours and those the projects publish.
 
-What is read (all grasps in ACRONYM's Franka gripper frame, ``frames``):
+What is read (all grasps in ACRONYM's gripper frame, ``frames``, of the gripper the file names):
 
 - ACRONYM HDF5 (what ``acronym_tools.load_grasps`` / ``load_mesh`` read): ``grasps/transforms`` (N, 4, 4) gripper
   poses in the frame of the mesh ``object/file`` scaled by ``object/scale``; ``grasps/qualities/flex/object_in_gripper``
   (N,) 1 held, 0 dropped; optionally ``object/{mass, friction, density, com}`` (the COM in the scaled mesh's frame)
-  and our ``grasps/width``. Our files (``acronym``) hold their grasps in the object's URDF link frame instead, with
+  our ``grasps/width`` and ``gripper/type``, the gripper. Our files (``acronym``) hold their grasps in the object's URDF link frame instead, with
   ``object/mesh_to_link`` beside them: the reader moves those grasps into the scaled mesh's frame
   (``frames.link_from_scaled_mesh``), so every ``GraspFile`` means the same frame.
 - ACRONYM JSON (the same loaders' other branch): ``object``, ``object_scale``, ``transforms``,
   ``quality_flex_object_in_gripper`` at the top level.
 - GraspGen JSON (``graspgen``): ``object.file``, ``object.scale``, ``grasps.transforms``, ``grasps.object_in_gripper``
-  (booleans). GraspGen's files name no gripper; its Franka gripper's frame is ACRONYM's.
+  (booleans), optionally ``gripper.name``. A file naming no gripper is the Franka's; GraspGen's frame is ACRONYM's.
 
 Bad input raises ``GraspFileError``, one line naming the file and what is wrong.
 """
@@ -35,7 +35,7 @@ class GraspFileError(ValueError):
 
 @dataclass(frozen=True)
 class GraspFile:
-    """One object's grasps as a grasp file gives them, in ACRONYM's Franka gripper convention (z = approach,
+    """One object's grasps as a grasp file gives them, in ACRONYM's gripper convention (z = approach,
     x = closing axis, origin at the gripper base), in the frame of ``mesh_file`` scaled by ``scale``."""
 
     path: Path
@@ -50,6 +50,8 @@ class GraspFile:
     density_kg_m3: float | None = None
     com_m: np.ndarray | None = None  # (3,) in the scaled mesh's frame
     mesh_to_link: np.ndarray | None = None  # (4, 4) as our files write it (mesh vertices -> URDF link frame)
+    # The gripper the file names (ACRONYM's ``gripper/type``, GraspGen's ``gripper.name``); a file naming none is the Franka's.
+    gripper: str = "franka_panda"
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -112,11 +114,12 @@ def _read_hdf5(path: Path) -> GraspFile:
         friction=_optional_number(path, "object/friction", values.get("object/friction"), positive=False),
         density_kg_m3=_optional_number(path, "object/density", values.get("object/density"), positive=True),
         com_m=com, mesh_to_link=mesh_to_link,
+        **({"gripper": _text(path, "gripper/type", values["gripper/type"])} if "gripper/type" in values else {}),
     )
 
 
 _HDF5_KEYS = ("grasps/transforms", FLEX, "grasps/width", "object/file", "object/scale", "object/mass", "object/friction",
-              "object/density", "object/com", "object/mesh_to_link")
+              "object/density", "object/com", "object/mesh_to_link", "gripper/type")
 
 
 # -- JSON ----------------------------------------------------------------------------------------------------------
@@ -133,6 +136,7 @@ def _read_json(path: Path, document: Any) -> GraspFile:
         path=path, format=file_format, mesh_file=_text(path, keys[0], values[0]),
         scale=_number(path, keys[1], values[1], positive=True), transforms=transforms,
         labels=_labels(path, keys[3], _json_array(path, keys[3], values[3]), len(transforms)),
+        **({"gripper": _text(path, "gripper.name", document["gripper"].get("name"))} if isinstance(document.get("gripper"), dict) else {}),
     )
 
 
@@ -191,7 +195,7 @@ def _text(path: Path, key: str, value: Any) -> str:
         value = value.item()
     text = value.decode("utf-8", "replace") if isinstance(value, bytes) else value
     if not isinstance(text, str) or not text:
-        raise GraspFileError(f"{path}: {key} must be a non-empty mesh path, got {value!r}")
+        raise GraspFileError(f"{path}: {key} must be a non-empty string, got {value!r}")
     return text
 
 

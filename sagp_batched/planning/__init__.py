@@ -2,7 +2,7 @@
 candidates and the screens that need no IK (``screens``), the motion check (``motion_check``), the
 search for each candidate's first executable approach (``search``, with verdicts computed ahead in
 ``lookahead``), and ``plan`` / ``plan_batch`` (``planner``)."""
-from .gripper import gripper_geometry, hand_geometry, jaw_width_limit
+from .gripper import gripper_geometry, hand_geometry, jaw_width_limit, widest_pair_m
 from .motion_check import MotionCheck, check_motions
 from .planner import PlanCounts, PlanResult, PlanStageTimes, plan, plan_batch
 from .sampling import SampledInputs, sample_inputs
@@ -11,6 +11,6 @@ from .search import CandidateSearch, CandidateStatus, SearchTuning
 
 __all__ = [
     "CandidateSearch", "CandidateStatus", "MotionCheck", "PlanCounts", "PlanResult", "PlanStageTimes", "SampledInputs",
-    "ScreenedCandidates", "SearchTuning", "check_motions", "gripper_geometry", "hand_geometry", "jaw_width_limit", "plan",
+    "ScreenedCandidates", "SearchTuning", "check_motions", "gripper_geometry", "hand_geometry", "jaw_width_limit", "widest_pair_m", "plan",
     "plan_batch", "sample_inputs", "screen_candidates",
 ]

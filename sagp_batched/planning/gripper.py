@@ -1,4 +1,4 @@
-"""The open gripper as the planner models it: its collision proxies, its hulls, its jaw width."""
+"""The open gripper as the planner models it: its collision proxies, its hulls, its jaw width, the widest pair it draws."""
 from __future__ import annotations
 
 from sagp_batched_kernels.gripper_occupancy import GripperGeometry
@@ -10,9 +10,9 @@ from ..robot.hand import HandGeometry, load_hand_geometry
 
 def gripper_geometry(robot: RobotDescription, planner: PlannerConfig) -> GripperGeometry:
     """The boxes the 12 % occupancy check counts points in: the robot's, with the planner's contact clearance."""
-    boxes = robot.gripper_boxes
+    boxes = robot.gripper.gripper_boxes
     return GripperGeometry(
-        open_width_m=robot.open_width_m,
+        open_width_m=robot.gripper.open_width_m,
         finger_width_m=boxes.finger_width_m,
         finger_thickness_m=boxes.finger_thickness_m,
         finger_length_m=boxes.finger_length_m,
@@ -29,6 +29,11 @@ def hand_geometry(robot: RobotDescription) -> HandGeometry:
     return load_hand_geometry(robot)
 
 
+def widest_pair_m(robot: RobotDescription, planner: PlannerConfig) -> float:
+    """The widest contact pair the planner draws: ``max_width_m``, or where that is 0 the gripper's opening."""
+    return planner.max_width_m or robot.gripper.open_width_m
+
+
 def jaw_width_limit(robot: RobotDescription, planner: PlannerConfig) -> float:
     """Widest pair the open jaws can descend around with ``jaw_clearance_m`` on each side."""
-    return robot.open_width_m - 2.0 * planner.jaw_clearance_m
+    return robot.gripper.open_width_m - 2.0 * planner.jaw_clearance_m

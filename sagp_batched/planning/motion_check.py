@@ -8,7 +8,7 @@ import torch
 
 from ..config import Config
 from ..robot.description import RobotDescription
-from ..robot.hand import link_hulls
+from ..description_files import link_hulls
 from ..robot.ik import PandaIK
 from ..robot.motion import grasp_waypoint_index, motion_waypoints
 from .stages import StageClock

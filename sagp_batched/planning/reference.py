@@ -23,6 +23,7 @@ from ..config import Config, PlannerConfig
 from ..grasps import GraspCandidates
 from ..robot.description import RobotDescription, robot_of
 from ..robot.hand import load_hand_geometry
+from .gripper import widest_pair_m
 from ..types import PerceivedCloud
 
 
@@ -58,7 +59,7 @@ class PyBulletPandaIK:
             str(robot.urdf_path), basePosition=robot.base_xyz_m, useFixedBase=True, physicsClientId=self.client
         )
         joints = [pybullet.getJointInfo(self.robot, j, physicsClientId=self.client) for j in range(pybullet.getNumJoints(self.robot, physicsClientId=self.client))]
-        self.end_link = next(j[0] for j in joints if j[12].decode() == robot.grasp_target_link)
+        self.end_link = next(j[0] for j in joints if j[12].decode() == robot.gripper.grasp_target_link)
         self.movable = [j[0] for j in joints if j[2] != pybullet.JOINT_FIXED]
         self.lower = np.array([joints[j][8] for j in self.movable])
         self.upper = np.array([joints[j][9] for j in self.movable])
@@ -118,7 +119,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, draws: Draws) -> Refer
     planner = config.planner
     points = cloud.points_world.double().numpy()
     normals = cloud.normals_world.double().numpy()
-    survivors = _antipodal_pairs(points, normals, draws.pair_indices.tolist(), planner)
+    survivors = _antipodal_pairs(points, normals, draws.pair_indices.tolist(), planner, widest_pair_m(robot_of(config), planner))
     screened = _screen(survivors, points, draws, config)
     chosen, trials = _choose_by_ik(screened, points, config)
     return ReferencePlan(
@@ -138,7 +139,7 @@ def plan_reference(cloud: PerceivedCloud, config: Config, draws: Draws) -> Refer
 
 
 def _antipodal_pairs(points: np.ndarray, normals: np.ndarray, pair_indices: list[list[int]],
-                     planner: PlannerConfig) -> list[tuple[float, int, int, int, float, np.ndarray]]:
+                     planner: PlannerConfig, widest_m: float) -> list[tuple[float, int, int, int, float, np.ndarray]]:
     """(-S_geom, sampling order, i, j, width, closing axis) of the pairs passing the width and contact-angle
     tests, best first (sampling order among ties)."""
     min_cos = math.cos(math.radians(planner.max_contact_angle_deg))
@@ -146,7 +147,7 @@ def _antipodal_pairs(points: np.ndarray, normals: np.ndarray, pair_indices: list
     for order, (i, j) in enumerate(pair_indices):
         offset = points[j] - points[i]
         width = float(np.linalg.norm(offset))
-        if not planner.min_width_m <= width <= planner.max_width_m:
+        if not planner.min_width_m <= width <= widest_m:
             continue
         axis = offset / width
         cos_i = -float(normals[i] @ axis)  # outward n_i points away from contact j
@@ -183,12 +184,12 @@ def _screen(survivors: list, points: np.ndarray, draws: Draws, config: Config) -
     # planner does: the fingers and the rest of the hand each with their own clearance.
     hand = load_hand_geometry(robot)
     table_levels = [
-        (hull.double().numpy(), planner.finger_table_clearance_m if name in robot.finger_links else planner.arm_table_clearance_m)
+        (hull.double().numpy(), planner.finger_table_clearance_m if name in robot.gripper.pad_links else planner.arm_table_clearance_m)
         for name, hull in zip(hand.links, hand.hull_vertices)
     ]
     # The published method's own statement of the widest pair it grasps: the open jaws less their
     # clearance on either side.
-    jaw_width_limit_m = robot.open_width_m - 2.0 * planner.jaw_clearance_m
+    jaw_width_limit_m = robot.gripper.open_width_m - 2.0 * planner.jaw_clearance_m
     occupancy_points = draws.occupancy_points.double().numpy()
     screened = _Screened()
     for negative_quality, _, i, j, width, axis in survivors:
@@ -216,11 +217,11 @@ def _screen(survivors: list, points: np.ndarray, draws: Draws, config: Config) -
 def _occupied(occupancy_points: np.ndarray, centre: np.ndarray, rotation: np.ndarray, width: float, robot: RobotDescription,
               planner: PlannerConfig) -> int:
     """How many of ``occupancy_points`` lie inside the open fingers or under the palm of the hand at ``centre``, ``rotation``."""
-    boxes = robot.gripper_boxes
+    boxes = robot.gripper.gripper_boxes
     finger_z_max = boxes.fingertip_offset_m
     finger_z_min = finger_z_max - boxes.finger_length_m
     palm_z_min = finger_z_min - boxes.palm_depth_m
-    finger_y_max = robot.open_width_m / 2 + boxes.finger_thickness_m
+    finger_y_max = robot.gripper.open_width_m / 2 + boxes.finger_thickness_m
     local = (occupancy_points - centre) @ rotation
     abs_x, abs_y, z = np.abs(local[:, 0]), np.abs(local[:, 1]), local[:, 2]
     in_fingers = (

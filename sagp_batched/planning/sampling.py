@@ -15,7 +15,7 @@ from sagp_batched_kernels.sampling import (
 from ..config import MemoryConfig, PlannerConfig
 from ..robot.description import RobotDescription
 from ..types import PerceivedCloud
-from .gripper import jaw_width_limit
+from .gripper import jaw_width_limit, widest_pair_m
 
 
 def check_cloud(cloud: PerceivedCloud, position: int) -> None:
@@ -58,7 +58,7 @@ def sample_inputs(cloud: PerceivedCloud, robot: RobotDescription, planner: Plann
             planner.n_pairs,
             planner.pair_proposals,
             planner.min_width_m,
-            min(planner.max_width_m, jaw_width_limit(robot, planner)),
+            min(widest_pair_m(robot, planner), jaw_width_limit(robot, planner)),
             generator,
             memory.pair_proposal_chunk_elements,
             planner.compile,

@@ -19,7 +19,7 @@ from ..config import Config, MemoryConfig, PlannerConfig
 from ..robot.description import RobotDescription, robot_of
 from ..robot.hand import DOP_DIRECTIONS
 from ..types import PerceivedCloud
-from .gripper import gripper_geometry, hand_geometry, jaw_width_limit
+from .gripper import gripper_geometry, hand_geometry, jaw_width_limit, widest_pair_m
 from .sampling import sample_inputs
 from .stages import StageClock
 
@@ -164,7 +164,7 @@ def screen_candidates(
         points = torch.cat([cloud.points_world.to(torch.float32) for cloud in clouds])
         normals = torch.cat([cloud.normals_world.to(torch.float32) for cloud in clouds])
     with clock.stage("antipodal", n_pairs):
-        pair_eval = antipodal_pairs(points, normals, pairs, planner.min_width_m, planner.max_width_m, planner.max_contact_angle_deg)
+        pair_eval = antipodal_pairs(points, normals, pairs, planner.min_width_m, widest_pair_m(robot, planner), planner.max_contact_angle_deg)
         antipodal = pair_eval["antipodal"].nonzero().squeeze(1)
         # Rank by S_geom within each object; stable sorts keep sampling order among ties.
         antipodal = antipodal[torch.sort(pair_eval["s_geom"][antipodal], descending=True, stable=True).indices]
@@ -228,8 +228,8 @@ def table_check_points(robot: RobotDescription, device: torch.device) -> tuple[t
     """The fingers' and the other links' hull vertices (grasp frame) the table check tests, each
     with its ``table_cover``, on ``device``: built once per robot and device, not on every block of candidates."""
     hand = hand_geometry(robot)
-    fingers = hand.vertices(robot.finger_links)
-    rest = hand.vertices(tuple(name for name in hand.links if name not in robot.finger_links))
+    fingers = hand.vertices(robot.gripper.pad_links)
+    rest = hand.vertices(tuple(name for name in hand.links if name not in robot.gripper.pad_links))
 
     def on_device(vertices: torch.Tensor) -> tuple[torch.Tensor, tuple[torch.Tensor, float]]:
         cover, reach = table_cover(vertices)

@@ -1,8 +1,9 @@
 """The robot, described in one file (``data/robots/<name>.toml``) and looked up by name
-(``scene.robot``); every module that needs a robot fact is handed the ``RobotDescription``.
+(``scene.robot``), with the gripper the planner plans for (``planner.gripper``); every module that needs
+a robot or gripper fact is handed the ``RobotDescription``.
 
-Everything else about the robot (link offsets, joint limits, collision hulls, the grasp target's
-offset from the hand) is read from its URDF by the code that needs it.
+Everything else about the robot (link offsets, joint limits, collision hulls) is read from its URDF
+through ``description_files``.
 """
 from __future__ import annotations
 
@@ -17,22 +18,10 @@ import pybullet_data
 
 from ..config.settings import ConfigError
 from ..config.world import ROBOTS_DIR
+from .gripper_description import GripperDescription, load_gripper
 
 if TYPE_CHECKING:
     from ..config import Config
-
-
-@dataclass(frozen=True)
-class GripperBoxes:
-    """The open gripper as boxes in the grasp frame: the published occupancy proxy's dimensions."""
-
-    finger_width_m: float
-    finger_thickness_m: float
-    finger_length_m: float
-    fingertip_offset_m: float  # how far the fingertips reach beyond the grasp target along the approach
-    palm_width_m: float
-    palm_span_m: float
-    palm_depth_m: float
 
 
 @dataclass(frozen=True)
@@ -43,12 +32,11 @@ class RobotDescription:
     urdf_path: Path
     base_link: str
     arm_joints: tuple[str, ...]
-    finger_joints: tuple[str, ...]
-    hand_link: str
-    grasp_target_link: str
-    hand_collision_links: tuple[str, ...]
-    finger_links: tuple[str, ...]
-    open_width_m: float
+    # The gripper planned for; ``gripper_mounted``: it is the one the robot's URDF carries, so the arm's
+    # IK and motion checks apply to it.
+    gripper: GripperDescription
+    gripper_mounted: bool
+    wrist_collision_links: tuple[str, ...]  # arm links beside the hand that a grasp's approach can bring against the object
     ik_position_tolerance_m: float
     ik_rotation_tolerance_rad: float
     ik_reference_joints: tuple[float, ...]
@@ -59,16 +47,27 @@ class RobotDescription:
     joint_twist_rad: tuple[float, ...]
     joint_has_a: tuple[bool, ...]
     joint_has_d: tuple[bool, ...]
-    gripper_boxes: GripperBoxes
 
     @property
     def n_arm_joints(self) -> int:
         return len(self.arm_joints)
 
+    @property
+    def hand_collision_links(self) -> tuple[str, ...]:
+        """The links the planner checks a grasp's approach with: the gripper's, and the wrist where it is mounted."""
+        return self.gripper.collision_links + (self.wrist_collision_links if self.gripper_mounted else ())
+
+    def require_mounted_gripper(self, what: str) -> None:
+        """Refuse ``what`` (something the arm does) with a gripper the robot does not carry."""
+        if not self.gripper_mounted:
+            raise ConfigError(f"{what} needs the gripper on the arm: robot '{self.name}' carries no '{self.gripper.name}' "
+                              "(plan and label it in hand mode)", "planner.gripper")
+
 
 @functools.lru_cache(maxsize=None)
-def load_robot(name: str = "panda") -> RobotDescription:
-    """The description of robot ``name`` shipped in ``sagp_batched/data/robots``."""
+def load_robot(name: str = "panda", gripper: str | None = None) -> RobotDescription:
+    """The description of robot ``name`` shipped in ``sagp_batched/data/robots``, with ``gripper`` (default:
+    the one it carries)."""
     entry = ROBOTS_DIR.joinpath(f"{name}.toml")
     if not entry.is_file():
         raise ConfigError(f"unknown robot '{name}': no data/robots/{name}.toml in the package", "scene.robot")
@@ -78,12 +77,9 @@ def load_robot(name: str = "panda") -> RobotDescription:
         urdf_path=Path(pybullet_data.getDataPath()) / values["urdf"],
         base_link=values["base_link"],
         arm_joints=tuple(values["arm_joints"]),
-        finger_joints=tuple(values["finger_joints"]),
-        hand_link=values["hand_link"],
-        grasp_target_link=values["grasp_target_link"],
-        hand_collision_links=tuple(values["hand_collision_links"]),
-        finger_links=tuple(values["finger_links"]),
-        open_width_m=float(values["open_width_m"]),
+        gripper=load_gripper(gripper or values["gripper"]),
+        gripper_mounted=gripper in (None, values["gripper"]),
+        wrist_collision_links=tuple(values["wrist_collision_links"]),
         ik_position_tolerance_m=float(values["ik_position_tolerance_m"]),
         ik_rotation_tolerance_rad=float(values["ik_rotation_tolerance_rad"]),
         ik_reference_joints=tuple(float(q) for q in values["ik_reference_joints"]),
@@ -93,7 +89,6 @@ def load_robot(name: str = "panda") -> RobotDescription:
         joint_twist_rad=tuple(math.radians(float(t)) for t in values["joint_twist_deg"]),
         joint_has_a=tuple(bool(v) for v in values["joint_has_a"]),
         joint_has_d=tuple(bool(v) for v in values["joint_has_d"]),
-        gripper_boxes=GripperBoxes(**{key: float(value) for key, value in values["gripper_boxes"].items()}),
     )
     per_joint = {"ik_reference_joints": robot.ik_reference_joints, "home_joints": robot.home_joints,
                  "joint_twist_deg": robot.joint_twist_rad, "joint_has_a": robot.joint_has_a, "joint_has_d": robot.joint_has_d}
@@ -105,5 +100,5 @@ def load_robot(name: str = "panda") -> RobotDescription:
 
 
 def robot_of(config: Config) -> RobotDescription:
-    """The robot ``config.scene.robot`` names."""
-    return load_robot(config.scene.robot)
+    """The robot ``config.scene.robot`` names, with the gripper ``config.planner.gripper`` names."""
+    return load_robot(config.scene.robot, config.planner.gripper)

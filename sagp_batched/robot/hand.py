@@ -1,10 +1,9 @@
-"""The Panda hand as PyBullet collides it, derived from ``panda.urdf`` for the planner's checks.
+"""The hand as PyBullet collides it, derived from the URDF for the planner's checks.
 
-PyBullet collides each link of ``panda.urdf`` with the convex hull of the link's collision mesh
-(``meshes/collision/*.obj``) placed at the collision ``<origin>``. This module reads those
-elements with pytorch-kinematics' URDF parser, places each hull with pytorch-kinematics' forward
-kinematics of the full chain (fingers at a given opening), and expresses the hull vertices in the
-grasp frame (``panda_grasptarget``: z = approach, y = closing axis). Nothing about the hand's
+PyBullet collides each link with the convex hull of its collision geometry placed at the collision
+``<origin>``. This module places each hull (``description_files.link_hulls``) with the URDF's forward
+kinematics (fingers fully open, a linkage's mimic joints following), and expresses the hull vertices in
+the grasp frame (z = approach, y = closing axis, origin at the grasp target). Nothing about the hand's
 shape is typed in.
 
 For batched point tests each hull is bounded by a k-DOP: its extent along 13 fixed directions
@@ -15,19 +14,13 @@ exact (extent + stroke * direction), which is how the descent sweep is built.
 from __future__ import annotations
 
 import functools
-import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-import pytorch_kinematics as pk
 import torch
-from scipy.spatial import ConvexHull
 
+from .. import description_files
 from .description import RobotDescription
-
-log = logging.getLogger(__name__)
-
 
 
 def _dop_directions() -> torch.Tensor:
@@ -41,42 +34,9 @@ def _dop_directions() -> torch.Tensor:
 DOP_DIRECTIONS = _dop_directions()  # (13, 3) unit directions, grasp frame
 
 
-def quiet_urdf(parse, urdf_path: Path):
-    """Run ``parse(text)`` on a URDF with pytorch-kinematics' parser, its reports sent to the debug log.
-
-    pybullet_data's panda.urdf carries PyBullet-only tags (``<contact>``, collision ``<material>``)
-    that the parser reports on stderr once per link; they affect neither kinematics nor geometry.
-    """
-    from pytorch_kinematics.urdf_parser_py.xml_reflection import core
-
-    previous, core.on_error = core.on_error, lambda message: log.debug("%s: %s", urdf_path.name, message)
-    try:
-        return parse(urdf_path.read_text())
-    finally:
-        core.on_error = previous
-
-
-def _mesh_vertices(path: Path) -> np.ndarray:
-    """(V, 3) vertex positions of a Wavefront OBJ file (the only mesh format panda.urdf uses)."""
-    rows = [line.split()[1:4] for line in path.read_text().splitlines() if line.startswith("v ")]
-    if not rows:
-        raise ValueError(f"{path} holds no vertices")
-    return np.asarray(rows, dtype=np.float64)
-
-
-def _origin_matrix(origin) -> np.ndarray:
-    matrix = np.eye(4)
-    if origin is not None:
-        xyz = origin.xyz or (0.0, 0.0, 0.0)
-        rpy = origin.rpy or (0.0, 0.0, 0.0)
-        matrix[:3, :3] = pk.euler_angles_to_matrix(torch.tensor(rpy, dtype=torch.float64), "XYZ").numpy()
-        matrix[:3, 3] = xyz
-    return matrix
-
-
 @dataclass(frozen=True)
 class HandGeometry:
-    """Convex collision hulls of the open Panda hand in the grasp frame, and their k-DOP bounds.
+    """Convex collision hulls of the open hand in the grasp frame, and their k-DOP bounds.
 
     ``hull_vertices[i]`` is link ``links[i]``'s hull, (V_i, 3) metres in the grasp frame, with the
     fingers open to ``open_width_m``; ``dop_low``/``dop_high`` (S, D) bound hull i along
@@ -101,59 +61,29 @@ class HandGeometry:
         return self.dop_low + along.clamp(max=0.0), self.dop_high + along.clamp(min=0.0)
 
 
-@functools.lru_cache(maxsize=4)
-def link_hulls(urdf_path: Path, links: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """Per link, the vertices (V, 3) of the convex hull of its collision meshes, in the link's own frame."""
-    from pytorch_kinematics.urdf_parser_py.urdf import URDF
-
-    robot = quiet_urdf(URDF.from_xml_string, urdf_path)
-    by_name = {link.name: link for link in robot.links}
-    hulls = {}
-    for name in links:
-        if name not in by_name or not by_name[name].collisions:
-            raise ValueError(f"{urdf_path.name}: link '{name}' has no collision geometry")
-        link_vertices = []
-        for collision in by_name[name].collisions:
-            mesh_path = urdf_path.parent / collision.geometry.filename.removeprefix("package://")
-            vertices = _mesh_vertices(mesh_path) * np.asarray(collision.geometry.scale or (1.0, 1.0, 1.0))
-            origin = _origin_matrix(collision.origin)
-            link_vertices.append(vertices @ origin[:3, :3].T + origin[:3, 3])
-        vertices = np.concatenate(link_vertices)
-        hulls[name] = vertices[ConvexHull(vertices).vertices]
-    return hulls
-
-
-@functools.lru_cache(maxsize=4)
-def hand_to_grasp_target_m(robot: RobotDescription) -> float:
-    """Distance (m) of the grasp target from the hand link's origin along the hand's z axis (the
-    approach), from the robot's URDF; the grasp target must lie on that axis with the hand's orientation."""
-    chain = quiet_urdf(pk.build_chain_from_urdf, robot.urdf_path).to(dtype=torch.float64)
-    poses = chain.forward_kinematics(torch.zeros(1, len(chain.get_joint_parameter_names()), dtype=torch.float64))
-    hand_to_target = (torch.linalg.inv(poses[robot.hand_link].get_matrix()[0]) @ poses[robot.grasp_target_link].get_matrix()[0]).numpy()
-    if not np.allclose(hand_to_target[:3, :3], np.eye(3), atol=1e-6) or not np.allclose(hand_to_target[:2, 3], 0.0, atol=1e-6):
-        raise ValueError(f"{robot.urdf_path}: {robot.grasp_target_link} is not on {robot.hand_link}'s z axis with its orientation")
-    return float(hand_to_target[2, 3])
-
-
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=8)
 def load_hand_geometry(robot: RobotDescription) -> HandGeometry:
-    """The collision hulls of the robot's hand links, in the grasp frame with the fingers fully open."""
-    urdf_path, open_width_m, links = robot.urdf_path, robot.open_width_m, robot.hand_collision_links
-    chain = quiet_urdf(pk.build_chain_from_urdf, urdf_path)
-    joint_names = chain.get_joint_parameter_names()
-    joints = torch.zeros(1, len(joint_names), dtype=torch.float64)
-    for name in robot.finger_joints:
-        joints[0, joint_names.index(name)] = open_width_m / 2.0
-    poses = chain.to(dtype=torch.float64).forward_kinematics(joints)
-    grasp_from_base = torch.linalg.inv(poses[robot.grasp_target_link].get_matrix()[0]).numpy()
+    """The collision hulls of the hand's links (``robot.hand_collision_links``), in the grasp frame with the
+    fingers fully open: from the robot's URDF where the gripper is the one it carries (the wrist beside
+    it), else from the gripper's own, its linkage's mimic joints following the driven one."""
+    gripper = robot.gripper
+    urdf_path = robot.urdf_path if robot.gripper_mounted else gripper.urdf_path
+    links = robot.hand_collision_links
+    open_value = gripper.finger_joint_value(gripper.open_width_m)
+    poses = description_files.link_poses(urdf_path, {joint: open_value for joint in gripper.finger_joints})
+    if gripper.grasp_target_link is not None:
+        grasp_pose = poses[gripper.grasp_target_link]
+    else:
+        grasp_pose = poses[gripper.base_link] @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, gripper.grasp_depth_m], [0, 0, 0, 1]])
+    grasp_from_base = np.linalg.inv(grasp_pose)
     hulls = []
-    for name, vertices in link_hulls(urdf_path, links).items():
-        transform = grasp_from_base @ poses[name].get_matrix()[0].numpy()
+    for name, vertices in description_files.link_hulls(urdf_path, links).items():
+        transform = grasp_from_base @ poses[name]
         hulls.append(torch.tensor(vertices @ transform[:3, :3].T + transform[:3, 3], dtype=torch.float32))
     projections = [hull @ DOP_DIRECTIONS.T for hull in hulls]  # (V_i, D)
     return HandGeometry(
         links=tuple(links),
-        open_width_m=float(open_width_m),
+        open_width_m=float(gripper.open_width_m),
         hull_vertices=tuple(hulls),
         dop_low=torch.stack([p.min(dim=0).values for p in projections]),
         dop_high=torch.stack([p.max(dim=0).values for p in projections]),

@@ -70,7 +70,7 @@ class PandaIK:
         # sin q5 = +-1) float32 input rounding alone moves the answer by ~1e-3 rad.
         chain64 = arm_chain(robot).to(dtype=torch.float64)  # ``to`` converts in place: a chain of its own
         frames = chain64.forward_kinematics(torch.zeros(1, self.n_joints, dtype=torch.float64), end_only=False)
-        link7_in_target = frames[robot.grasp_target_link].get_matrix()[0].inverse() @ frames[link_moved_by(self.chain, robot.arm_joints[-1])].get_matrix()[0]
+        link7_in_target = frames[robot.gripper.grasp_target_link].get_matrix()[0].inverse() @ frames[link_moved_by(self.chain, robot.arm_joints[-1])].get_matrix()[0]
         self._link7_in_target = link7_in_target  # (4, 4): fixed flange, hand and grasp-target offsets
         self._q7_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_samples, dtype=torch.float64)
         self._q7_fine_grid = torch.linspace(float(self.lower[-1]), float(self.upper[-1]), config.q7_fine_samples, dtype=torch.float64)

@@ -14,13 +14,14 @@ import torch
 from sagp_batched_kernels.panda_ik import N_JOINTS, PandaArmGeometry
 from sagp_batched_kernels.serial_kinematics import SerialChain, geometric_jacobian, serial_chain, serial_chain_frames
 
+from .. import description_files
 from .description import RobotDescription
-from .hand import quiet_urdf
 
 
 def arm_chain(robot: RobotDescription) -> pk.SerialChain:
     """The robot's arm chain up to its grasp target."""
-    return quiet_urdf(lambda text: pk.build_serial_chain_from_urdf(text, robot.grasp_target_link), robot.urdf_path)
+    robot.require_mounted_gripper("the arm's IK")
+    return description_files.serial_chain(robot.urdf_path, robot.gripper.grasp_target_link)
 
 
 def link_moved_by(chain: pk.SerialChain, joint_name: str) -> str:

@@ -25,6 +25,7 @@ from ..formats.acronym import trial_file_bytes
 from ..grasps import GraspCandidates
 from ..planning import plan
 from ..rating import get_rater
+from ..robot.description import robot_of
 from ..rating.zone_rating import ZoneRating, clipped, neutral_rating
 from ..seeds import candidate_seed
 from ..semantics.vlm_direct import get_vd_client
@@ -185,7 +186,7 @@ class TrialRunner:
             emit(TrialRecord.build(spec, unit, method, config, plan=summary, executed=executed_grasps))
         if config.run.export_grasps:
             result.files[grasps_file(spec.id, unit.task, unit.trial)] = trial_file_bytes(
-                spec, cloud, candidates, ranked_by_method, attempts_by_method)
+                spec, cloud, candidates, ranked_by_method, attempts_by_method, robot_of(config).gripper)
 
     def _rate(self, spec: ObjectSpec, unit: TrialUnit, cloud: PerceivedCloud, decomposition) -> tuple[ZoneRating, tuple[str, str] | None, float]:
         """(rating, (error, traceback) when the rater raised, seconds) of the unit's zones. A failed

@@ -69,7 +69,7 @@ class MeshImportSettings:
     #: Resting poses less probable than this are dropped (the most probable one is always kept).
     min_resting_pose_probability: float = 0.01
     #: An object each of whose convex parts is wider than this in every direction cannot be grasped: the Panda's open hand.
-    max_grasp_width_m: float = field(default_factory=lambda: load_robot().open_width_m)
+    max_grasp_width_m: float = field(default_factory=lambda: load_robot().gripper.open_width_m)
     #: An object whose hulls' union holds more than this times its mesh's volume is flagged (not skipped).
     max_hull_volume_ratio: float = 1.15
     #: An object whose hulls' surface strays further than this outside its mesh is flagged (not skipped), m.

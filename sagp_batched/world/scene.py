@@ -94,15 +94,15 @@ def body_indices(robot: RobotDescription, body_id: int, client: int) -> BodyIndi
         links[info[12].decode()] = index
         if info[2] != pybullet.JOINT_FIXED:
             movable.append(index)
-    names = (*robot.arm_joints, *robot.finger_joints)
-    missing = [name for name in names if name not in joints] + [n for n in (robot.hand_link, robot.grasp_target_link) if n not in links]
+    names = (*robot.arm_joints, *robot.gripper.finger_joints)
+    missing = [name for name in names if name not in joints] + [n for n in (robot.gripper.base_link, robot.gripper.grasp_target_link) if n not in links]
     if missing:
         raise ValueError(f"{robot.urdf_path} has no joints or links named {missing}")
     return BodyIndices(
         arm_joints=tuple(joints[name] for name in robot.arm_joints),
-        finger_joints=tuple(joints[name] for name in robot.finger_joints),
-        hand_link=links[robot.hand_link],
-        grasp_target_link=links[robot.grasp_target_link],
+        finger_joints=tuple(joints[name] for name in robot.gripper.finger_joints),
+        hand_link=links[robot.gripper.base_link],
+        grasp_target_link=links[robot.gripper.grasp_target_link],
         movable_joints=tuple(movable),
     )
 
@@ -197,7 +197,7 @@ class Scene:
         self.robot_indices = body_indices(robot, self.robot_id, client)
         self._arm_max_forces = tuple(pybullet.getJointInfo(self.robot_id, j, physicsClientId=client)[10] for j in self.robot_indices.arm_joints)
         self.set_arm_joints(robot.home_joints)
-        self.set_finger_width(robot.open_width_m)
+        self.set_finger_width(robot.gripper.open_width_m)
 
         rng = np.random.default_rng(scene_seed(self.config, trial))
         x = rng.uniform(*scene_config.object_x_range_m)
@@ -226,7 +226,7 @@ class Scene:
         pybullet.restoreState(self._state_id, physicsClientId=self.client)
         # saveState keeps joint positions and velocities, not motor targets.
         self.command_arm(self.robot.home_joints)
-        self.command_fingers(self.robot.open_width_m)
+        self.command_fingers(self.robot.gripper.open_width_m)
 
     # -- robot -----------------------------------------------------------------------------------
     def arm_joints(self) -> np.ndarray:

@@ -1,0 +1,94 @@
+"""Copy the Robotiq grippers' description files into the package (``sagp_batched/data/grippers``).
+
+    python -m runners.import_grippers --source ../shared/grippers --out sagp_batched/data/grippers
+
+For each gripper: the MuJoCo Menagerie MJCF with its meshes and licence as they are; the URDF without its
+visuals (the package simulates and checks collisions; it never renders the gripper's own meshes), its
+COLLADA collision meshes turned into OBJ convex hulls of the vertices PyBullet reads from them (PyBullet
+collides a link as the convex hull of its mesh, and ignores COLLADA's ``up_axis``, which other readers
+honour), in metres. The package reads only the result.
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pybullet
+import trimesh
+
+from sagp_batched.description_files import collision_meshes, write_collision_urdf
+
+# Package name -> (source folder, URDF file, MJCF file).
+GRIPPERS = {
+    "robotiq_2f85": ("robotiq_2f85", "robotiq_2f85.urdf", "2f85.xml"),
+    "robotiq_2f140": ("robotiq_2f140", "robotiq_2f140.urdf", "2f140.xml"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--source", type=Path, required=True, help="folder holding robotiq_2f85/ and robotiq_2f140/ (mjcf/, urdf/)")
+    parser.add_argument("--out", type=Path, required=True, help="the package's data/grippers folder")
+    return parser
+
+
+def _pybullet_collision_meshes(urdf_path: Path) -> dict[str, np.ndarray]:
+    """Per COLLADA collision file the URDF names, the (V, 3) vertices PyBullet reads from it, scaled, in metres, link frame."""
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        body = pybullet.loadURDF(str(urdf_path), physicsClientId=client)
+        meshes = {}
+        for link in range(-1, pybullet.getNumJoints(body, physicsClientId=client)):
+            for shape in pybullet.getCollisionShapeData(body, link, physicsClientId=client):
+                filename = shape[4].decode()
+                if filename.lower().endswith(".dae"):
+                    _, vertices = pybullet.getMeshData(body, link, physicsClientId=client)
+                    # PyBullet keeps a link's shapes in its inertial frame; the URDF writes them in the link frame.
+                    position, quat = pybullet.getDynamicsInfo(body, link, physicsClientId=client)[3:5]
+                    rotation = np.asarray(pybullet.getMatrixFromQuaternion(quat)).reshape(3, 3)
+                    meshes[filename] = np.asarray(vertices, dtype=np.float64) @ rotation.T + position
+        return meshes
+    finally:
+        pybullet.disconnect(client)
+
+
+def import_gripper(source: Path, out: Path, urdf_name: str, mjcf_name: str) -> None:
+    shutil.rmtree(out, ignore_errors=True)
+    shutil.copytree(source / "mjcf", out / "mjcf", ignore=shutil.ignore_patterns("*.png", "scene.xml"))
+    urdf_dir = out / "urdf"
+    (urdf_dir / "meshes").mkdir(parents=True)
+    source_urdf = source / "urdf" / urdf_name
+    renamed = {}
+    converted = _pybullet_collision_meshes(source_urdf)
+    for relative, scale in collision_meshes(source_urdf).items():
+        path = source / "urdf" / relative
+        if path.suffix.lower() == ".dae":
+            vertices = next(v for name, v in converted.items() if Path(name).resolve() == path.resolve())
+            trimesh.Trimesh(vertices).convex_hull.export(urdf_dir / "meshes" / f"{path.stem}.obj")
+            renamed[relative] = (f"meshes/{path.stem}.obj", (1.0, 1.0, 1.0))
+        else:
+            shutil.copy2(path, urdf_dir / "meshes" / path.name)
+            renamed[relative] = (f"meshes/{path.name}", scale)
+    for licence in (source / "urdf").glob("LICENSE*"):
+        shutil.copy2(licence, urdf_dir / licence.name)
+    write_collision_urdf(source_urdf, urdf_dir / urdf_name, renamed,
+                         f"{urdf_name} (ros-industrial/robotiq, BSD) without visuals; COLLADA collision meshes as OBJ hulls in metres "
+                         "(runners.import_grippers)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    for name, (folder, urdf_name, mjcf_name) in GRIPPERS.items():
+        if not (args.source / folder / "urdf" / urdf_name).is_file():
+            print(f"error: --source {args.source}: no {folder}/urdf/{urdf_name}", file=sys.stderr)
+            return 2
+        import_gripper(args.source / folder, args.out / name, urdf_name, mjcf_name)
+        print(f"{name}: {args.out / name}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,150 @@
+"""A gripper, described in one file (``data/grippers/<name>.toml``) and looked up by name (``planner.gripper``):
+where its description files are, its grasp frame, how its fingers move, which links hold and which collide,
+its opening, grip force range and the name the grasp file formats give it.
+
+Frames: every gripper's base link has z along the approach and its fingers closing along y; the grasp
+target lies ``grasp_depth_m`` along z from the base link's origin, between the pads.
+"""
+from __future__ import annotations
+
+import functools
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet_data
+
+from ..config.settings import ConfigError
+from ..config.world import GRIPPERS_DIR
+from .. import description_files
+
+FINGER_MOTIONS = ("slide", "linkage")
+# Driven-joint values the linkage's opening is tabulated at, between the joint's limits.
+LINKAGE_SAMPLES = 161
+
+
+@dataclass(frozen=True)
+class GripperBoxes:
+    """The open gripper as boxes in the grasp frame: the published occupancy proxy's dimensions."""
+
+    finger_width_m: float
+    finger_thickness_m: float
+    finger_length_m: float
+    fingertip_offset_m: float  # how far the fingertips reach beyond the grasp target along the approach
+    palm_width_m: float
+    palm_span_m: float
+    palm_depth_m: float
+
+
+@dataclass(frozen=True)
+class GripperDescription:
+    """Every fact about a gripper the code needs, read from ``data/grippers/<name>.toml``."""
+
+    name: str
+    urdf_path: Path
+    mjcf_path: Path | None  # the MuJoCo model where the gripper has its own; else MuJoCo builds it from the URDF
+    base_link: str
+    grasp_target_link: str | None  # a link of the URDF at the grasp target, where it has one
+    grasp_depth_m_given: float | None
+    finger_joints: tuple[str, ...]  # the joints the engines drive, each to the same value
+    finger_motion: str  # "slide": prismatic fingers; "linkage": the pads move on the driven joint's arc
+    pad_links: tuple[str, ...]
+    collision_links: tuple[str, ...]
+    open_width_m: float
+    grip_force_range_n: tuple[float, float]
+    file_name: str  # ACRONYM's gripper/type, GraspGen's gripper name
+    file_aliases: tuple[str, ...]  # other names grasp files give it
+    gripper_boxes: GripperBoxes
+    mujoco: tuple[tuple[str, object], ...] = ()  # the MJCF's names and calibration ([mujoco] table)
+
+    @property
+    def grasp_depth_m(self) -> float:
+        """Distance of the grasp target from the base link's origin along the approach."""
+        if self.grasp_target_link is not None:
+            return _grasp_target_depth_m(self.urdf_path, self.base_link, self.grasp_target_link)
+        return float(self.grasp_depth_m_given)
+
+    def finger_joint_value(self, width_m: float) -> float:
+        """The value each finger joint is driven to for a gap of ``width_m`` between the pads (clamped to the stroke)."""
+        width_m = min(max(float(width_m), 0.0), self.open_width_m)
+        if self.finger_motion == "slide":
+            return width_m / 2.0
+        values, gaps = linkage_table(self)
+        return float(np.interp(width_m, gaps[::-1], values[::-1]))
+
+    def mujoco_value(self, key: str):
+        return dict(self.mujoco)[key]
+
+
+@functools.lru_cache(maxsize=8)
+def _grasp_target_depth_m(urdf_path: Path, base_link: str, grasp_target_link: str) -> float:
+    poses = description_files.link_poses(urdf_path, {})
+    base_to_target = np.linalg.inv(poses[base_link]) @ poses[grasp_target_link]
+    if not np.allclose(base_to_target[:3, :3], np.eye(3), atol=1e-6) or not np.allclose(base_to_target[:2, 3], 0.0, atol=1e-6):
+        raise ValueError(f"{urdf_path}: {grasp_target_link} is not on {base_link}'s z axis with its orientation")
+    return float(base_to_target[2, 3])
+
+
+@functools.lru_cache(maxsize=8)
+def linkage_table(gripper: GripperDescription) -> tuple[np.ndarray, np.ndarray]:
+    """(driven joint values, gaps between the pads' faces) across the driven joint's range, from the
+    URDF's kinematics with its mimic joints following: the opening as a function of the joint."""
+    lower, upper = description_files.joint_limits(gripper.urdf_path, gripper.finger_joints[0])
+    values = np.linspace(lower, upper, LINKAGE_SAMPLES)
+    return values, np.array([pad_gap_m(gripper, value) for value in values])
+
+
+def pad_gap_m(gripper: GripperDescription, joint_value: float) -> float:
+    """The gap between the pads' faces along the closing axis (y) with the finger joints at ``joint_value``."""
+    hulls = description_files.link_hulls(gripper.urdf_path, gripper.pad_links)
+    poses = description_files.link_poses(gripper.urdf_path, {joint: joint_value for joint in gripper.finger_joints})
+    ys = [(hulls[link] @ poses[link][:3, :3].T + poses[link][:3, 3])[:, 1] for link in gripper.pad_links]
+    low, high = sorted(ys, key=lambda y: y.mean())
+    return float(high.min() - low.max())
+
+
+def _path(entry: str, folder: Path) -> Path:
+    if entry.startswith("pybullet_data:"):
+        return Path(pybullet_data.getDataPath()) / entry.removeprefix("pybullet_data:")
+    return folder / entry
+
+
+@functools.lru_cache(maxsize=None)
+def load_gripper(name: str) -> GripperDescription:
+    """The description of gripper ``name`` shipped in ``sagp_batched/data/grippers``."""
+    entry = GRIPPERS_DIR.joinpath(f"{name}.toml")
+    if not entry.is_file():
+        raise ConfigError(f"unknown gripper '{name}': no data/grippers/{name}.toml in the package", "planner.gripper")
+    values = tomllib.loads(entry.read_text())
+    folder = Path(str(GRIPPERS_DIR))
+    if values["finger_motion"] not in FINGER_MOTIONS:
+        raise ConfigError(f"gripper '{name}': finger_motion must be one of {', '.join(FINGER_MOTIONS)}", "planner.gripper")
+    return GripperDescription(
+        name=name,
+        urdf_path=_path(values["urdf"], folder),
+        mjcf_path=_path(values["mjcf"], folder) if "mjcf" in values else None,
+        base_link=values["base_link"],
+        grasp_target_link=values.get("grasp_target_link"),
+        grasp_depth_m_given=values.get("grasp_depth_m"),
+        finger_joints=tuple(values["finger_joints"]),
+        finger_motion=values["finger_motion"],
+        pad_links=tuple(values["pad_links"]),
+        collision_links=tuple(values["collision_links"]),
+        open_width_m=float(values["open_width_m"]),
+        grip_force_range_n=tuple(float(v) for v in values["grip_force_range_n"]),
+        file_name=values["file_name"],
+        file_aliases=tuple(values.get("file_aliases", ())),
+        gripper_boxes=GripperBoxes(**{key: float(value) for key, value in values["gripper_boxes"].items()}),
+        mujoco=tuple(sorted(values.get("mujoco", {}).items())),
+    )
+
+
+def gripper_by_file_name(file_name: str) -> GripperDescription:
+    """The gripper a grasp file names (ACRONYM's ``gripper/type``, GraspGen's gripper name)."""
+    from ..config.world import GRIPPERS
+
+    by_file_name = {file_name: name for name in GRIPPERS for file_name in (load_gripper(name).file_name, *load_gripper(name).file_aliases)}
+    if file_name not in by_file_name:
+        raise ConfigError(f"unknown gripper '{file_name}' in the grasp file; known: {', '.join(sorted(by_file_name))}", "gripper/type")
+    return load_gripper(by_file_name[file_name])
