@@ -54,6 +54,8 @@ from sagp_batched.benchmarks.planner_speed import (
     BENCH_OBJECT_XY_M, BenchmarkSettings, benchmark_object, benchmark_plan_batch, benchmark_world, mesh_cloud,
 )
 from sagp_batched.config import PLANNER_SEARCHES, load_config
+from sagp_batched.config.world import GRIPPERS
+from sagp_batched.robot.description import robot_of
 from sagp_batched.planning.device import device_name, planning_device
 from sagp_batched.provenance import REPO_ROOT, git_revision, package_versions
 from sagp_batched.runtime import DEFAULT_TORCH_THREADS, configure_torch
@@ -81,6 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--objects-dir", default=None)
     parser.add_argument("--cache-dir", type=Path, default=Path("~/.cache/sagp_batched/clouds").expanduser())
     parser.add_argument("--profile", default=None)
+    parser.add_argument("--gripper", choices=GRIPPERS, default=None,
+                        help="the [planner] gripper planned for; one no arm carries is timed without the arm's loop reference, IK and world runs")
     parser.add_argument("--threads", default=str(DEFAULT_TORCH_THREADS), help="comma-separated torch thread counts, each timed in turn")
     parser.add_argument("--world-object", default="005_tomato_soup_can", help="object of the PyBullet timing runs")
     parser.add_argument("--world-runs", type=int, default=20, help="trials timed in PyBullet (reset, capture, plan, attempt); 0 skips")
@@ -114,6 +118,11 @@ def main(argv: list[str] | None = None) -> int:
 
     configure_torch(thread_counts[0])
     config = load_config(args.profile)
+    if args.gripper is not None:
+        config = config.override("planner", gripper=args.gripper)
+    if not robot_of(config).gripper_mounted:
+        print(f"gripper {config.planner.gripper}: no arm carries it, so the loop reference, the IK and the world runs are skipped")
+        args.reference_max_pairs, args.ik_targets, args.world_runs = 0, 0, 0
     object_set = load_object_set(_ycb_dir(args.objects_dir))
     settings = BenchmarkSettings(
         pairs=tuple(int(p) for p in args.pairs.split(",")),
@@ -178,7 +187,7 @@ def _planner_and_ik_sections(
             for index, mode in enumerate(modes):
                 mode_settings = settings if index == 0 else dataclasses.replace(settings, reference_max_pairs=0)
                 for row in benchmark_object(cloud, config.override("planner", **mode), mode_settings):
-                    row["threads"] = threads
+                    row["threads"], row["gripper"] = threads, config.planner.gripper
                     reference_s.setdefault(row["pairs"], row["reference_plan_s"])
                     row["reference_plan_s"] = reference_s[row["pairs"]]
                     row["speedup"] = None if row["reference_plan_s"] is None else row["reference_plan_s"] / row["batched_plan_s"]

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from sagp_batched.config import ConfigError
 from sagp_batched.config.run import LABEL_PROTOCOLS
+from sagp_batched.config.world import GRIPPERS
 from sagp_batched.preflight import PreflightError, preflight
 from sagp_batched.runtime import configure_torch
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
@@ -35,6 +36,7 @@ SETTING_FLAGS = {
     "--model": ("model", "rating", "model"),
     "--endpoint": ("endpoint", "rating", "endpoint"),
     "--pairs": ("n_pairs", "planner", "n_pairs"),
+    "--gripper": ("gripper", "planner", "gripper"),
     "--grasps-per-object": ("grasps_per_object", "dataset", "grasps_per_object"),
     "--mode": ("mode", "dataset", "mode"),
     "--protocol": ("protocol", "dataset", "protocol"),
@@ -56,7 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--objects-dir", help="a folder of meshes (OBJ/STL/PLY/GLB) or URDFs, a YCB-layout folder, or 'pybullet_data'")
     parser.add_argument("--objects", type=_csv, help="comma list of object ids, or 'all' (default)")
     parser.add_argument("--grasps-per-object", type=int, help="labelled grasps per object")
-    parser.add_argument("--mode", choices=("hand", "arm"), help="hand: the Panda hand alone; arm: the Panda executes the planned motion")
+    parser.add_argument("--mode", choices=("hand", "arm"), help="hand: the gripper alone; arm: the Panda executes the planned motion")
+    parser.add_argument("--gripper", choices=GRIPPERS, help="the gripper planned and simulated (default: the Panda's hand, franka_panda); "
+                        "a gripper no arm carries labels in hand mode")
     parser.add_argument("--protocol", choices=LABEL_PROTOCOLS,
                         help="hand mode: tabletop (the object on the table, the hand approaching) or floating "
                              "(ACRONYM's: the object alone, grasps all around it)")
@@ -92,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         objects = load_object_set(config.run.objects_dir)
         object_ids = dataset_object_ids(config, objects)
-        preflight(config)
+        preflight(config, with_arm=config.dataset.mode == "arm")
     except (ConfigError, ObjectSetError, ObjectLoadError, UnknownObjectError, PreflightError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -11,10 +11,11 @@ import socket
 import sys
 from pathlib import Path
 
-from .config import Config, PlannerConfig, RatingConfig
+from .config import Config, ConfigError, PlannerConfig, RatingConfig
 from .planning.device import planning_device
 from .rating.zone_rating import RatingError, VLMRequestError
 from .rating.vlm import OpenAIVLM, TransformersVLM
+from .robot.description import robot_of
 
 # A reachable cluster accepts a TCP connection in milliseconds; seconds only make a dead one slow to report.
 RAY_CONNECT_TIMEOUT_S = 3.0
@@ -104,9 +105,21 @@ def check_ray_address(address: str, flag: str = "--address") -> None:
         raise PreflightError(f"{flag} {address}: cannot reach the Ray cluster: {exc.strerror or exc}") from exc
 
 
-def preflight(config: Config) -> None:
-    """Every check the resolved ``config`` calls for: only backends the run uses are checked."""
+def check_gripper(config: Config, with_arm: bool) -> None:
+    """The gripper takes the configured grip force, and a run ``with_arm`` has it on the robot's arm."""
+    try:
+        robot = robot_of(config)
+        if with_arm:
+            robot.require_mounted_gripper("a run with the arm")
+    except ConfigError as exc:
+        raise PreflightError(str(exc)) from None
+
+
+def preflight(config: Config, with_arm: bool = True) -> None:
+    """Every check the resolved ``config`` calls for: only backends the run uses are checked; ``with_arm``: the run
+    executes grasps with the robot's arm (the study, an arm-mode dataset)."""
     check_display(config.run.gui)
+    check_gripper(config, with_arm)
     if config.run.backend == "ray":
         check_ray_installed()
     check_out_dir(config.run.out)

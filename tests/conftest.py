@@ -21,11 +21,11 @@ def ycb_dir() -> Path:
 
 @pytest.fixture(scope="session")
 def designed_box(tmp_path_factory):
-    """The box the designed grasps are made for (``label_fidelity.designed_box_grasps``: held across it, dropped
+    """The box the designed grasps are made for (``designed_grasps.designed_box_grasps``: held across it, dropped
     beside it, a collision in it), imported as an object lying on its 5 x 8 cm face, 4 cm tall."""
     import trimesh
 
-    from sagp_batched.benchmarks.label_fidelity import DESIGNED_BOX_M
+    from sagp_batched.benchmarks.designed_grasps import DESIGNED_BOX_M
     from sagp_batched.world.mesh_settings import MeshImportSettings
     from sagp_batched.world.objects import load_object_set
 

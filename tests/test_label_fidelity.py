@@ -49,9 +49,9 @@ def test_every_section_is_measured_with_sane_values(cube_folder, tmp_path):
     assert 0 < protocols["n"] <= 16 and 0.0 <= protocols["agreement"] <= 1.0
     for speed in row["speed"].values():
         assert speed["simulated"] > 0 and speed["labels_per_s_per_core"] > 0 and 0.0 <= speed["geometry_share"] < 1.0
-    assert {protocol: result["correct"] for protocol, result in report["designed"].items()} == {"tabletop": 3, "floating": 3}
+    assert {protocol: result["correct"] for protocol, result in report["designed"].items()} == {"tabletop": 4, "floating": 4}
     markdown = fidelity_markdown(report)
-    assert "| cube | 1.00 (import) |" in markdown and "tabletop 3/3, floating 3/3" in markdown
+    assert "| cube | 1.00 (import) |" in markdown and "tabletop 4/4, floating 4/4" in markdown
 
 
 def test_the_runner_writes_the_json_the_table_and_provenance(cube_folder, tmp_path):

@@ -69,7 +69,7 @@ def _make_folder(root: Path) -> Path:
     _mug().export(root / "mug.obj")
     trimesh.Scene(_parts()).export(root / "parts.glb")
     (root / "broken.stl").write_bytes(b"\x00 not a mesh " * 8)
-    trimesh.creation.box([0.1, 0.1, 0.1]).export(root / "wide.ply")
+    trimesh.creation.box([0.15, 0.15, 0.15]).export(root / "wide.ply")
     (root / "blob").mkdir()
     _blob().export(root / "blob" / "blob.obj")
     (root / "blob" / "blob.urdf").write_text(BLOB_URDF)
@@ -122,7 +122,7 @@ def test_a_folder_of_meshes_becomes_a_set_and_the_broken_files_are_listed_with_t
     reasons = {path.relative_to(root).as_posix(): reason for path, reason in imported.skipped}
     assert set(reasons) == {"broken.stl", "wide.ply"}
     assert reasons["broken.stl"].startswith("unreadable")
-    assert "wider than the open hand" in reasons["wide.ply"] and "0.100 m" in reasons["wide.ply"]
+    assert "wider than the open hand" in reasons["wide.ply"] and "0.150 m" in reasons["wide.ply"]
     assert len(imported.checksum()) == 64
 
 

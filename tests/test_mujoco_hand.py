@@ -8,13 +8,13 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from sagp_batched.benchmarks.label_fidelity import designed_box_grasps
+from sagp_batched.benchmarks.designed_grasps import designed_box_grasps
 from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.datasets.engines import ENGINES, hand_engine
 from sagp_batched.datasets.labelling import FloatingPlacement, label_object_grasps
 from sagp_batched.datasets.protocols import FLOATING, HandTarget, WorldStart
 from sagp_batched.grasps import GraspPoses
-from sagp_batched.robot.description import robot_of
+from sagp_batched.robot.description import load_robot, robot_of
 
 # The MuJoCo engine is an optional extra: without MuJoCo these tests are skipped.
 MuJoCoHand = pytest.importorskip("sagp_batched.datasets.mujoco_hand", exc_type=ImportError).MuJoCoHand
@@ -24,7 +24,7 @@ ONE_SIMULATION = {"labelling": {"perturbed_simulations": 1}}
 
 @pytest.mark.parametrize("protocol", ["floating", "tabletop"])
 def test_mujoco_labels_the_designed_grasps_held_dropped_and_a_collision_in_both_protocols(designed_box, protocol):
-    labels = label_object_grasps(designed_box, designed_box_grasps(designed_box), None, protocol, Config(), engine="mujoco")
+    labels = label_object_grasps(designed_box, designed_box_grasps(designed_box, load_robot()), None, protocol, Config(), engine="mujoco")
     assert [(label.held, label.failure_reason, label.simulated) for label in labels] == [
         (True, None, True), (False, "not_lifted", True), (False, "collision", False)]
     assert labels[0].held_fraction == 1.0 and labels[1].held_fraction == 0.0
@@ -34,7 +34,7 @@ def test_mujoco_labels_the_designed_grasps_held_dropped_and_a_collision_in_both_
 
 
 def test_the_hand_reaches_the_shake_s_peak_accelerations(designed_box):
-    (label, *_) = label_object_grasps(designed_box, designed_box_grasps(designed_box), None, "floating",
+    (label, *_) = label_object_grasps(designed_box, designed_box_grasps(designed_box, load_robot()), None, "floating",
                                       load_config(None, ONE_SIMULATION), engine="mujoco")
     shake = Config().labelling.shake
     wanted = (*shake.linear_peak_acceleration_m_s2, *shake.angular_peak_acceleration_rad_s2)
@@ -48,7 +48,7 @@ def _shifted(poses: GraspPoses, shift_m: float) -> GraspPoses:
 
 def test_a_label_is_the_same_alone_in_a_batch_and_in_any_order(designed_box):
     config = load_config(None, {"labelling": {"perturbed_simulations": 3}})
-    designed = designed_box_grasps(designed_box)
+    designed = designed_box_grasps(designed_box, load_robot())
     order = [0, 3, 1, 4]  # the held and the dropped grasp, each beside its shifted copy
     poses = GraspPoses(torch.cat([designed.position, _shifted(designed, 0.012).position])[order],
                        torch.cat([designed.rotation, designed.rotation])[order], "object")
@@ -62,7 +62,7 @@ def test_a_label_is_the_same_alone_in_a_batch_and_in_any_order(designed_box):
 
 def test_the_same_simulation_twice_in_one_engine_gives_the_same_label_to_the_last_digit(designed_box):
     config = load_config(None, ONE_SIMULATION)
-    grasp = designed_box_grasps(designed_box)
+    grasp = designed_box_grasps(designed_box, load_robot())
     position, quat = grasp.position[0].numpy(), Rotation.from_matrix(grasp.rotation[0].numpy()).as_quat()
     placement, moved = FloatingPlacement(designed_box), position + [0.01, 0, 0]
     with MuJoCoHand(config) as engine:
@@ -92,7 +92,7 @@ def test_the_mujoco_engine_imports_and_labels_without_pybullet(designed_box):
     import subprocess
     import sys
 
-    grasp = designed_box_grasps(designed_box)
+    grasp = designed_box_grasps(designed_box, load_robot())
     position, quat = grasp.position[0].numpy(), Rotation.from_matrix(grasp.rotation[0].numpy()).as_quat()
     done = subprocess.run([sys.executable, "-c", WITHOUT_PYBULLET], input=pickle.dumps((designed_box, position, quat)),
                           capture_output=True, timeout=600)
@@ -129,7 +129,7 @@ def test_the_engine_is_named_where_labels_are_made_and_an_unknown_one_is_refused
     with hand_engine("mujoco", Config()) as engine:
         assert engine.name == "mujoco"
     with pytest.raises(ValueError, match="^engine must be one of pybullet, mujoco, got 'bullet'$"):
-        label_object_grasps(designed_box, designed_box_grasps(designed_box), None, "floating", Config(), FloatingPlacement(designed_box), engine="bullet")
+        label_object_grasps(designed_box, designed_box_grasps(designed_box, load_robot()), None, "floating", Config(), FloatingPlacement(designed_box), engine="bullet")
 
 
 def test_mujoco_settings_load_from_a_profile_section_and_bad_ones_are_clear_errors():

@@ -5,7 +5,7 @@ The grasps are planned all around each object as the ``floating`` dataset plans 
 planning); each is labelled by PyBullet once and by MuJoCo once per settings variant (overrides of
 ``[labelling.mujoco]``), in both protocols, the tabletop ones on the object settled where the study's scene
 leaves it. Per variant: the share of grasps both engines simulated that they label alike and Cohen's kappa,
-the designed grasps on a box (held, dropped, a collision) labelled as designed, and simulations and labels
+the designed grasps (held, dropped, two collisions) labelled as designed, and simulations and labels
 per second per core (the process's CPU time). A label is ``perturbed_simulations`` simulations; sims/s
 counts that many for every simulated label (a perturbed pose geometry rules out is counted too: a slight
 overcount).
@@ -21,7 +21,8 @@ from ..config.run import LABEL_PROTOCOLS
 from ..datasets.labelling import label_object_grasps
 from ..seeds import capture_trial
 from ..world.objects import ObjectSet
-from .label_fidelity import designed_grasps, held_agreement, plan_grasps
+from .designed_grasps import designed_grasps
+from .label_fidelity import held_agreement, plan_grasps
 
 DEFAULT_OBJECTS = ("025_mug", "003_cracker_box", "005_tomato_soup_can", "006_mustard_bottle")
 

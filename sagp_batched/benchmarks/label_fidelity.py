@@ -11,7 +11,7 @@ learner assumes of them:
 - re-simulation: labelling the same grasps again must give the same labels, and the share of grasps whose
   perturbed simulations all agreed says how far a label hangs on millimetres;
 - protocol agreement: ``floating`` against ``tabletop`` for the grasps both simulate;
-- designed grasps on a box whose outcomes are known by construction, in both protocols;
+- designed grasps whose outcomes are known by construction (``designed_grasps``), in both protocols;
 - labels per second per core in each protocol, and the share of grasps geometry decided unsimulated.
 
 Only grasps both sides simulated are compared: a collision geometry decides at one placement (the hand
@@ -20,32 +20,23 @@ through the table) says nothing about the grasp's hold.
 from __future__ import annotations
 
 import dataclasses
-import tempfile
 import time
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
-import torch
 
 from ..config import Config
-from ..config.run import LABEL_PROTOCOLS
 from ..grasps import GraspPoses
 from ..seeds import capture_trial
 from ..world.mesh_settings import MeshImportSettings
 from ..world.mesh_sources import urdf_origin
 from ..world.objects import ObjectSet, ObjectSpec
+from .designed_grasps import designed_grasps
 
 # A few of the embedded YCB set: a cavity and a handle, a thin box, a cylinder.
 DEFAULT_OBJECTS = ("025_mug", "003_cracker_box", "005_tomato_soup_can")
-# The designed box (m): lying on its 5 x 8 face, 4 cm tall, once imported.
-DESIGNED_BOX_M = (0.05, 0.04, 0.08)
-# The Panda's finger hull is 21 mm wide: a grasp centre this far beyond a face closes both fingers beside it.
-FINGER_HALF_WIDTH_M = 0.0105
-# Per designed grasp, (held, simulated): across the box held; fingers beside it dropped; palm in it a collision.
-DESIGNED_OUTCOMES = ((True, True), (False, True), (False, False))
-
 
 # -- hull fidelity ---------------------------------------------------------------------------------------
 def _geometry_parts(geometry: ElementTree.Element, urdf_dir: Path) -> list:
@@ -205,36 +196,6 @@ def object_label_fidelity(spec: ObjectSpec, poses: GraspPoses, config: Config) -
     }
 
 
-# -- designed grasps ---------------------------------------------------------------------------------------
-def designed_box_grasps(box: ObjectSpec) -> GraspPoses:
-    """Top-down grasps on the box lying in its link frame (long side along x): across its width 2 cm below the
-    top; the fingers clear of its end; the palm 6 mm into it."""
-    length, _, height = box.extents_m
-    down, closing = np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0])
-    rotation = np.column_stack([np.cross(closing, down), closing, down])
-    positions = [[0.0, 0.0, height - 0.02], [length / 2 + FINGER_HALF_WIDTH_M + 0.004, 0.0, height - 0.02], [0.0, 0.0, height - 0.045]]
-    return GraspPoses(torch.tensor(positions, dtype=torch.float64), torch.tensor(np.stack([rotation] * 3)), "object")
-
-
-def designed_grasps(config: Config, cache_dir: Path | None = None, engine: str = "pybullet") -> dict[str, dict[str, Any]]:
-    """Per protocol, how many of the designed grasps on a trimesh box ``engine`` labels with the outcome they were designed for."""
-    import trimesh
-
-    from ..datasets.labelling import label_object_grasps
-    from ..world.objects import load_object_set
-
-    with tempfile.TemporaryDirectory(prefix="sagp_designed_box_") as folder:
-        trimesh.creation.box(DESIGNED_BOX_M).export(Path(folder) / "box.obj")
-        box = load_object_set(folder, MeshImportSettings(cache_dir=cache_dir)).get("box")
-        results = {}
-        for protocol in LABEL_PROTOCOLS:
-            labels = label_object_grasps(box, designed_box_grasps(box), None, protocol, config, engine=engine)
-            got = [(label.held, label.simulated) for label in labels]
-            results[protocol] = {"correct": sum(g == e for g, e in zip(got, DESIGNED_OUTCOMES)), "of": len(DESIGNED_OUTCOMES),
-                                 "labels": [{"held": l.held, "simulated": l.simulated, "failure": l.failure_reason} for l in labels]}
-    return results
-
-
 # -- the benchmark -----------------------------------------------------------------------------------------
 def label_fidelity(config: Config, objects: ObjectSet, object_ids: Sequence[str], n_grasps: int, settings: MeshImportSettings,
                    note: Callable[[str], None] = print) -> dict[str, Any]:
@@ -316,7 +277,7 @@ def fidelity_markdown(report: dict[str, Any]) -> str:
                      f"| {count_and_rate(*_pooled(done, 'protocol_agreement'))} | | | |")
     designed = report["designed"]
     lines += [
-        "", "Designed grasps on a box (held across it, dropped beside it, a collision in it): "
+        "", "Designed grasps (across a box: held; beside it: dropped; the palm in it and across a cube wider than the opening: collisions): "
         + ", ".join(f"{protocol} {result['correct']}/{result['of']}" for protocol, result in designed.items()) + ".",
         "", f"Grasps: {settings['grasps_per_object']} an object, planned all around it (the floating dataset's planning), "
         f"each label {settings['perturbed_simulations']} simulation(s). Agreements count the grasps both labellings simulated; "

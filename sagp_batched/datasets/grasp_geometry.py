@@ -132,8 +132,8 @@ def _hand_hulls(robot: RobotDescription, links: tuple[str, ...]) -> _HandHulls:
 
 
 def floating_hand_links(robot: RobotDescription) -> tuple[str, ...]:
-    """The links of the hand hand-mode labels simulate: the hand and its fingers, not the arm above them."""
-    return (robot.gripper.base_link, *robot.gripper.pad_links)
+    """The links of the hand hand-mode labels simulate: the gripper's, not the arm above them."""
+    return robot.gripper.collision_links
 
 
 def open_hand_clear(surface: ObjectSurface, poses: GraspPoses, robot: RobotDescription, tolerance_m: float) -> np.ndarray:

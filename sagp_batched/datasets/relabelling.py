@@ -18,11 +18,12 @@ from typing import Any
 import numpy as np
 
 from .. import provenance
-from ..config import Config, load_config
+from ..config import Config, ConfigError, load_config
 from ..formats.acronym import relabel_file_bytes
 from ..formats.frames import grasp_poses_from_acronym
 from ..formats.grasp_file import GraspFile, read_grasp_file
 from ..robot.description import robot_of
+from ..robot.gripper_description import gripper_by_file_name
 from ..run_directory import CONFIG_FILE, PROVENANCE_FILE, RunLock, check_same_run, write_file_atomically, write_json
 from ..workers import Recipe, WorkerPool
 from ..world.mesh_sources import MESH_SUFFIXES
@@ -49,13 +50,19 @@ class InputError(ValueError):
 
 @dataclass(frozen=True)
 class Inputs:
-    """The checked inputs of a relabel: the grasp file, its mesh, the grasps chosen, the object's id."""
+    """The checked inputs of a relabel: the grasp file, its mesh, the grasps chosen, the object's id, the gripper
+    the file names (the package's name for it), which the grasps are simulated with."""
     grasp_file: GraspFile
     mesh_path: Path
     selection: np.ndarray  # (M,) rows of the file relabelled, ascending
     object_id: str
     protocol: str
     engines: tuple[str, ...]
+    gripper: str
+
+    def configured(self, config: Config) -> Config:
+        """``config`` planning and labelling with the file's gripper."""
+        return config.override("planner", gripper=self.gripper)
 
     @property
     def engine(self) -> str:
@@ -77,6 +84,10 @@ def check_inputs(grasp_file: str | Path, mesh_root: str | Path, config: Config, 
     grasps = read_grasp_file(grasp_file)
     if len(grasps) == 0:
         raise InputError(f"{grasps.path}: holds no grasps")
+    try:
+        gripper = gripper_by_file_name(grasps.gripper).name
+    except ConfigError as exc:
+        raise InputError(f"{grasps.path}: {exc}") from None
     mesh_root = Path(mesh_root).expanduser()
     if not mesh_root.is_dir():
         raise InputError(f"--mesh-root {mesh_root} is not a directory")
@@ -90,7 +101,7 @@ def check_inputs(grasp_file: str | Path, mesh_root: str | Path, config: Config, 
     n = len(grasps)
     count = n if max_grasps is None else min(max_grasps, n)
     selection = np.arange(n) if count == n else np.sort(np.random.default_rng(config.dataset.seed).choice(n, count, replace=False))
-    return Inputs(grasps, mesh_path, selection, _object_id(grasps.path), config.dataset.protocol, engines)
+    return Inputs(grasps, mesh_path, selection, _object_id(grasps.path), config.dataset.protocol, engines, gripper)
 
 
 def mesh_file_path(mesh_root: Path, mesh_file: str) -> Path:
@@ -290,6 +301,8 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
     ``note`` is handed each progress and import-fidelity line. Raises ``InputError`` for a directory holding a
     relabel of other inputs or an object whose frame cannot take the file's grasps, and the object set's and run
     directory's own errors."""
+    config = inputs.configured(config)
+    robot_of(config)  # the file's gripper takes the configured grip force, checked before any work
     record = input_record(inputs)
     with RunLock(out_dir):
         _check_same_input(out_dir, record)

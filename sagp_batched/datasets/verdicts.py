@@ -22,8 +22,7 @@ from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
 
 from ..config import Config, DatasetConfig
 from ..grasps import GraspCandidates, GraspPoses
-from ..planning import ScreenedCandidates, check_motions, jaw_width_limit, screen_candidates
-from ..robot.ik import panda_ik
+from ..planning import ScreenedCandidates, jaw_width_limit, motion_checker, screen_candidates
 from ..robot.motion import grasp_waypoint_index, waypoint_count
 from ..types import PerceivedCloud
 from .protocols import label_protocol
@@ -261,7 +260,7 @@ def _planner_verdicts(screened: ScreenedCandidates, config: Config, poses: _Pose
     s_reach = torch.zeros(n)
     undecided = (verdict == FEASIBLE).nonzero().squeeze(1)
     if undecided.numel():
-        motion = check_motions(centre[undecided], approach[undecided], rotation[undecided], panda_ik(config), config)
+        motion = motion_checker(config)(centre[undecided], approach[undecided], rotation[undecided])
         verdict[undecided[motion.rejected_by[:, 0] == 1]] = VERDICTS.index("grasp_ik")
         verdict[undecided[motion.rejected_by[:, 1] == 1]] = VERDICTS.index("motion")
         joint_path[undecided] = motion.joint_path

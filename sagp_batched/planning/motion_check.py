@@ -7,10 +7,10 @@ from dataclasses import dataclass
 import torch
 
 from ..config import Config
-from ..robot.description import RobotDescription
 from ..description_files import link_hulls
-from ..robot.ik import PandaIK
-from ..robot.motion import grasp_waypoint_index, motion_waypoints
+from ..robot.description import RobotDescription, robot_of
+from ..robot.ik import PandaIK, panda_ik
+from ..robot.motion import grasp_waypoint_index, motion_waypoints, waypoint_count
 from .stages import StageClock
 
 
@@ -62,6 +62,27 @@ def check_motions(
         feasible = torch.zeros(n_rows, dtype=torch.bool, device=centre.device)
         feasible[candidates[motion_ok]] = True
     return MotionCheck(feasible=feasible, joint_path=joint_path, s_reach=s_reach, rejected_by=rejected_by)
+
+
+def motion_checker(config: Config, clock: StageClock | None = None):
+    """``check(centre, approach, rotation) -> MotionCheck`` for the configured gripper: ``check_motions`` with the
+    arm's IK where the robot carries the gripper; where no arm carries it (a gripper planned and labelled in
+    hand mode) there is no arm to check, so every grasp passes with no joint path and S_reach 1."""
+    robot = robot_of(config)
+    if robot.gripper_mounted:
+        ik = panda_ik(config)
+        return lambda centre, approach, rotation: check_motions(centre, approach, rotation, ik, config, clock)
+
+    def unchecked(centre: torch.Tensor, approach: torch.Tensor, rotation: torch.Tensor) -> MotionCheck:
+        n_rows = centre.shape[0]
+        return MotionCheck(
+            feasible=torch.ones(n_rows, dtype=torch.bool, device=centre.device),
+            joint_path=torch.zeros(n_rows, waypoint_count(config.motion), robot.n_arm_joints, device=centre.device),
+            s_reach=torch.ones(n_rows, device=centre.device),
+            rejected_by=torch.zeros(n_rows, len(MotionCheck.STAGES), dtype=torch.int64, device=centre.device),
+        )
+
+    return unchecked
 
 
 def _followed_motion(

@@ -10,13 +10,12 @@ import torch
 
 from ..config import Config
 from ..grasps import GraspCandidates
-from ..robot.ik import panda_ik
 from ..robot.motion import grasp_waypoint_index, waypoint_count
 from ..types import PerceivedCloud
 from .lookahead import MotionVerdicts, ScreenVerdicts, window_with_verdicts
 from .block_search import search_in_blocks
 from .device import planning_device
-from .motion_check import MotionCheck, check_motions
+from .motion_check import MotionCheck, motion_checker
 from .sampling import check_cloud
 from .screens import ScreenedCandidates, screen_candidates
 from .search import CandidateSearch, CandidateStatus, SearchTuning, segment_exclusive_cumsum
@@ -110,13 +109,13 @@ def plan_batch(
     tuning = SearchTuning() if tuning is None else tuning
     clock = StageClock()
     screened = screen_candidates(clouds, config, seeds, clock)
-    ik = panda_ik(config)
+    motion_check = motion_checker(config, clock)
     verdicts = ScreenVerdicts(screened, tuning)
-    motions = MotionVerdicts(screened.n_candidates, planner.n_approaches, waypoint_count(config.motion), len(ik.robot.arm_joints),
+    motions = MotionVerdicts(screened.n_candidates, planner.n_approaches, waypoint_count(config.motion), screened.robot.n_arm_joints,
                              planner.max_candidates, tuning, device)
 
     def check(rows: torch.Tensor, slots: torch.Tensor) -> MotionCheck:
-        return check_motions(screened.centre_world[rows], *screened.frames(rows, slots), ik, config, clock)
+        return motion_check(screened.centre_world[rows], *screened.frames(rows, slots))
 
     if planner.search == "blocks":
         search = search_in_blocks(verdicts, motions, planner.max_candidates, check)

@@ -100,5 +100,11 @@ def load_robot(name: str = "panda", gripper: str | None = None) -> RobotDescript
 
 
 def robot_of(config: Config) -> RobotDescription:
-    """The robot ``config.scene.robot`` names, with the gripper ``config.planner.gripper`` names."""
-    return load_robot(config.scene.robot, config.planner.gripper)
+    """The robot ``config.scene.robot`` names, with the gripper ``config.planner.gripper`` names, whose grip force
+    range holds ``execution.gripper_force_n``."""
+    robot = load_robot(config.scene.robot, config.planner.gripper)
+    low, high = robot.gripper.grip_force_range_n
+    if not low <= config.execution.gripper_force_n <= high:
+        raise ConfigError(f"execution.gripper_force_n {config.execution.gripper_force_n:g} N is outside the {low:g}-{high:g} N "
+                          f"of gripper '{robot.gripper.name}'", "execution.gripper_force_n")
+    return robot

@@ -4,7 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..robot.description import load_robot
+from ..config.world import GRIPPERS
+from ..robot.gripper_description import load_gripper
 from .objects import sagp_cache_root
 
 DECOMPOSERS = ("auto", "coacd", "vhacd")
@@ -68,8 +69,9 @@ class MeshImportSettings:
     resting_pose_merge_deg: float = 30.0
     #: Resting poses less probable than this are dropped (the most probable one is always kept).
     min_resting_pose_probability: float = 0.01
-    #: An object each of whose convex parts is wider than this in every direction cannot be grasped: the Panda's open hand.
-    max_grasp_width_m: float = field(default_factory=lambda: load_robot().gripper.open_width_m)
+    #: An object each of whose convex parts is wider than this in every direction cannot be grasped: the widest opening
+    #: of the grippers the package describes (the planner holds each gripper to its own).
+    max_grasp_width_m: float = field(default_factory=lambda: max(load_gripper(name).open_width_m for name in GRIPPERS))
     #: An object whose hulls' union holds more than this times its mesh's volume is flagged (not skipped).
     max_hull_volume_ratio: float = 1.15
     #: An object whose hulls' surface strays further than this outside its mesh is flagged (not skipped), m.

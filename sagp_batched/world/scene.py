@@ -150,6 +150,7 @@ class Scene:
     def __init__(self, config: Config, gui: bool = False):
         self.config = config
         self.robot = robot_of(config)  # before connecting: an unknown robot leaves no client behind
+        self.robot.require_mounted_gripper("a scene with the arm")
         self.client = pybullet.connect(pybullet.GUI if gui else pybullet.DIRECT)
         self.robot_id: int = -1
         self.table_id: int = -1

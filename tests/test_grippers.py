@@ -1,0 +1,110 @@
+"""Grippers as data: each described once, its geometry read from its own URDF, the planner planning for the
+one named, the files naming it, and bad names refused in one line."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from sagp_batched.benchmarks.designed_grasps import wide_box_candidates
+from sagp_batched.config import Config, ConfigError
+from sagp_batched.config.world import GRIPPERS
+from sagp_batched.description_files import link_hulls, link_poses
+from sagp_batched.formats.frames import acronym_gripper_transforms_object, grasp_poses_from_acronym
+from sagp_batched.grasps import GraspPoses
+from sagp_batched.planning import jaw_width_limit, widest_pair_m
+from sagp_batched.robot import gripper_by_file_name, load_gripper, load_robot, robot_of
+from sagp_batched.robot.gripper_description import linkage_table, pad_gap_m
+from sagp_batched.robot.hand import load_hand_geometry
+
+ROBOTIQ = ("robotiq_2f85", "robotiq_2f140")
+
+
+def test_the_package_describes_the_panda_hand_and_both_robotiq_grippers():
+    assert set(GRIPPERS) == {"franka_panda", *ROBOTIQ}
+    assert load_robot().gripper.name == "franka_panda" and load_robot().gripper_mounted
+    for name in ROBOTIQ:
+        robot = load_robot("panda", name)
+        assert robot.gripper.name == name and not robot.gripper_mounted
+        assert robot.hand_collision_links == robot.gripper.collision_links, "no arm link beside a gripper the arm does not carry"
+
+
+@pytest.mark.parametrize("name, opening_m, closed_pad_rise_m", [("robotiq_2f85", 0.086, 0.014), ("robotiq_2f140", 0.1285, 0.0237)])
+def test_a_linkage_s_opening_and_pad_rise_come_from_its_urdf_kinematics(name, opening_m, closed_pad_rise_m):
+    gripper = load_gripper(name)
+    values, gaps = linkage_table(gripper)
+    assert gaps[0] == pytest.approx(opening_m, abs=5e-4) and gripper.open_width_m == pytest.approx(gaps[0], abs=5e-4)
+    assert np.all(np.diff(gaps) < 0), "the gap narrows as the driven joint turns"
+    for width in (0.01, 0.03, 0.06, 0.08):
+        if width < gripper.open_width_m:
+            assert pad_gap_m(gripper, gripper.finger_joint_value(width)) == pytest.approx(width, abs=2e-4)
+
+    hulls = link_hulls(gripper.urdf_path, gripper.pad_links)
+
+    def pad_centre_z(joint_value: float) -> float:
+        poses = link_poses(gripper.urdf_path, {joint: joint_value for joint in gripper.finger_joints})
+        return float(np.mean([(hulls[link] @ poses[link][:3, :3].T + poses[link][:3, 3])[:, 2].mean() for link in gripper.pad_links]))
+
+    # The pads rise along the approach as they close: the four-bar's arc, not a slide.
+    assert pad_centre_z(values[-1]) - pad_centre_z(values[0]) == pytest.approx(closed_pad_rise_m, abs=1e-3)
+    # The grasp target is the pads' centre at half the opening.
+    assert pad_centre_z(gripper.finger_joint_value(gripper.open_width_m / 2)) == pytest.approx(gripper.grasp_depth_m, abs=5e-4)
+
+
+@pytest.mark.parametrize("name", GRIPPERS)
+def test_the_open_hand_s_pads_straddle_the_grasp_target_at_the_opening(name):
+    robot = load_robot("panda", name)
+    hand = load_hand_geometry(robot)
+    pads = [hull for link, hull in zip(hand.links, hand.hull_vertices) if link in robot.gripper.pad_links]
+    inner_faces = sorted(float(hull[:, 1].abs().min()) for hull in pads)
+    assert all(face == pytest.approx(robot.gripper.open_width_m / 2, abs=2.5e-3) for face in inner_faces)
+    for hull in pads:  # the grasp target lies within each pad's length along the approach
+        assert float(hull[:, 2].min()) < 0.0 < float(hull[:, 2].max())
+
+
+def test_the_planner_draws_pairs_up_to_the_named_gripper_s_opening_and_no_wider():
+    for name in GRIPPERS:
+        config = Config().override("planner", gripper=name)
+        robot = robot_of(config)
+        assert widest_pair_m(robot, config.planner) == robot.gripper.open_width_m
+        assert jaw_width_limit(robot, config.planner) < robot.gripper.open_width_m
+    # A set width stays the user's.
+    assert widest_pair_m(load_robot(), Config().override("planner", max_width_m=0.05).planner) == 0.05
+
+
+@pytest.mark.parametrize("name", GRIPPERS)
+def test_a_cube_wider_than_the_gripper_s_opening_is_never_a_candidate(name):
+    assert wide_box_candidates(Config().override("planner", gripper=name)) == 0
+
+
+def test_files_name_their_gripper_and_its_grasp_depth_places_the_gripper_frame():
+    rng = np.random.default_rng(0)
+    rotation = torch.as_tensor(np.linalg.qr(rng.normal(size=(5, 3, 3)))[0], dtype=torch.float64)
+    rotation = rotation * torch.sign(torch.linalg.det(rotation))[:, None, None]
+    poses = GraspPoses(torch.as_tensor(rng.normal(size=(5, 3)) * 0.05), rotation, "object")
+    for name in GRIPPERS:
+        gripper = load_gripper(name)
+        transforms = acronym_gripper_transforms_object(poses, gripper)
+        # The gripper base lies the grasp depth behind the grasp target, along the approach.
+        assert np.allclose(transforms[:, :3, 3] + gripper.grasp_depth_m * transforms[:, :3, 2], poses.position.numpy())
+        back = grasp_poses_from_acronym(transforms, gripper)
+        assert torch.allclose(back.position, poses.position) and torch.allclose(back.rotation, poses.rotation)
+        assert gripper_by_file_name(gripper.file_name) == gripper
+    assert gripper_by_file_name("panda").name == "franka_panda", "ACRONYM's own files name the Franka hand 'panda'"
+    with pytest.raises(ConfigError, match="unknown gripper 'robotiq_3f' in the grasp file; known: franka_panda, panda, robotiq_2f_140, robotiq_2f_85"):
+        gripper_by_file_name("robotiq_3f")
+
+
+def test_a_gripper_the_arm_does_not_carry_has_no_arm_and_a_grip_force_outside_its_range_is_refused():
+    from sagp_batched.robot.kinematics import arm_chain
+    from sagp_batched.world.scene import Scene
+
+    config = Config().override("planner", gripper="robotiq_2f85")
+    with pytest.raises(ConfigError, match="needs the gripper on the arm: robot 'panda' carries no 'robotiq_2f85'"):
+        Scene(config)
+    with pytest.raises(ConfigError, match="the arm's IK needs the gripper on the arm"):
+        arm_chain(robot_of(config))
+    with pytest.raises(ConfigError, match="execution.gripper_force_n 150 N is outside the 10-125 N of gripper 'robotiq_2f140'"):
+        robot_of(Config().override("planner", gripper="robotiq_2f140").override("execution", gripper_force_n=150.0))
+    with pytest.raises(ConfigError, match="planner.gripper"):
+        Config().override("planner", gripper="robotiq_3f")
