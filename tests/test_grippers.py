@@ -108,3 +108,38 @@ def test_a_gripper_the_arm_does_not_carry_has_no_arm_and_a_grip_force_outside_it
         robot_of(Config().override("planner", gripper="robotiq_2f140").override("execution", gripper_force_n=150.0))
     with pytest.raises(ConfigError, match="planner.gripper"):
         Config().override("planner", gripper="robotiq_3f")
+
+
+def test_a_grasp_file_s_gripper_chooses_the_relabel_s_and_an_unknown_one_is_refused_in_one_line(tmp_path):
+    import h5py
+    import trimesh
+
+    from sagp_batched.datasets.relabelling import InputError, check_inputs
+
+    (tmp_path / "meshes").mkdir()
+    trimesh.creation.box((0.04, 0.05, 0.08)).export(tmp_path / "meshes" / "box.obj")
+
+    def grasp_file(gripper_type: bytes | None):
+        path = tmp_path / f"box_{gripper_type}.h5"
+        with h5py.File(path, "w") as f:
+            f["grasps/transforms"] = np.tile(np.eye(4), (3, 1, 1))
+            f["grasps/qualities/flex/object_in_gripper"] = np.array([1, 0, 1])
+            f["object/file"], f["object/scale"] = np.bytes_(b"box.obj"), 1.0
+            if gripper_type is not None:
+                f["gripper/type"] = np.bytes_(gripper_type)
+        return path
+
+    config = Config().override("run", out=str(tmp_path / "out"))
+    for written, chosen in ((b"robotiq_2f_140", "robotiq_2f140"), (b"panda", "franka_panda"), (None, "franka_panda")):
+        inputs = check_inputs(grasp_file(written), tmp_path / "meshes", config)
+        assert inputs.gripper == chosen and inputs.configured(config).planner.gripper == chosen
+    with pytest.raises(InputError, match=r"box_b'robotiq_3f'.h5: unknown gripper 'robotiq_3f' in the grasp file; known: franka_panda, panda"):
+        check_inputs(grasp_file(b"robotiq_3f"), tmp_path / "meshes", config)
+
+
+def test_the_documentation_s_gripper_pictures_are_drawn(tmp_path):
+    from runners.gripper_frames import main
+
+    assert main(["--out", str(tmp_path), "--grippers", "robotiq_2f85"]) == 0
+    assert (tmp_path / "robotiq_2f85.png").stat().st_size > 20_000
+    assert main(["--out", str(tmp_path), "--grippers", "robotiq_3f"]) == 2
