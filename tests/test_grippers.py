@@ -29,8 +29,8 @@ def test_the_package_describes_the_panda_hand_and_both_robotiq_grippers():
         assert robot.hand_collision_links == robot.gripper.collision_links, "no arm link beside a gripper the arm does not carry"
 
 
-@pytest.mark.parametrize("name, opening_m, closed_pad_rise_m", [("robotiq_2f85", 0.086, 0.014), ("robotiq_2f140", 0.1285, 0.0237)])
-def test_a_linkage_s_opening_and_pad_rise_come_from_its_urdf_kinematics(name, opening_m, closed_pad_rise_m):
+@pytest.mark.parametrize("name, opening_m, closed_pad_travel_m", [("robotiq_2f85", 0.086, 0.014), ("robotiq_2f140", 0.1285, 0.0237)])
+def test_a_linkage_s_opening_and_pad_travel_come_from_its_urdf_kinematics(name, opening_m, closed_pad_travel_m):
     gripper = load_gripper(name)
     values, gaps = linkage_table(gripper)
     assert gaps[0] == pytest.approx(opening_m, abs=5e-4) and gripper.open_width_m == pytest.approx(gaps[0], abs=5e-4)
@@ -45,8 +45,8 @@ def test_a_linkage_s_opening_and_pad_rise_come_from_its_urdf_kinematics(name, op
         poses = link_poses(gripper.urdf_path, {joint: joint_value for joint in gripper.finger_joints})
         return float(np.mean([(hulls[link] @ poses[link][:3, :3].T + poses[link][:3, 3])[:, 2].mean() for link in gripper.pad_links]))
 
-    # The pads rise along the approach as they close: the four-bar's arc, not a slide.
-    assert pad_centre_z(values[-1]) - pad_centre_z(values[0]) == pytest.approx(closed_pad_rise_m, abs=1e-3)
+    # The pads move on along the approach as they close: the four-bar's arc, not a slide.
+    assert pad_centre_z(values[-1]) - pad_centre_z(values[0]) == pytest.approx(closed_pad_travel_m, abs=1e-3)
     # The grasp target is the pads' centre at half the opening.
     assert pad_centre_z(gripper.finger_joint_value(gripper.open_width_m / 2)) == pytest.approx(gripper.grasp_depth_m, abs=5e-4)
 
@@ -143,3 +143,23 @@ def test_the_documentation_s_gripper_pictures_are_drawn(tmp_path):
     assert main(["--out", str(tmp_path), "--grippers", "robotiq_2f85"]) == 0
     assert (tmp_path / "robotiq_2f85.png").stat().st_size > 20_000
     assert main(["--out", str(tmp_path), "--grippers", "robotiq_3f"]) == 2
+
+
+def test_a_linkage_s_fingertips_closing_on_a_thin_part_near_the_table_are_caught_where_the_open_hand_clears_it():
+    from sagp_batched.planning.screens import closing_finger_points, table_check_points
+    from sagp_batched_kernels.table_penetration import table_penetration
+
+    robot = load_robot("panda", "robotiq_2f85")
+    table_z, device = 0.625, torch.device("cpu")
+    down = torch.tensor([[[[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]]])  # columns: x, y (closing), z (approach) down
+    centre = torch.tensor([[0.5, 0.0, table_z + 0.015]])
+    (fingers, cover), _ = table_check_points(robot, device)
+    assert not table_penetration(centre, down, fingers, 0.0, table_z, cover).item(), "the open fingertips reach 7 mm past the grasp target"
+    widths, swept = closing_finger_points(robot, device)
+
+    def closing_dips(width_m: float) -> bool:
+        vertices, sweep_cover = swept[int(torch.searchsorted(widths, torch.tensor(width_m), right=True)) - 1]
+        return bool(table_penetration(centre, down, vertices, 0.0, table_z, sweep_cover).item())
+
+    # Closing on a 1 cm part, the fingertips reach 13 mm further along the approach than when open.
+    assert closing_dips(0.01) and not closing_dips(0.08)

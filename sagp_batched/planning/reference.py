@@ -184,7 +184,7 @@ def _screen(survivors: list, points: np.ndarray, draws: Draws, config: Config) -
     # planner does: the fingers and the rest of the hand each with their own clearance.
     hand = load_hand_geometry(robot)
     table_levels = [
-        (hull.double().numpy(), planner.finger_table_clearance_m if name in robot.gripper.pad_links else planner.arm_table_clearance_m)
+        (hull.double().numpy(), planner.finger_table_clearance_m if name in robot.gripper.finger_links else planner.arm_table_clearance_m)
         for name, hull in zip(hand.links, hand.hull_vertices)
     ]
     # The published method's own statement of the widest pair it grasps: the open jaws less their

@@ -7,6 +7,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
@@ -17,7 +18,7 @@ from sagp_batched_kernels.table_penetration import table_cover, table_penetratio
 
 from ..config import Config, MemoryConfig, PlannerConfig
 from ..robot.description import RobotDescription, robot_of
-from ..robot.hand import DOP_DIRECTIONS
+from ..robot.hand import DOP_DIRECTIONS, hulls_in_grasp_frame
 from ..types import PerceivedCloud
 from .gripper import gripper_geometry, hand_geometry, jaw_width_limit, widest_pair_m
 from .sampling import sample_inputs
@@ -26,6 +27,9 @@ from .stages import StageClock
 # Approach 0 of every closing axis is the one closest to straight down: top-down grasps clear
 # the table and the arm most often, so they are the prior's first choice.
 WORLD_DOWN = torch.tensor([0.0, 0.0, -1.0])
+# A linkage's closing sweep: the opening in this many bins, the fingers placed every this much of width (m).
+CLOSING_WIDTH_BINS = 8
+CLOSING_SWEEP_STEP_M = 0.005
 
 
 @dataclass
@@ -108,7 +112,22 @@ class ScreenedCandidates:
         through_table = table_penetration(
             centre, rotation, fingers, self.pregrasp_offset_m, self.table_top_z_m + planner.finger_table_clearance_m, fingers_cover
         ) | table_penetration(centre, rotation, rest, self.pregrasp_offset_m, self.table_top_z_m + planner.arm_table_clearance_m, rest_cover)
+        if self.robot.gripper.finger_motion == "linkage":
+            through_table |= self._closing_through_table(rows, centre, rotation)
         return ~through_table & (self.width_m[rows] <= jaw_width_limit(self.robot, planner))[:, None]
+
+    def _closing_through_table(self, rows: torch.Tensor, centre: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
+        """(R, K) bool: a linkage's fingers, closing at the grasp from open to the candidate's width, dip below the
+        table: its fingertips reach further along the approach as they close (``closing_finger_points``)."""
+        widths, swept = closing_finger_points(self.robot, self.width_m.device)
+        bins = (torch.searchsorted(widths, self.width_m[rows], right=True) - 1).clamp(0, len(swept) - 1)
+        through = torch.zeros(rotation.shape[:2], dtype=torch.bool, device=rotation.device)
+        for index in bins.unique().tolist():
+            members = (bins == index).nonzero().squeeze(1)
+            vertices, cover = swept[index]
+            through[members] = table_penetration(centre[members], rotation[members], vertices, 0.0,
+                                                 self.table_top_z_m + self.planner.finger_table_clearance_m, cover)
+        return through
 
     def table_and_volume_ok(self, rows: torch.Tensor) -> torch.Tensor:
         """(R, K) bool: candidates ``rows`` clear the table and their gripper volumes are under the
@@ -228,14 +247,32 @@ def table_check_points(robot: RobotDescription, device: torch.device) -> tuple[t
     """The fingers' and the other links' hull vertices (grasp frame) the table check tests, each
     with its ``table_cover``, on ``device``: built once per robot and device, not on every block of candidates."""
     hand = hand_geometry(robot)
-    fingers = hand.vertices(robot.gripper.pad_links)
-    rest = hand.vertices(tuple(name for name in hand.links if name not in robot.gripper.pad_links))
+    fingers = hand.vertices(robot.gripper.finger_links)
+    rest = hand.vertices(tuple(name for name in hand.links if name not in robot.gripper.finger_links))
 
     def on_device(vertices: torch.Tensor) -> tuple[torch.Tensor, tuple[torch.Tensor, float]]:
         cover, reach = table_cover(vertices)
         return vertices.to(device), (cover.to(device), reach)
 
     return on_device(fingers), on_device(rest)
+
+
+@functools.lru_cache(maxsize=8)
+def closing_finger_points(robot: RobotDescription, device: torch.device) -> tuple[torch.Tensor, tuple[tuple[torch.Tensor, tuple[torch.Tensor, float]], ...]]:
+    """A linkage's fingers swept by the close: (B,) the lower edges of ``CLOSING_WIDTH_BINS`` equal bins of the
+    opening, and per bin the finger links' hull vertices (grasp frame) at openings from fully open down to the
+    bin's lower edge, each every ``CLOSING_SWEEP_STEP_M`` of width, with their ``table_cover``: a candidate in a bin
+    is tested against fingers that close at most one bin further than its own width."""
+    gripper = robot.gripper
+    edges = np.linspace(0.0, gripper.open_width_m, CLOSING_WIDTH_BINS + 1)[:-1]
+    swept = []
+    for narrowest in edges:
+        steps = max(2, int(np.ceil((gripper.open_width_m - narrowest) / CLOSING_SWEEP_STEP_M)) + 1)
+        vertices = torch.cat([torch.cat(hulls_in_grasp_frame(robot, gripper.finger_links, float(width)))
+                              for width in np.linspace(gripper.open_width_m, narrowest, steps)])
+        cover, reach = table_cover(vertices)
+        swept.append((vertices.to(device), (cover.to(device), reach)))
+    return torch.tensor(edges, dtype=torch.float32, device=device), tuple(swept)
 
 
 def _padded(point_sets: list[torch.Tensor]) -> torch.Tensor:

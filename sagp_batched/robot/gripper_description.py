@@ -49,7 +49,8 @@ class GripperDescription:
     grasp_depth_m_given: float | None
     finger_joints: tuple[str, ...]  # the joints the engines drive, each to the same value
     finger_motion: str  # "slide": prismatic fingers; "linkage": the pads move on the driven joint's arc
-    pad_links: tuple[str, ...]
+    pad_links: tuple[str, ...]  # the links whose surfaces hold the object
+    finger_links: tuple[str, ...]  # every link the finger joints move
     collision_links: tuple[str, ...]
     open_width_m: float
     grip_force_range_n: tuple[float, float]
@@ -130,6 +131,7 @@ def load_gripper(name: str) -> GripperDescription:
         finger_joints=tuple(values["finger_joints"]),
         finger_motion=values["finger_motion"],
         pad_links=tuple(values["pad_links"]),
+        finger_links=tuple(values["finger_links"]),
         collision_links=tuple(values["collision_links"]),
         open_width_m=float(values["open_width_m"]),
         grip_force_range_n=tuple(float(v) for v in values["grip_force_range_n"]),

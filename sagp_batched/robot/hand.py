@@ -61,16 +61,14 @@ class HandGeometry:
         return self.dop_low + along.clamp(max=0.0), self.dop_high + along.clamp(min=0.0)
 
 
-@functools.lru_cache(maxsize=8)
-def load_hand_geometry(robot: RobotDescription) -> HandGeometry:
-    """The collision hulls of the hand's links (``robot.hand_collision_links``), in the grasp frame with the
-    fingers fully open: from the robot's URDF where the gripper is the one it carries (the wrist beside
-    it), else from the gripper's own, its linkage's mimic joints following the driven one."""
+def hulls_in_grasp_frame(robot: RobotDescription, links: tuple[str, ...], width_m: float) -> list[torch.Tensor]:
+    """The collision hulls of ``links`` (float32 (V, 3) each), in the grasp frame with the fingers at the opening
+    ``width_m``: from the robot's URDF where the gripper is the one it carries (the wrist beside it), else from
+    the gripper's own, its linkage's mimic joints following the driven one."""
     gripper = robot.gripper
     urdf_path = robot.urdf_path if robot.gripper_mounted else gripper.urdf_path
-    links = robot.hand_collision_links
-    open_value = gripper.finger_joint_value(gripper.open_width_m)
-    poses = description_files.link_poses(urdf_path, {joint: open_value for joint in gripper.finger_joints})
+    joint_value = gripper.finger_joint_value(width_m)
+    poses = description_files.link_poses(urdf_path, {joint: joint_value for joint in gripper.finger_joints})
     if gripper.grasp_target_link is not None:
         grasp_pose = poses[gripper.grasp_target_link]
     else:
@@ -80,6 +78,15 @@ def load_hand_geometry(robot: RobotDescription) -> HandGeometry:
     for name, vertices in description_files.link_hulls(urdf_path, links).items():
         transform = grasp_from_base @ poses[name]
         hulls.append(torch.tensor(vertices @ transform[:3, :3].T + transform[:3, 3], dtype=torch.float32))
+    return hulls
+
+
+@functools.lru_cache(maxsize=8)
+def load_hand_geometry(robot: RobotDescription) -> HandGeometry:
+    """The collision hulls of the hand's links (``robot.hand_collision_links``), in the grasp frame with the
+    fingers fully open (``hulls_in_grasp_frame``)."""
+    gripper, links = robot.gripper, robot.hand_collision_links
+    hulls = hulls_in_grasp_frame(robot, links, gripper.open_width_m)
     projections = [hull @ DOP_DIRECTIONS.T for hull in hulls]  # (V_i, D)
     return HandGeometry(
         links=tuple(links),
