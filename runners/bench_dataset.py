@@ -37,8 +37,11 @@ from pathlib import Path
 
 from sagp_batched.benchmarks import engine_agreement as engines
 from sagp_batched.benchmarks.dataset_speed import STAGES, DatasetCase, benchmark_dataset, projected_hours, shared_world_step_cost
+from sagp_batched.benchmarks.gripper_agreement import gripper_agreement, gripper_agreement_markdown
 from sagp_batched.benchmarks.label_fidelity import DEFAULT_OBJECTS, fidelity_markdown, label_fidelity
 from sagp_batched.config import Config, ConfigError, load_config
+from sagp_batched.config.world import GRIPPERS
+from sagp_batched.datasets.engines import ENGINES
 from sagp_batched.provenance import collect
 from sagp_batched.runtime import configure_torch
 from sagp_batched.world.mesh_settings import MeshImportSettings
@@ -49,6 +52,8 @@ FIDELITY_JSON = "label_fidelity.json"
 FIDELITY_MARKDOWN = "label_fidelity.md"
 ENGINES_JSON = "engine_agreement.json"
 ENGINES_MARKDOWN = "engine_agreement.md"
+GRIPPERS_JSON = "gripper_agreement.json"
+GRIPPERS_MARKDOWN = "gripper_agreement.md"
 
 
 def _counts(parser: argparse.ArgumentParser, flag: str, text: str, minimum: int) -> list[int]:
@@ -86,6 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     agreement = parser.add_argument_group("engine agreement (--engines; --out, --objects, --grasps and --perturbed-simulations as above)")
     agreement.add_argument("--engines", action="store_true", help="compare MuJoCo's labels with PyBullet's instead of speed")
     agreement.add_argument("--mujoco-variants", default="[{}]", help="JSON list of [labelling.mujoco] override tables, one a variant")
+    grippers = parser.add_argument_group("gripper agreement (--grippers; --out, --objects, --grasps and --perturbed-simulations as above)")
+    grippers.add_argument("--grippers", default=None, help="comma list of grippers: label the same planned grasps with each (floating) instead of speed")
+    grippers.add_argument("--gripper-engine", default="mujoco", choices=ENGINES, help="the engine the grippers' labels are made in")
     return parser
 
 
@@ -96,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fidelity_main(parser, args)
     if args.engines:
         return _engines_main(parser, args)
+    if args.grippers is not None:
+        return _grippers_main(parser, args)
     if args.json is None:
         parser.error("--json is required (or --fidelity with --out)")
     return _speed_main(parser, args)
@@ -241,6 +251,22 @@ def _engines_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     report = engines.engine_agreement(config, objects, object_ids, args.grasps, variants, note=lambda line: print(line, file=sys.stderr))
     return _write_results(args.out, (ENGINES_JSON, ENGINES_MARKDOWN), report, engines.agreement_markdown(report), collect(
         config.to_dict(), objects_source=objects.source, objects=object_ids, grasps_per_object=args.grasps, mujoco_variants=variants))
+
+
+def _grippers_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    names = [name.strip() for name in args.grippers.split(",") if name.strip()]
+    unknown = [name for name in names if name not in GRIPPERS]
+    if unknown or len(names) < 2:
+        parser.error(f"--grippers takes two or more of {', '.join(GRIPPERS)}, got {args.grippers!r}")
+    inputs = _fidelity_inputs(parser, args, "--grippers", engines.DEFAULT_OBJECTS)
+    if inputs is None:
+        return 2
+    config, objects, object_ids = inputs
+    configure_torch()
+    report = gripper_agreement(config, objects, object_ids, args.grasps, names, args.gripper_engine, note=lambda line: print(line, file=sys.stderr))
+    return _write_results(args.out, (GRIPPERS_JSON, GRIPPERS_MARKDOWN), report, gripper_agreement_markdown(report), collect(
+        config.to_dict(), objects_source=objects.source, objects=object_ids, grasps_per_object=args.grasps, grippers=names,
+        engine=args.gripper_engine))
 
 
 if __name__ == "__main__":

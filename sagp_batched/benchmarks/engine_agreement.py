@@ -21,10 +21,11 @@ from ..config.run import LABEL_PROTOCOLS
 from ..datasets.labelling import label_object_grasps
 from ..seeds import capture_trial
 from ..world.objects import ObjectSet
-from .designed_grasps import designed_grasps
+from .designed_grasps import DESIGNED_OUTCOMES, designed_grasps
 from .label_fidelity import held_agreement, plan_grasps
 
 DEFAULT_OBJECTS = ("025_mug", "003_cracker_box", "005_tomato_soup_can", "006_mustard_bottle")
+DESIGNED = len(DESIGNED_OUTCOMES)
 
 
 def mujoco_variant(config: Config, overrides: dict[str, Any]) -> Config:
@@ -112,7 +113,7 @@ def variant_cells(row: dict[str, Any]) -> str:
     kappa = "-" if agreement["kappa"] is None else f"{agreement['kappa']:.2f}"
     share = "-" if agreement["agreement"] is None else f"{100 * agreement['agreement']:.1f} %"
     return (f"agreement {share} ({agreement['agree']}/{agreement['n']}), kappa {kappa}, designed "
-            f"{designed['tabletop']}/3 tabletop {designed['floating']}/3 floating, {speed['simulations_per_s_per_core']:.1f} sims/s")
+            f"{designed['tabletop']}/{DESIGNED} tabletop {designed['floating']}/{DESIGNED} floating, {speed['simulations_per_s_per_core']:.1f} sims/s")
 
 
 def agreement_markdown(report: dict[str, Any]) -> str:
@@ -122,7 +123,7 @@ def agreement_markdown(report: dict[str, Any]) -> str:
         "# Engine agreement", "",
         f"Objects: {', '.join(report['objects'])}; {report['grasps_per_object']} grasps each, both protocols; "
         f"{report['perturbed_simulations']} simulation(s) a label.", "",
-        f"PyBullet: designed grasps {pybullet['designed']['tabletop']}/3 tabletop, {pybullet['designed']['floating']}/3 floating; "
+        f"PyBullet: designed grasps {pybullet['designed']['tabletop']}/{DESIGNED} tabletop, {pybullet['designed']['floating']}/{DESIGNED} floating; "
         f"{pybullet['speed']['simulations_per_s_per_core']:.1f} sims/s, {pybullet['speed']['labels_per_s_per_core']:.1f} labels/s per core.", "",
         "| MuJoCo settings (over the profile's) | agreement (tabletop / floating) | kappa | designed (tabletop / floating) | sims/s | labels/s |",
         "|---|---:|---:|---:|---:|---:|",
@@ -133,6 +134,6 @@ def agreement_markdown(report: dict[str, Any]) -> str:
         kappa = "-" if agreement["all"]["kappa"] is None else f"{agreement['all']['kappa']:.2f}"
         overrides = ", ".join(f"{key}={value}" for key, value in row["overrides"].items()) or "profile"
         lines.append(f"| {overrides} | {100 * agreement['all']['agreement']:.1f} % ({shares}) | {kappa} | "
-                     f"{row['designed']['tabletop']}/3 / {row['designed']['floating']}/3 | {speed['simulations_per_s_per_core']:.1f} | "
+                     f"{row['designed']['tabletop']}/{DESIGNED} / {row['designed']['floating']}/{DESIGNED} | {speed['simulations_per_s_per_core']:.1f} | "
                      f"{speed['labels_per_s_per_core']:.1f} |")
     return "\n".join(lines) + "\n"
