@@ -83,8 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--objects-dir", default=None)
     parser.add_argument("--cache-dir", type=Path, default=Path("~/.cache/sagp_batched/clouds").expanduser())
     parser.add_argument("--profile", default=None)
-    parser.add_argument("--gripper", choices=GRIPPERS, default=None,
-                        help="the [planner] gripper planned for; one no arm carries is timed without the arm's loop reference, IK and world runs")
+    parser.add_argument("--gripper", choices=GRIPPERS, help="the [planner] gripper; one no arm carries skips the loop reference, IK and world runs")
     parser.add_argument("--threads", default=str(DEFAULT_TORCH_THREADS), help="comma-separated torch thread counts, each timed in turn")
     parser.add_argument("--world-object", default="005_tomato_soup_can", help="object of the PyBullet timing runs")
     parser.add_argument("--world-runs", type=int, default=20, help="trials timed in PyBullet (reset, capture, plan, attempt); 0 skips")
@@ -108,8 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.ray_address is not None:
         return _ray_worker_memory(args)
-    thread_counts = _thread_counts(parser, args.threads)
-    batch_sizes = _batch_sizes(parser, args.batch_sizes)
+    thread_counts = _counts(parser, "--threads", args.threads)
+    batch_sizes = _counts(parser, "--batch-sizes", args.batch_sizes, skippable=True)
     compile_modes = [mode == "true" for mode in _listed(parser, "--compile", args.compile, ("false", "true"))]
     searches = _listed(parser, "--searches", args.searches, PLANNER_SEARCHES)
     # Each planner mode is a set of [planner] settings, timed in turn: device, search, compile.
@@ -117,9 +116,7 @@ def main(argv: list[str] | None = None) -> int:
              for device in _devices(parser, args.devices) for search in searches for compile_ in compile_modes]
 
     configure_torch(thread_counts[0])
-    config = load_config(args.profile)
-    if args.gripper is not None:
-        config = config.override("planner", gripper=args.gripper)
+    config = load_config(args.profile, overrides={"planner": {"gripper": args.gripper}} if args.gripper else None)
     if not robot_of(config).gripper_mounted:
         print(f"gripper {config.planner.gripper}: no arm carries it, so the loop reference, the IK and the world runs are skipped")
         args.reference_max_pairs, args.ik_targets, args.world_runs = 0, 0, 0
@@ -298,13 +295,16 @@ def _ray_worker_memory(args: argparse.Namespace) -> int:
     return 0
 
 
-def _thread_counts(parser: argparse.ArgumentParser, text: str) -> list[int]:
+def _counts(parser: argparse.ArgumentParser, flag: str, text: str, skippable: bool = False) -> list[int]:
+    """The comma list ``text`` of ``flag`` as positive whole numbers; where ``skippable``, 0 or nothing is none."""
+    if skippable and text.strip() in ("", "0"):
+        return []
     try:
         counts = [int(part) for part in text.split(",")]
     except ValueError:
         counts = []
     if not counts or min(counts) < 1:
-        parser.error(f"--threads takes positive whole numbers separated by commas, got {text!r}")
+        parser.error(f"{flag} takes positive whole numbers separated by commas{' (0 or empty skips)' if skippable else ''}, got {text!r}")
     return counts
 
 
@@ -375,18 +375,6 @@ def _devices(parser: argparse.ArgumentParser, text: str) -> list[str]:
         except ValueError as exc:
             parser.error(f"--devices: {exc}")
     return devices
-
-
-def _batch_sizes(parser: argparse.ArgumentParser, text: str) -> list[int]:
-    if text.strip() in ("", "0"):
-        return []
-    try:
-        sizes = [int(part) for part in text.split(",")]
-    except ValueError:
-        sizes = []
-    if not sizes or min(sizes) < 1:
-        parser.error(f"--batch-sizes takes positive whole numbers separated by commas (0 or empty skips), got {text!r}")
-    return sizes
 
 
 def _print_ik(ik: dict) -> None:

@@ -19,7 +19,7 @@ from sagp_batched import load_object_set
 from sagp_batched.benchmarks.planner_speed import BenchmarkSettings, mesh_cloud
 from sagp_batched.config import Config
 from sagp_batched.planning import (
-    CandidateStatus, ScreenedCandidates, SearchTuning, gripper_geometry, hand_geometry, plan, plan_batch, planner, screen_candidates,
+    CandidateStatus, ScreenedCandidates, SearchTuning, gripper_geometry, hand_geometry, motion_check, plan, plan_batch, screen_candidates,
 )
 from sagp_batched.planning.lookahead import MotionVerdicts, ScreenVerdicts
 from sagp_batched.planning.search import segment_exclusive_cumsum
@@ -167,8 +167,8 @@ def test_planning_with_motions_checked_ahead_returns_what_checking_each_rounds_p
     seeds = [5, 6, 7]
     config = CONFIG.override("planner", n_pairs=3000, max_candidates=60)
     batches = []
-    check_motions = planner.check_motions
-    monkeypatch.setattr(planner, "check_motions", lambda *args, **kwargs: batches.append(args[0].shape[0]) or check_motions(*args, **kwargs))
+    check_motions = motion_check.check_motions
+    monkeypatch.setattr(motion_check, "check_motions", lambda *args, **kwargs: batches.append(args[0].shape[0]) or check_motions(*args, **kwargs))
     ahead = plan_batch(clouds, config, seeds)
     ahead_batches, batches[:] = list(batches), []
 
@@ -227,7 +227,7 @@ def test_lookahead_sized_by_the_observed_losses_plans_alike_in_fewer_motion_roun
     clouds = [ycb_clouds["003_cracker_box"], ycb_clouds["005_tomato_soup_can"], ycb_clouds["box beside the mug"], ycb_clouds["025_mug"]]
     seeds = [1, 2, 3, 0]
     calls = {"screen": 0, "motion": 0}
-    check_motions, compute = planner.check_motions, ScreenVerdicts.compute
+    check_motions, compute = motion_check.check_motions, ScreenVerdicts.compute
 
     def counted_check(*args, **kwargs):
         calls["motion"] += 1
@@ -237,7 +237,7 @@ def test_lookahead_sized_by_the_observed_losses_plans_alike_in_fewer_motion_roun
         calls["screen"] += 1
         return compute(self, rows)
 
-    monkeypatch.setattr(planner, "check_motions", counted_check)
+    monkeypatch.setattr(motion_check, "check_motions", counted_check)
     monkeypatch.setattr(ScreenVerdicts, "compute", counted_compute)
     sized = plan_batch(clouds, CONFIG, seeds)
     sized_calls, calls["screen"], calls["motion"] = dict(calls), 0, 0
