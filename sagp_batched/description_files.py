@@ -1,14 +1,19 @@
-"""The one reader of robot and gripper description files (URDF, MJCF).
+"""The one reader of description files (URDF, MJCF): robots', grippers' and objects'.
 
 Every fact the package takes from a robot's or a gripper's URDF (its links' collision geometry, its joints,
 their mimic rules, the kinematic chain) is read here, with pytorch-kinematics' URDF parser and chains; an
-MJCF is read with MuJoCo's own parser. Modules that need such a fact ask this module, so a file's quirks
-(PyBullet-only tags, mesh units, mimic joints PyBullet ignores) are handled once.
+MJCF is read with MuJoCo's own parser. A URDF that PyBullet loads as a body (an object, the floating hand)
+is read as PyBullet reads it (``read_urdf_document``): with its ``<contact>`` friction, which
+pytorch-kinematics' parser drops, and the file's own errors, which callers report. PyBullet's own reading
+of a URDF goes through ``load_urdf``. Modules that need such a fact ask this module, so a file's quirks
+(PyBullet-only tags, mesh units, mesh-name prefixes, mimic joints PyBullet ignores) are handled once.
 """
 from __future__ import annotations
 
+import copy
 import functools
 import logging
+import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -195,3 +200,192 @@ def collision_meshes(urdf_path: Path) -> dict[str, tuple[float, ...]]:
     """Per mesh file the URDF's collision geometry names (as written), its scale."""
     return {collision.geometry.filename: tuple(collision.geometry.scale or (1.0, 1.0, 1.0))
             for link in read_urdf(Path(urdf_path)).links for collision in link.collisions if hasattr(collision.geometry, "filename")}
+
+
+# -- URDFs that PyBullet loads as bodies -------------------------------------------------------------------
+# ElementTree's error for a file that is not XML, under a name its callers catch without the parser.
+UrdfSyntaxError = ElementTree.ParseError
+# PyBullet's surface of a link whose URDF gives no ``<contact>``: lateral friction 0.5, no spinning or rolling friction.
+DEFAULT_FRICTION = (0.5, 0.0, 0.0)
+# Per primitive, the attributes that size it, in the order ``UrdfGeometry.size`` holds them.
+_PRIMITIVE_SIZES = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",)}
+
+
+def _floats(text: str | None, default: tuple[float, ...]) -> tuple[float, ...]:
+    return tuple(float(v) for v in text.split()) if text else default
+
+
+def urdf_origin(element: ElementTree.Element | None) -> np.ndarray:
+    """(4, 4) a URDF ``<origin>``: fixed-axis roll, pitch, yaw, then the translation; identity where absent."""
+    from scipy.spatial.transform import Rotation
+
+    matrix = np.eye(4)
+    if element is not None:
+        matrix[:3, :3] = Rotation.from_euler("xyz", _floats(element.get("rpy"), (0.0, 0.0, 0.0))).as_matrix()  # URDF: fixed-axis roll, pitch, yaw
+        matrix[:3, 3] = _floats(element.get("xyz"), (0.0, 0.0, 0.0))
+    return matrix
+
+
+def urdf_file_path(urdf_path: Path, filename: str) -> Path:
+    """A file a URDF names, where PyBullet finds it: relative to the URDF's folder, a ``package://`` or
+    ``file://`` prefix dropped."""
+    return Path(urdf_path).parent / filename.removeprefix("package://").removeprefix("file://")
+
+
+@dataclass(frozen=True)
+class UrdfGeometry:
+    """One ``<visual>`` or ``<collision>`` of a link: its shape and where it sits in the link."""
+
+    shape: str  # the element inside <geometry>: "mesh", "box", "cylinder", "sphere" or another; "" where it holds none
+    filename: str  # a mesh's file name as written ("" where it names none)
+    scale: tuple[float, ...]  # a mesh's per-axis scale; (1, 1, 1) where absent, one value standing for all three
+    size: tuple[float, ...]  # a primitive's: box (x, y, z), cylinder (radius, length), sphere (radius,)
+    origin: np.ndarray  # (4, 4) geometry frame -> link frame
+
+
+@dataclass(frozen=True)
+class LinkInertial:
+    """A link's ``<inertial>``: mass (kg; 0 where it gives none), its frame in the link frame (4, 4: the centre
+    of mass and the axes the tensor is written in) and the (3, 3) tensor about the centre of mass (kg m^2)."""
+
+    mass_kg: float
+    frame_in_link: np.ndarray
+    tensor_kg_m2: np.ndarray
+
+
+class UrdfLink:
+    """A link of a URDF, each part read when asked for: a malformed part fails only the caller that needs it."""
+
+    def __init__(self, link: ElementTree.Element, root: ElementTree.Element):
+        self._link, self._root = link, root
+
+    @property
+    def name(self) -> str:
+        return self._link.get("name", "")
+
+    @property
+    def visuals(self) -> tuple[UrdfGeometry, ...]:
+        return tuple(_geometry(visual) for visual in self._link.findall("visual"))
+
+    @property
+    def collisions(self) -> tuple[UrdfGeometry, ...]:
+        return tuple(_geometry(collision) for collision in self._link.findall("collision"))
+
+    @property
+    def inertial(self) -> LinkInertial | None:
+        """The link's ``<inertial>``; None where it has none."""
+        inertial = self._link.find("inertial")
+        if inertial is None:
+            return None
+        mass, terms = inertial.find("mass"), inertial.find("inertia")
+        value = {key: float(terms.get(key, 0.0)) if terms is not None else 0.0 for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+        tensor = np.array([[value["ixx"], value["ixy"], value["ixz"]], [value["ixy"], value["iyy"], value["iyz"]],
+                           [value["ixz"], value["iyz"], value["izz"]]])
+        return LinkInertial(float(mass.get("value")) if mass is not None else 0.0, urdf_origin(inertial.find("origin")), tensor)
+
+    @property
+    def body_inertial(self) -> LinkInertial | None:
+        """The inertial of a body: None where the link has none or a massless one (a frame, not a body)."""
+        inertial = self.inertial
+        return inertial if inertial is not None and inertial.mass_kg > 0.0 else None
+
+    @property
+    def friction(self) -> tuple[float, float, float]:
+        """(lateral, spinning, rolling) friction of the link's ``<contact>``, PyBullet's default for any it leaves out."""
+        contact = self._link.find("contact")
+        values = []
+        for name, default in zip(("lateral_friction", "spinning_friction", "rolling_friction"), DEFAULT_FRICTION):
+            element = contact.find(name) if contact is not None else None
+            values.append(float(element.get("value")) if element is not None else default)
+        return values[0], values[1], values[2]
+
+    @property
+    def rgba(self) -> tuple[float, float, float, float] | None:
+        """The colour of the first material its visuals name; None where they name none or it has no four values."""
+        material = self._link.find("visual/material")
+        if material is None:
+            return None
+        color = material.find("color")
+        if color is None:  # a material defined once at the robot level and named here
+            named = [m for m in self._root.findall("material") if m.get("name") == material.get("name")]
+            color = named[0].find("color") if named else None
+        rgba = _floats(color.get("rgba") if color is not None else None, ())
+        return rgba if len(rgba) == 4 else None  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    name: str
+    kind: str  # the joint's type: "fixed", "prismatic", "revolute", ...
+    parent: str
+    child: str
+    origin: np.ndarray  # (4, 4) child link frame -> parent link frame at joint value 0
+    axis: tuple[float, ...]  # (1, 0, 0) where absent
+    limits: tuple[float, float] | None  # (lower, upper) of its <limit>, None where it has none
+
+
+class UrdfDocument:
+    """A URDF as PyBullet reads it, each part read when asked for."""
+
+    def __init__(self, root: ElementTree.Element):
+        self._root = root
+
+    @property
+    def root_element(self) -> str:
+        """The document's root element: "robot" for a URDF."""
+        return self._root.tag
+
+    @property
+    def name(self) -> str | None:
+        return self._root.get("name")
+
+    @property
+    def links(self) -> tuple[UrdfLink, ...]:
+        """The links, in the file's order."""
+        return tuple(UrdfLink(link, self._root) for link in self._root.findall("link"))
+
+    @property
+    def joints(self) -> tuple[UrdfJoint, ...]:
+        return tuple(_joint(joint) for joint in self._root.findall("joint"))
+
+    @property
+    def mesh_files(self) -> tuple[str, ...]:
+        """Every ``<mesh>``'s file name as written, visual and collision, in the file's order ("" where one names none)."""
+        return tuple(mesh.get("filename") or "" for mesh in self._root.iter("mesh"))
+
+    @property
+    def texture_files(self) -> tuple[str, ...]:
+        """Every ``<texture>``'s file name as written, in the file's order."""
+        return tuple(texture.get("filename") or "" for texture in self._root.iter("texture"))
+
+
+def _geometry(element: ElementTree.Element) -> UrdfGeometry:
+    geometry = element.find("geometry")
+    shape = geometry[0] if geometry is not None and len(geometry) else None
+    if shape is None:
+        return UrdfGeometry("", "", (1.0, 1.0, 1.0), (), urdf_origin(element.find("origin")))
+    scale = _floats(shape.get("scale"), (1.0, 1.0, 1.0))
+    size = tuple(v for name in _PRIMITIVE_SIZES.get(shape.tag, ()) for v in _floats(shape.get(name), ()))
+    return UrdfGeometry(shape.tag, shape.get("filename", ""), scale * 3 if len(scale) == 1 else scale, size,
+                        urdf_origin(element.find("origin")))
+
+
+def _joint(joint: ElementTree.Element) -> UrdfJoint:
+    limit, axis = joint.find("limit"), joint.find("axis")
+    return UrdfJoint(joint.get("name", ""), joint.get("type", ""), joint.find("parent").get("link"), joint.find("child").get("link"),
+                     urdf_origin(joint.find("origin")), _floats(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
+                     (float(limit.get("lower", 0.0)), float(limit.get("upper", 0.0))) if limit is not None else None)
+
+
+def read_urdf_document(urdf_path: Path) -> UrdfDocument:
+    """The URDF at ``urdf_path``, any root element. Raises ``UrdfSyntaxError`` where the file is not XML and
+    ``OSError`` where it cannot be read."""
+    return UrdfDocument(ElementTree.parse(urdf_path).getroot())
+
+
+def load_urdf(client: int, urdf_path: Path, **options: Any) -> int:
+    """PyBullet's body of ``urdf_path`` in ``client``; ``options`` are ``pybullet.loadURDF``'s (``basePosition``,
+    ``baseOrientation``, ``useFixedBase``, ``flags``). Raises ``pybullet.error`` where PyBullet cannot load it."""
+    import pybullet
+
+    return pybullet.loadURDF(str(urdf_path), physicsClientId=client, **options)
