@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-import torch
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +88,8 @@ def link_poses(urdf_path: Path, joint_values: dict[str, float]) -> dict[str, np.
     """(4, 4) float64 pose of every link in the URDF's root frame, with the joints at ``joint_values``
     (others at 0) and every mimic joint where its leader puts it: pytorch-kinematics' forward kinematics,
     which leaves mimic rules to its caller."""
+    import torch
+
     urdf_path = Path(urdf_path)
     tree = chain(urdf_path).to(dtype=torch.float64)
     values = dict(joint_values)
@@ -101,6 +102,7 @@ def link_poses(urdf_path: Path, joint_values: dict[str, float]) -> dict[str, np.
 
 def _origin_matrix(origin) -> np.ndarray:
     import pytorch_kinematics as pk
+    import torch
 
     matrix = np.eye(4)
     if origin is not None:
