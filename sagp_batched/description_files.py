@@ -1,12 +1,11 @@
 """The one reader of description files (URDF, MJCF): robots', grippers' and objects'.
 
-Every fact the package takes from a robot's or a gripper's URDF (its links' collision geometry, its joints,
-their mimic rules, the kinematic chain) is read here, with pytorch-kinematics' URDF parser and chains; an
-MJCF is read with MuJoCo's own parser. A URDF that PyBullet loads as a body (an object, the floating hand)
-is read as PyBullet reads it (``read_urdf_document``): with its ``<contact>`` friction, which
-pytorch-kinematics' parser drops, and the file's own errors, which callers report. PyBullet's own reading
-of a URDF goes through ``load_urdf``. Modules that need such a fact ask this module, so a file's quirks
-(PyBullet-only tags, mesh units, mesh-name prefixes, mimic joints PyBullet ignores) are handled once.
+Every fact the package takes from a robot's or a gripper's URDF (its links' collision geometry, its joints, their mimic
+rules, the kinematic chain) is read here, with pytorch-kinematics' URDF parser and chains; an MJCF is read with MuJoCo's
+own parser. A URDF that PyBullet loads as a body (an object, the floating hand) is read as PyBullet reads it
+(``read_urdf_document``): with its ``<contact>`` friction, which pytorch-kinematics' parser drops, and the file's own
+errors, which callers report; PyBullet's own reading of a URDF goes through ``load_urdf``. Modules that need such a fact
+ask this module, so a file's quirks (PyBullet-only tags, mesh units, mesh-name prefixes, mimic joints) are handled once.
 """
 from __future__ import annotations
 
@@ -198,6 +197,36 @@ def write_collision_urdf(source: Path, destination: Path, meshes: dict[str, tupl
     destination.write_text(f"<?xml version=\"1.0\"?>\n<!-- {header} -->\n{ElementTree.tostring(root, encoding='unicode')}\n")
 
 
+def _collision_only(link: ElementTree.Element, base: Path) -> ElementTree.Element:
+    """A copy of a URDF link without visuals, its mesh file names made absolute (from ``base``)."""
+    link = copy.deepcopy(link)
+    for visual in link.findall("visual"):
+        link.remove(visual)
+    for mesh in link.iter("mesh"):
+        mesh.set("filename", str(base / mesh.get("filename").removeprefix("package://")))
+    return link
+
+
+def collision_only_urdf_text(urdf_path: Path) -> str:
+    """``urdf_path`` without its visual geometry, its mesh file names made absolute so it loads from anywhere."""
+    root = ElementTree.parse(urdf_path).getroot()
+    root[:] = [_collision_only(element, Path(urdf_path).parent) if element.tag == "link" else element for element in root]
+    return ElementTree.tostring(root, encoding="unicode")
+
+
+def subtree_urdf_text(urdf_path: Path, root_link: str, robot_name: str) -> str:
+    """A URDF named ``robot_name`` of ``root_link``, the links below it and the joints between them, collision
+    geometry only, its mesh file names made absolute so it loads from anywhere."""
+    source, keep = ElementTree.parse(urdf_path).getroot(), set(subtree_links(urdf_path, root_link))
+    subtree = ElementTree.Element("robot", name=robot_name)
+    for element in source:
+        if element.tag == "link" and element.get("name") in keep:
+            subtree.append(_collision_only(element, Path(urdf_path).parent))
+        elif element.tag == "joint" and element.find("parent").get("link") in keep:
+            subtree.append(element)
+    return ElementTree.tostring(subtree, encoding="unicode")
+
+
 def collision_meshes(urdf_path: Path) -> dict[str, tuple[float, ...]]:
     """Per mesh file the URDF's collision geometry names (as written), its scale."""
     return {collision.geometry.filename: tuple(collision.geometry.scale or (1.0, 1.0, 1.0))
@@ -229,8 +258,7 @@ def urdf_origin(element: ElementTree.Element | None) -> np.ndarray:
 
 
 def urdf_file_path(urdf_path: Path, filename: str) -> Path:
-    """A file a URDF names, where PyBullet finds it: relative to the URDF's folder, a ``package://`` or
-    ``file://`` prefix dropped."""
+    """A file a URDF names, where PyBullet finds it: relative to the URDF's folder, a ``package://`` or ``file://`` prefix dropped."""
     return Path(urdf_path).parent / filename.removeprefix("package://").removeprefix("file://")
 
 
@@ -260,10 +288,7 @@ class UrdfLink:
 
     def __init__(self, link: ElementTree.Element, root: ElementTree.Element):
         self._link, self._root = link, root
-
-    @property
-    def name(self) -> str:
-        return self._link.get("name", "")
+        self.name: str = link.get("name", "")
 
     @property
     def visuals(self) -> tuple[UrdfGeometry, ...]:
@@ -281,8 +306,7 @@ class UrdfLink:
             return None
         mass, terms = inertial.find("mass"), inertial.find("inertia")
         value = {key: float(terms.get(key, 0.0)) if terms is not None else 0.0 for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
-        tensor = np.array([[value["ixx"], value["ixy"], value["ixz"]], [value["ixy"], value["iyy"], value["iyz"]],
-                           [value["ixz"], value["iyz"], value["izz"]]])
+        tensor = np.array([[value["ixx"], value["ixy"], value["ixz"]], [value["ixy"], value["iyy"], value["iyz"]], [value["ixz"], value["iyz"], value["izz"]]])
         return LinkInertial(float(mass.get("value")) if mass is not None else 0.0, urdf_origin(inertial.find("origin")), tensor)
 
     @property
@@ -295,11 +319,9 @@ class UrdfLink:
     def friction(self) -> tuple[float, float, float]:
         """(lateral, spinning, rolling) friction of the link's ``<contact>``, PyBullet's default for any it leaves out."""
         contact = self._link.find("contact")
-        values = []
-        for name, default in zip(("lateral_friction", "spinning_friction", "rolling_friction"), DEFAULT_FRICTION):
-            element = contact.find(name) if contact is not None else None
-            values.append(float(element.get("value")) if element is not None else default)
-        return values[0], values[1], values[2]
+        given = [contact.find(name) if contact is not None else None for name in ("lateral_friction", "spinning_friction", "rolling_friction")]
+        lateral, spinning, rolling = (float(element.get("value")) if element is not None else default for element, default in zip(given, DEFAULT_FRICTION))
+        return lateral, spinning, rolling
 
     @property
     def rgba(self) -> tuple[float, float, float, float] | None:
@@ -327,38 +349,23 @@ class UrdfJoint:
 
 
 class UrdfDocument:
-    """A URDF as PyBullet reads it, each part read when asked for."""
+    """A URDF as PyBullet reads it, its links and joints (in the file's order) read when asked for."""
 
     def __init__(self, root: ElementTree.Element):
         self._root = root
-
-    @property
-    def root_element(self) -> str:
-        """The document's root element: "robot" for a URDF."""
-        return self._root.tag
-
-    @property
-    def name(self) -> str | None:
-        return self._root.get("name")
+        self.root_element: str = root.tag  # "robot" for a URDF
+        self.name: str | None = root.get("name")
+        # Every <mesh>'s (visual and collision) and <texture>'s file name as written, in file order; "" where one names none.
+        self.mesh_files = tuple(mesh.get("filename") or "" for mesh in root.iter("mesh"))
+        self.texture_files = tuple(texture.get("filename") or "" for texture in root.iter("texture"))
 
     @property
     def links(self) -> tuple[UrdfLink, ...]:
-        """The links, in the file's order."""
         return tuple(UrdfLink(link, self._root) for link in self._root.findall("link"))
 
     @property
     def joints(self) -> tuple[UrdfJoint, ...]:
         return tuple(_joint(joint) for joint in self._root.findall("joint"))
-
-    @property
-    def mesh_files(self) -> tuple[str, ...]:
-        """Every ``<mesh>``'s file name as written, visual and collision, in the file's order ("" where one names none)."""
-        return tuple(mesh.get("filename") or "" for mesh in self._root.iter("mesh"))
-
-    @property
-    def texture_files(self) -> tuple[str, ...]:
-        """Every ``<texture>``'s file name as written, in the file's order."""
-        return tuple(texture.get("filename") or "" for texture in self._root.iter("texture"))
 
 
 def _geometry(element: ElementTree.Element) -> UrdfGeometry:
