@@ -1,20 +1,23 @@
-"""The one reader of robot and gripper description files (URDF, MJCF).
+"""The one reader of description files (URDF, MJCF): robots', grippers' and objects'.
 
-Every fact the package takes from a robot's or a gripper's URDF (its links' collision geometry, its joints,
-their mimic rules, the kinematic chain) is read here, with pytorch-kinematics' URDF parser and chains; an
-MJCF is read with MuJoCo's own parser. Modules that need such a fact ask this module, so a file's quirks
-(PyBullet-only tags, mesh units, mimic joints PyBullet ignores) are handled once.
+Every fact the package takes from a robot's or a gripper's URDF (its links' collision geometry, its joints, their mimic
+rules, the kinematic chain) is read here, with pytorch-kinematics' URDF parser and chains; an MJCF is read with MuJoCo's
+own parser. A URDF that PyBullet loads as a body (an object, the floating hand) is read as PyBullet reads it
+(``read_urdf_document``): with its ``<contact>`` friction, which pytorch-kinematics' parser drops, and the file's own
+errors, which callers report; PyBullet's own reading of a URDF goes through ``load_urdf``. Modules that need such a fact
+ask this module, so a file's quirks (PyBullet-only tags, mesh units, mesh-name prefixes, mimic joints) are handled once.
 """
 from __future__ import annotations
 
+import copy
 import functools
 import logging
+import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-import torch
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +87,8 @@ def link_poses(urdf_path: Path, joint_values: dict[str, float]) -> dict[str, np.
     """(4, 4) float64 pose of every link in the URDF's root frame, with the joints at ``joint_values``
     (others at 0) and every mimic joint where its leader puts it: pytorch-kinematics' forward kinematics,
     which leaves mimic rules to its caller."""
+    import torch
+
     urdf_path = Path(urdf_path)
     tree = chain(urdf_path).to(dtype=torch.float64)
     values = dict(joint_values)
@@ -96,6 +101,7 @@ def link_poses(urdf_path: Path, joint_values: dict[str, float]) -> dict[str, np.
 
 def _origin_matrix(origin) -> np.ndarray:
     import pytorch_kinematics as pk
+    import torch
 
     matrix = np.eye(4)
     if origin is not None:
@@ -191,7 +197,204 @@ def write_collision_urdf(source: Path, destination: Path, meshes: dict[str, tupl
     destination.write_text(f"<?xml version=\"1.0\"?>\n<!-- {header} -->\n{ElementTree.tostring(root, encoding='unicode')}\n")
 
 
+def _collision_only(link: ElementTree.Element, base: Path) -> ElementTree.Element:
+    """A copy of a URDF link without visuals, its mesh file names made absolute (from ``base``)."""
+    link = copy.deepcopy(link)
+    for visual in link.findall("visual"):
+        link.remove(visual)
+    for mesh in link.iter("mesh"):
+        mesh.set("filename", str(base / mesh.get("filename").removeprefix("package://")))
+    return link
+
+
+def collision_only_urdf_text(urdf_path: Path) -> str:
+    """``urdf_path`` without its visual geometry, its mesh file names made absolute so it loads from anywhere."""
+    root = ElementTree.parse(urdf_path).getroot()
+    root[:] = [_collision_only(element, Path(urdf_path).parent) if element.tag == "link" else element for element in root]
+    return ElementTree.tostring(root, encoding="unicode")
+
+
+def subtree_urdf_text(urdf_path: Path, root_link: str, robot_name: str) -> str:
+    """A URDF named ``robot_name`` of ``root_link``, the links below it and the joints between them, collision
+    geometry only, its mesh file names made absolute so it loads from anywhere."""
+    source, keep = ElementTree.parse(urdf_path).getroot(), set(subtree_links(urdf_path, root_link))
+    subtree = ElementTree.Element("robot", name=robot_name)
+    for element in source:
+        if element.tag == "link" and element.get("name") in keep:
+            subtree.append(_collision_only(element, Path(urdf_path).parent))
+        elif element.tag == "joint" and element.find("parent").get("link") in keep:
+            subtree.append(element)
+    return ElementTree.tostring(subtree, encoding="unicode")
+
+
 def collision_meshes(urdf_path: Path) -> dict[str, tuple[float, ...]]:
     """Per mesh file the URDF's collision geometry names (as written), its scale."""
     return {collision.geometry.filename: tuple(collision.geometry.scale or (1.0, 1.0, 1.0))
             for link in read_urdf(Path(urdf_path)).links for collision in link.collisions if hasattr(collision.geometry, "filename")}
+
+
+# -- URDFs that PyBullet loads as bodies -------------------------------------------------------------------
+# ElementTree's error for a file that is not XML, under a name its callers catch without the parser.
+UrdfSyntaxError = ElementTree.ParseError
+# PyBullet's surface of a link whose URDF gives no ``<contact>``: lateral friction 0.5, no spinning or rolling friction.
+DEFAULT_FRICTION = (0.5, 0.0, 0.0)
+# Per primitive, the attributes that size it, in the order ``UrdfGeometry.size`` holds them.
+_PRIMITIVE_SIZES = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",)}
+
+
+def _floats(text: str | None, default: tuple[float, ...]) -> tuple[float, ...]:
+    return tuple(float(v) for v in text.split()) if text else default
+
+
+def urdf_origin(element: ElementTree.Element | None) -> np.ndarray:
+    """(4, 4) a URDF ``<origin>``: fixed-axis roll, pitch, yaw, then the translation; identity where absent."""
+    from scipy.spatial.transform import Rotation
+
+    matrix = np.eye(4)
+    if element is not None:
+        matrix[:3, :3] = Rotation.from_euler("xyz", _floats(element.get("rpy"), (0.0, 0.0, 0.0))).as_matrix()  # URDF: fixed-axis roll, pitch, yaw
+        matrix[:3, 3] = _floats(element.get("xyz"), (0.0, 0.0, 0.0))
+    return matrix
+
+
+def urdf_file_path(urdf_path: Path, filename: str) -> Path:
+    """A file a URDF names, where PyBullet finds it: relative to the URDF's folder, a ``package://`` or ``file://`` prefix dropped."""
+    return Path(urdf_path).parent / filename.removeprefix("package://").removeprefix("file://")
+
+
+@dataclass(frozen=True)
+class UrdfGeometry:
+    """One ``<visual>`` or ``<collision>`` of a link: its shape and where it sits in the link."""
+
+    shape: str  # the element inside <geometry>: "mesh", "box", "cylinder", "sphere" or another; "" where it holds none
+    filename: str  # a mesh's file name as written ("" where it names none)
+    scale: tuple[float, ...]  # a mesh's per-axis scale; (1, 1, 1) where absent, one value standing for all three
+    size: tuple[float, ...]  # a primitive's: box (x, y, z), cylinder (radius, length), sphere (radius,)
+    origin: np.ndarray  # (4, 4) geometry frame -> link frame
+
+
+@dataclass(frozen=True)
+class LinkInertial:
+    """A link's ``<inertial>``: mass (kg; 0 where it gives none), its frame in the link frame (4, 4: the centre
+    of mass and the axes the tensor is written in) and the (3, 3) tensor about the centre of mass (kg m^2)."""
+
+    mass_kg: float
+    frame_in_link: np.ndarray
+    tensor_kg_m2: np.ndarray
+
+
+class UrdfLink:
+    """A link of a URDF, each part read when asked for: a malformed part fails only the caller that needs it."""
+
+    def __init__(self, link: ElementTree.Element, root: ElementTree.Element):
+        self._link, self._root = link, root
+        self.name: str = link.get("name", "")
+
+    @property
+    def visuals(self) -> tuple[UrdfGeometry, ...]:
+        return tuple(_geometry(visual) for visual in self._link.findall("visual"))
+
+    @property
+    def collisions(self) -> tuple[UrdfGeometry, ...]:
+        return tuple(_geometry(collision) for collision in self._link.findall("collision"))
+
+    @property
+    def inertial(self) -> LinkInertial | None:
+        """The link's ``<inertial>``; None where it has none."""
+        inertial = self._link.find("inertial")
+        if inertial is None:
+            return None
+        mass, terms = inertial.find("mass"), inertial.find("inertia")
+        value = {key: float(terms.get(key, 0.0)) if terms is not None else 0.0 for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+        tensor = np.array([[value["ixx"], value["ixy"], value["ixz"]], [value["ixy"], value["iyy"], value["iyz"]], [value["ixz"], value["iyz"], value["izz"]]])
+        return LinkInertial(float(mass.get("value")) if mass is not None else 0.0, urdf_origin(inertial.find("origin")), tensor)
+
+    @property
+    def body_inertial(self) -> LinkInertial | None:
+        """The inertial of a body: None where the link has none or a massless one (a frame, not a body)."""
+        inertial = self.inertial
+        return inertial if inertial is not None and inertial.mass_kg > 0.0 else None
+
+    @property
+    def friction(self) -> tuple[float, float, float]:
+        """(lateral, spinning, rolling) friction of the link's ``<contact>``, PyBullet's default for any it leaves out."""
+        contact = self._link.find("contact")
+        given = [contact.find(name) if contact is not None else None for name in ("lateral_friction", "spinning_friction", "rolling_friction")]
+        lateral, spinning, rolling = (float(element.get("value")) if element is not None else default for element, default in zip(given, DEFAULT_FRICTION))
+        return lateral, spinning, rolling
+
+    @property
+    def rgba(self) -> tuple[float, float, float, float] | None:
+        """The colour of the first material its visuals name; None where they name none or it has no four values."""
+        material = self._link.find("visual/material")
+        if material is None:
+            return None
+        color = material.find("color")
+        if color is None:  # a material defined once at the robot level and named here
+            named = [m for m in self._root.findall("material") if m.get("name") == material.get("name")]
+            color = named[0].find("color") if named else None
+        rgba = _floats(color.get("rgba") if color is not None else None, ())
+        return rgba if len(rgba) == 4 else None  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    name: str
+    kind: str  # the joint's type: "fixed", "prismatic", "revolute", ...
+    parent: str
+    child: str
+    origin: np.ndarray  # (4, 4) child link frame -> parent link frame at joint value 0
+    axis: tuple[float, ...]  # (1, 0, 0) where absent
+    limits: tuple[float, float] | None  # (lower, upper) of its <limit>, None where it has none
+
+
+class UrdfDocument:
+    """A URDF as PyBullet reads it, its links and joints (in the file's order) read when asked for."""
+
+    def __init__(self, root: ElementTree.Element):
+        self._root = root
+        self.root_element: str = root.tag  # "robot" for a URDF
+        self.name: str | None = root.get("name")
+        # Every <mesh>'s (visual and collision) and <texture>'s file name as written, in file order; "" where one names none.
+        self.mesh_files = tuple(mesh.get("filename") or "" for mesh in root.iter("mesh"))
+        self.texture_files = tuple(texture.get("filename") or "" for texture in root.iter("texture"))
+
+    @property
+    def links(self) -> tuple[UrdfLink, ...]:
+        return tuple(UrdfLink(link, self._root) for link in self._root.findall("link"))
+
+    @property
+    def joints(self) -> tuple[UrdfJoint, ...]:
+        return tuple(_joint(joint) for joint in self._root.findall("joint"))
+
+
+def _geometry(element: ElementTree.Element) -> UrdfGeometry:
+    geometry = element.find("geometry")
+    shape = geometry[0] if geometry is not None and len(geometry) else None
+    if shape is None:
+        return UrdfGeometry("", "", (1.0, 1.0, 1.0), (), urdf_origin(element.find("origin")))
+    scale = _floats(shape.get("scale"), (1.0, 1.0, 1.0))
+    size = tuple(v for name in _PRIMITIVE_SIZES.get(shape.tag, ()) for v in _floats(shape.get(name), ()))
+    return UrdfGeometry(shape.tag, shape.get("filename", ""), scale * 3 if len(scale) == 1 else scale, size,
+                        urdf_origin(element.find("origin")))
+
+
+def _joint(joint: ElementTree.Element) -> UrdfJoint:
+    limit, axis = joint.find("limit"), joint.find("axis")
+    return UrdfJoint(joint.get("name", ""), joint.get("type", ""), joint.find("parent").get("link"), joint.find("child").get("link"),
+                     urdf_origin(joint.find("origin")), _floats(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
+                     (float(limit.get("lower", 0.0)), float(limit.get("upper", 0.0))) if limit is not None else None)
+
+
+def read_urdf_document(urdf_path: Path) -> UrdfDocument:
+    """The URDF at ``urdf_path``, any root element. Raises ``UrdfSyntaxError`` where the file is not XML and
+    ``OSError`` where it cannot be read."""
+    return UrdfDocument(ElementTree.parse(urdf_path).getroot())
+
+
+def load_urdf(client: int, urdf_path: Path, **options: Any) -> int:
+    """PyBullet's body of ``urdf_path`` in ``client``; ``options`` are ``pybullet.loadURDF``'s (``basePosition``,
+    ``baseOrientation``, ``useFixedBase``, ``flags``). Raises ``pybullet.error`` where PyBullet cannot load it."""
+    import pybullet
+
+    return pybullet.loadURDF(str(urdf_path), physicsClientId=client, **options)

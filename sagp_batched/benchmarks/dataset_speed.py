@@ -25,6 +25,7 @@ import numpy as np
 import pybullet
 
 from ..config import Config
+from ..description_files import load_urdf
 from ..seeds import capture_trial
 from ..world.objects import ObjectSet
 
@@ -134,12 +135,12 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
                 offset = np.array([pair * spacing_m, 0.0, 0.0])
                 table_xy = tuple(np.add(config.scene.table_center_xy_m, offset[:2]))
                 create_table(client, dataclasses.replace(config.scene, table_center_xy_m=table_xy))
-                body = pybullet.loadURDF(str(placement.spec.urdf_path), flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
+                body = load_urdf(client, placement.spec.urdf_path, flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
                 pybullet.resetBasePositionAndOrientation(body, list(np.add(placement.com_position_world, offset)), placement.com_quat_xyzw,
                                                          physicsClientId=client)
                 # A top-down grasp 2 cm below the object's top, the hand pinned by its grasp target.
                 target = [placement.com_position_world[0] + offset[0], placement.com_position_world[1], top_z - 0.02]
-                hand = pybullet.loadURDF(hand_urdf, physicsClientId=client)
+                hand = load_urdf(client, hand_urdf)
                 inertial = pybullet.getDynamicsInfo(hand, -1, physicsClientId=client)[3:5]
                 target_in_base = pybullet.multiplyTransforms(*pybullet.invertTransform(*inertial), [0.0, 0.0, grasp_offset_m], [0.0, 0.0, 0.0, 1.0])
                 pybullet.resetBasePositionAndOrientation(hand, *pybullet.multiplyTransforms(target, down, *pybullet.invertTransform(*target_in_base)),

@@ -21,40 +21,38 @@ from __future__ import annotations
 
 import dataclasses
 import time
-import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from ..config import Config
+from ..description_files import UrdfGeometry, read_urdf_document, urdf_file_path
 from ..grasps import GraspPoses
 from ..seeds import capture_trial
 from ..world.mesh_settings import MeshImportSettings
-from ..world.mesh_sources import urdf_origin
 from ..world.objects import ObjectSet, ObjectSpec
 from .designed_grasps import designed_grasps
 
 # A few of the embedded YCB set: a cavity and a handle, a thin box, a cylinder.
 DEFAULT_OBJECTS = ("025_mug", "003_cracker_box", "005_tomato_soup_can")
 
+
 # -- hull fidelity ---------------------------------------------------------------------------------------
-def _geometry_parts(geometry: ElementTree.Element, urdf_dir: Path) -> list:
+def _geometry_parts(geometry: UrdfGeometry, urdf_path: Path) -> list:
     import trimesh
 
-    mesh, box = geometry.find("mesh"), geometry.find("box")
-    cylinder, sphere = geometry.find("cylinder"), geometry.find("sphere")
-    if mesh is not None:
-        loaded = trimesh.load(urdf_dir / mesh.get("filename").removeprefix("package://"), force="mesh")
-        loaded.apply_scale([float(v) for v in (mesh.get("scale") or "1 1 1").split()])
+    if geometry.shape == "mesh":
+        loaded = trimesh.load(urdf_file_path(urdf_path, geometry.filename), force="mesh")
+        loaded.apply_scale(list(geometry.scale))
         # A decomposition is written as one file of disjoint hulls: each connected body is one of them.
         return list(loaded.split(only_watertight=False))
-    if box is not None:
-        return [trimesh.creation.box([float(v) for v in box.get("size").split()])]
-    if cylinder is not None:
-        return [trimesh.creation.cylinder(float(cylinder.get("radius")), float(cylinder.get("length")))]
-    if sphere is not None:
-        return [trimesh.creation.icosphere(radius=float(sphere.get("radius")))]
+    if geometry.shape == "box":
+        return [trimesh.creation.box(list(geometry.size))]
+    if geometry.shape == "cylinder":
+        return [trimesh.creation.cylinder(*geometry.size)]
+    if geometry.shape == "sphere":
+        return [trimesh.creation.icosphere(radius=geometry.size[0])]
     return []
 
 
@@ -66,10 +64,10 @@ def collision_hulls_link(spec: ObjectSpec) -> list:
 
     urdf_path = Path(spec.urdf_path)
     hulls = []
-    for collision in ElementTree.parse(urdf_path).getroot().iter("collision"):
-        geometry = collision.find("geometry")
-        for part in _geometry_parts(geometry, urdf_path.parent) if geometry is not None else []:
-            part.apply_transform(urdf_origin(collision.find("origin")))
+    collisions = (collision for link in read_urdf_document(urdf_path).links for collision in link.collisions)
+    for collision in collisions:
+        for part in _geometry_parts(collision, urdf_path):
+            part.apply_transform(collision.origin)
             try:
                 hull = part.convex_hull
             except QhullError:

@@ -21,12 +21,12 @@ import math
 import os
 import shutil
 import time
-import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..description_files import read_urdf_document, urdf_file_path
 from ..formats.acronym import write_object_file
 from ..formats.frames import grasp_poses_from_acronym, mesh_reference
 from ..formats.graspgen import write_graspgen_file
@@ -95,10 +95,6 @@ def copy_object_mesh(spec: ObjectSpec, meshes_dir: Path) -> tuple[str, float, np
     return f"{spec.id}/{source.name}", scale, mesh_to_link
 
 
-# PyBullet's lateral friction where a URDF gives none.
-PYBULLET_DEFAULT_FRICTION = 0.5
-
-
 def object_physics(spec: ObjectSpec) -> ObjectPhysics:
     """What the simulator was given for ``spec``: an imported object's figures from its import
     metadata (the solid's volume and full inertia, the density that made its mass), else the
@@ -120,24 +116,18 @@ def object_physics(spec: ObjectSpec) -> ObjectPhysics:
 def _urdf_physics(spec: ObjectSpec) -> ObjectPhysics:
     import trimesh
 
-    link = ElementTree.parse(spec.urdf_path).getroot().find("link")
-    inertial = link.find("inertial")
-    mass = float(inertial.find("mass").get("value")) if inertial is not None else spec.mass_kg
-    origin = inertial.find("origin") if inertial is not None else None
-    com = tuple(float(v) for v in (origin.get("xyz") if origin is not None else "0 0 0").split())
-    inertia_element = inertial.find("inertia") if inertial is not None else None
-    values = {key: float(inertia_element.get(key, 0.0)) if inertia_element is not None else 0.0
-              for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
-    inertia = ((values["ixx"], values["ixy"], values["ixz"]), (values["ixy"], values["iyy"], values["iyz"]),
-               (values["ixz"], values["iyz"], values["izz"]))
-    friction_element = link.find("contact/lateral_friction")
-    friction = float(friction_element.get("value")) if friction_element is not None else PYBULLET_DEFAULT_FRICTION
-    mesh_element = link.find("collision/geometry/mesh")
+    link = read_urdf_document(spec.urdf_path).links[0]
+    inertial = link.inertial
+    mass = inertial.mass_kg if inertial is not None else spec.mass_kg
+    com = tuple(float(v) for v in inertial.frame_in_link[:3, 3]) if inertial is not None else (0.0, 0.0, 0.0)
+    tensor = inertial.tensor_kg_m2 if inertial is not None else np.zeros((3, 3))
+    inertia = tuple(tuple(float(v) for v in row) for row in tensor)
+    friction = link.friction[0]
+    mesh_collision = next((collision for collision in link.collisions if collision.shape == "mesh"), None)
     volume = 0.0
-    if mesh_element is not None:
-        scale = np.array([float(v) for v in (mesh_element.get("scale") or "1 1 1").split()])
-        mesh = trimesh.load(Path(spec.urdf_path).parent / mesh_element.get("filename"), force="mesh")
-        mesh.apply_scale(scale)
+    if mesh_collision is not None:
+        mesh = trimesh.load(urdf_file_path(spec.urdf_path, mesh_collision.filename), force="mesh")
+        mesh.apply_scale(np.array(mesh_collision.scale))
         volume = float(sum(_hull_volume(part) for part in mesh.split(only_watertight=False)))
     density = mass / volume if volume > 0 else math.nan
     return ObjectPhysics(mass, density, friction, com, inertia, volume)  # type: ignore[arg-type]

@@ -25,7 +25,6 @@ from __future__ import annotations
 import abc
 import functools
 import math
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, Sequence
 
@@ -33,10 +32,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..config import Config
+from ..description_files import read_urdf_document
 from ..execution.held import lift_failure, object_held
 from ..execution.poses import pose_change, pose_matrix, relative_pose
 from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets, shake_profile
-from ..world.mesh_sources import urdf_origin
 from ..world.objects import ObjectSpec
 
 Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
@@ -130,7 +129,9 @@ Placement = ObjectPlacement | FloatingPlacement
 @functools.lru_cache(maxsize=64)
 def com_in_link(spec: ObjectSpec) -> np.ndarray:
     """(4, 4) the centre-of-mass (inertial) frame in the link frame, from the URDF's ``<inertial><origin>``."""
-    return urdf_origin(ElementTree.parse(spec.urdf_path).getroot().find("link/inertial/origin"))
+    links = read_urdf_document(spec.urdf_path).links
+    inertial = links[0].inertial if links else None
+    return inertial.frame_in_link if inertial is not None else np.eye(4)
 
 
 @dataclass(frozen=True)

@@ -21,16 +21,15 @@ our files use. `mesh_to_link` (4, 4) maps mesh-frame points into the link frame 
 """
 from __future__ import annotations
 
-import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import torch
 
+from ..description_files import read_urdf_document, urdf_file_path
 from ..grasps import GraspPoses
 from ..robot.gripper_description import GripperDescription
-from ..world.mesh_sources import urdf_origin
 from ..world.objects import ObjectSpec, objects_root
 
 # Turning the planner's frame +90 deg about its approach (z) maps its closing axis (y) onto x:
@@ -107,14 +106,13 @@ def mesh_reference(spec: ObjectSpec) -> MeshReference:
     root = objects_root(urdf_path)
     mesh_to_link = np.eye(4)
     mesh_file, scale = "", 1.0
-    for visual in ElementTree.parse(urdf_path).getroot().iter("visual"):
-        mesh = visual.find("geometry/mesh")
-        if mesh is None or not mesh.get("filename"):
+    visuals = (visual for link in read_urdf_document(urdf_path).links for visual in link.visuals)
+    for visual in visuals:
+        if visual.shape != "mesh" or not visual.filename:
             continue
-        mesh_path = (urdf_path.parent / mesh.get("filename").removeprefix("file://")).resolve()
-        mesh_file = _relative(mesh_path, root)
-        scale_xyz = np.array([float(v) for v in (mesh.get("scale") or "1 1 1").split()])
-        mesh_to_link = urdf_origin(visual.find("origin"))
+        mesh_file = _relative(urdf_file_path(urdf_path, visual.filename).resolve(), root)
+        scale_xyz = np.array(visual.scale)
+        mesh_to_link = visual.origin.copy()
         mesh_to_link[:3, :3] = mesh_to_link[:3, :3] * scale_xyz[None]
         if np.allclose(scale_xyz, scale_xyz[0]):
             scale = float(scale_xyz[0])

@@ -20,6 +20,7 @@ import pybullet
 import torch
 
 from ..config import Config, PlannerConfig
+from ..description_files import load_urdf
 from ..grasps import GraspCandidates
 from ..robot.description import RobotDescription, robot_of
 from ..robot.hand import load_hand_geometry
@@ -55,9 +56,7 @@ class PyBulletPandaIK:
         self.config = config
         self.description = robot = robot_of(config)
         self.client = pybullet.connect(pybullet.DIRECT)
-        self.robot = pybullet.loadURDF(
-            str(robot.urdf_path), basePosition=robot.base_xyz_m, useFixedBase=True, physicsClientId=self.client
-        )
+        self.robot = load_urdf(self.client, robot.urdf_path, basePosition=robot.base_xyz_m, useFixedBase=True)
         joints = [pybullet.getJointInfo(self.robot, j, physicsClientId=self.client) for j in range(pybullet.getNumJoints(self.robot, physicsClientId=self.client))]
         self.end_link = next(j[0] for j in joints if j[12].decode() == robot.gripper.grasp_target_link)
         self.movable = [j[0] for j in joints if j[2] != pybullet.JOINT_FIXED]

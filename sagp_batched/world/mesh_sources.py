@@ -4,13 +4,16 @@ surface in metres (a bare mesh file, or a single-link URDF's meshes and primitiv
 from __future__ import annotations
 
 import collections
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
-from scipy.spatial.transform import Rotation
+
+from ..description_files import UrdfGeometry, UrdfLink, UrdfSyntaxError, read_urdf_document, urdf_file_path
+# Temporary: datasets.collision_urdf and datasets.mujoco_world still import it from here until they read their
+# URDFs through description_files.
+from ..description_files import urdf_origin  # noqa: F401
 
 MESH_SUFFIXES = frozenset({".obj", ".stl", ".ply", ".glb"})
 
@@ -20,23 +23,13 @@ class _Unusable(Exception):
 
 
 @dataclass(frozen=True)
-class _UrdfGeometry:
-    """One ``<visual>`` (or ``<collision>``) of a URDF: a mesh file or a primitive, and where it sits in the link."""
-
-    mesh_path: Path | None
-    primitive: tuple[str, tuple[float, ...]] | None  # ("box", size) / ("cylinder", (radius, length)) / ("sphere", (radius,))
-    scale: tuple[float, float, float]
-    origin: np.ndarray  # (4, 4) geometry frame -> URDF link frame
-
-
-@dataclass(frozen=True)
 class _Source:
     """A file found in the folder that may become one object."""
 
     object_id: str
     path: Path
     files: tuple[Path, ...]  # every file whose bytes make the object (the URDF and its meshes)
-    urdf_parts: tuple[_UrdfGeometry, ...] | None  # None: a bare mesh file
+    urdf_parts: tuple[UrdfGeometry, ...] | None  # None: a bare mesh file; else meshes, boxes, cylinders and spheres
     urdf_rgba: tuple[float, float, float, float] | None
     problem: str | None  # why it cannot serve, when known before building
 
@@ -72,93 +65,58 @@ def _object_ids(files: list[Path], directory: Path) -> dict[Path, str]:
 
 
 # -- URDF sources --------------------------------------------------------------------------------------------------
-def _floats(text: str | None, default: tuple[float, ...]) -> tuple[float, ...]:
-    return tuple(float(v) for v in text.split()) if text else default
-
-
-def urdf_origin(element: ElementTree.Element | None) -> np.ndarray:
-    """(4, 4) a URDF ``<origin>``: fixed-axis roll, pitch, yaw, then the translation; identity where absent."""
-    matrix = np.eye(4)
-    if element is not None:
-        matrix[:3, :3] = Rotation.from_euler("xyz", _floats(element.get("rpy"), (0.0, 0.0, 0.0))).as_matrix()  # URDF: fixed-axis roll, pitch, yaw
-        matrix[:3, 3] = _floats(element.get("xyz"), (0.0, 0.0, 0.0))
-    return matrix
-
-
 def _mesh_file(urdf_path: Path, filename: str) -> Path:
     if filename.startswith("package://"):
         raise _Unusable(f"mesh '{filename}' is a ROS package path, which cannot be resolved without the package")
-    return urdf_path.parent / filename.removeprefix("file://")
+    return urdf_file_path(urdf_path, filename)
 
 
-def _geometry(urdf_path: Path, element: ElementTree.Element) -> _UrdfGeometry:
-    origin = urdf_origin(element.find("origin"))
-    geometry = element.find("geometry")
-    shape = geometry[0] if geometry is not None and len(geometry) else None
-    if shape is None:
-        raise _Unusable(f"a <{element.tag}> has no geometry")
-    if shape.tag == "mesh":
-        scale = _floats(shape.get("scale"), (1.0, 1.0, 1.0))
-        return _UrdfGeometry(_mesh_file(urdf_path, shape.get("filename", "")), None, scale * 3 if len(scale) == 1 else scale, origin)  # type: ignore[arg-type]
-    sizes = {"box": ("size",), "cylinder": ("radius", "length"), "sphere": ("radius",)}
-    if shape.tag not in sizes:
-        raise _Unusable(f"geometry <{shape.tag}> is not a mesh, box, cylinder or sphere")
-    values = tuple(v for name in sizes[shape.tag] for v in _floats(shape.get(name), ()))
-    return _UrdfGeometry(None, (shape.tag, values), (1.0, 1.0, 1.0), origin)
+def _usable_geometry(geometry: UrdfGeometry, element: str) -> UrdfGeometry:
+    if not geometry.shape:
+        raise _Unusable(f"a <{element}> has no geometry")
+    if geometry.shape not in ("mesh", "box", "cylinder", "sphere"):
+        raise _Unusable(f"geometry <{geometry.shape}> is not a mesh, box, cylinder or sphere")
+    return geometry
 
 
-def _single_link(urdf_path: Path) -> tuple[ElementTree.Element, ElementTree.Element]:
+def _single_link(urdf_path: Path) -> UrdfLink:
     try:
-        root = ElementTree.parse(urdf_path).getroot()
-    except ElementTree.ParseError as exc:
+        links = read_urdf_document(urdf_path).links
+    except UrdfSyntaxError as exc:
         raise _Unusable(f"URDF is not valid XML: {exc}") from exc
-    links = root.findall("link")
     if len(links) != 1:
         raise _Unusable(f"URDF has {len(links)} links; a rigid object is one link")
-    return root, links[0]
+    return links[0]
 
 
 def _referenced_meshes(urdf_path: Path) -> list[Path]:
     """Every mesh file a URDF's links name (visual and collision), whether or not the URDF can be imported."""
     try:
-        root = ElementTree.parse(urdf_path).getroot()
-    except ElementTree.ParseError:
+        filenames = read_urdf_document(urdf_path).mesh_files
+    except UrdfSyntaxError:
         return []
-    found = []
-    for mesh in root.iter("mesh"):
-        filename = mesh.get("filename", "")
-        if filename and not filename.startswith("package://"):
-            found.append(urdf_path.parent / filename.removeprefix("file://"))
-    return found
+    return [urdf_file_path(urdf_path, filename) for filename in filenames if filename and not filename.startswith("package://")]
 
 
 def _urdf_source(object_id: str, urdf_path: Path) -> _Source:
     """A URDF's visual geometry (its collision geometry where it has no visual), or why it cannot be imported."""
     try:
-        root, link = _single_link(urdf_path)
-        elements = link.findall("visual") or link.findall("collision")
-        if not elements:
+        link = _single_link(urdf_path)
+        visuals = link.visuals
+        element, geometries = ("visual", visuals) if visuals else ("collision", link.collisions)
+        if not geometries:
             raise _Unusable("URDF link has no visual or collision geometry")
-        parts = tuple(_geometry(urdf_path, element) for element in elements)
-        for part in parts:
-            if part.mesh_path is not None and not part.mesh_path.is_file():
-                raise _Unusable(f"URDF mesh {part.mesh_path} does not exist")
+        parts, meshes = [], []
+        for geometry in geometries:
+            parts.append(_usable_geometry(geometry, element))
+            if geometry.shape == "mesh":
+                meshes.append(_mesh_file(urdf_path, geometry.filename))
+        for mesh in meshes:
+            if not mesh.is_file():
+                raise _Unusable(f"URDF mesh {mesh} does not exist")
     except _Unusable as reason:
         return _Source(object_id, urdf_path, (urdf_path,), None, None, str(reason))
-    meshes = sorted({part.mesh_path for part in parts if part.mesh_path is not None})
-    return _Source(object_id, urdf_path, (urdf_path, *meshes), parts, _urdf_rgba(root, link), None)
-
-
-def _urdf_rgba(root: ElementTree.Element, link: ElementTree.Element) -> tuple[float, float, float, float] | None:
-    material = link.find("visual/material")
-    if material is None:
-        return None
-    color = material.find("color")
-    if color is None:  # a material defined once at the robot level and named here
-        named = [m for m in root.findall("material") if m.get("name") == material.get("name")]
-        color = named[0].find("color") if named else None
-    rgba = _floats(color.get("rgba") if color is not None else None, ())
-    return rgba if len(rgba) == 4 else None  # type: ignore[return-value]
+    return _Source(object_id, urdf_path, (urdf_path, *sorted(set(meshes))), tuple(parts), link.rgba, None)
 
 
 # -- geometry ------------------------------------------------------------------------------------------------------
@@ -182,14 +140,14 @@ def _source_mesh(source: _Source, scale: float) -> trimesh.Trimesh:
         return mesh
     parts = []
     for part in source.urdf_parts:
-        if part.mesh_path is not None:
-            mesh = _read_mesh(part.mesh_path)
-        elif part.primitive[0] == "box":
-            mesh = trimesh.creation.box(extents=part.primitive[1])
-        elif part.primitive[0] == "cylinder":
-            mesh = trimesh.creation.cylinder(radius=part.primitive[1][0], height=part.primitive[1][1])
+        if part.shape == "mesh":
+            mesh = _read_mesh(_mesh_file(source.path, part.filename))
+        elif part.shape == "box":
+            mesh = trimesh.creation.box(extents=part.size)
+        elif part.shape == "cylinder":
+            mesh = trimesh.creation.cylinder(radius=part.size[0], height=part.size[1])
         else:
-            mesh = trimesh.creation.icosphere(subdivisions=3, radius=part.primitive[1][0])
+            mesh = trimesh.creation.icosphere(subdivisions=3, radius=part.size[0])
         mesh.apply_transform(np.diag([*part.scale, 1.0]))
         mesh.apply_transform(part.origin)
         parts.append(mesh)

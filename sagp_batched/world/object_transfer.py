@@ -21,21 +21,19 @@ import dataclasses
 import os
 import shutil
 import tempfile
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
 
 import pybullet_data
 
+from ..description_files import UrdfSyntaxError, read_urdf_document, urdf_file_path
 from ..run_directory import path_inside
 from .objects import ObjectLoadError, ObjectSet, ObjectSpec, objects_root, sagp_cache_root
 
 TRANSFER_DIR = "transfer"
 INDEX_FILE = "objects.json"
 METADATA_FILE = "metadata.json"
-# URDF names are relative to the URDF's folder once these prefixes are dropped (as PyBullet reads them).
-_URDF_PREFIXES = ("package://", "file://")
 # MTL statements whose last field names a texture file (options come before it).
 _MTL_TEXTURE_STATEMENTS = ("map_", "bump", "disp", "decal", "refl", "norm")
 
@@ -70,12 +68,6 @@ class PackedObjects:
         return sum(len(contents) for tree in self.trees for contents in tree.values())
 
 
-def _local_name(filename: str) -> str:
-    for prefix in _URDF_PREFIXES:
-        filename = filename.removeprefix(prefix)
-    return filename
-
-
 def _obj_material_libraries(obj_path: Path) -> list[Path]:
     names = []
     with obj_path.open("r", encoding="utf-8", errors="replace") as lines:
@@ -101,13 +93,12 @@ def referenced_files(spec: ObjectSpec) -> list[Path]:
     if not urdf_path.is_file():
         raise ObjectTransferError(f"object '{spec.id}': URDF {urdf_path} does not exist")
     try:
-        root = ElementTree.parse(urdf_path).getroot()
-    except (ElementTree.ParseError, OSError) as exc:
+        document = read_urdf_document(urdf_path)
+    except (UrdfSyntaxError, OSError) as exc:
         raise ObjectTransferError(f"object '{spec.id}': cannot read URDF {urdf_path}: {exc}") from exc
     files = [urdf_path]
-    named = [element.get("filename") for element in (*root.iter("mesh"), *root.iter("texture"))]
-    for filename in filter(None, named):
-        path = (urdf_path.parent / _local_name(filename)).resolve()
+    for filename in filter(None, (*document.mesh_files, *document.texture_files)):
+        path = urdf_file_path(urdf_path, filename).resolve()
         if not path.is_file():
             raise ObjectTransferError(f"object '{spec.id}': URDF {urdf_path} names {path}, which does not exist")
         files.append(path)

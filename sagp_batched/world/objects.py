@@ -17,13 +17,14 @@ import importlib.resources
 import json
 import math
 import os
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
 import pybullet_data
+
+from ..description_files import UrdfSyntaxError, load_urdf, read_urdf_document, urdf_file_path
 
 if TYPE_CHECKING:
     from .mesh_settings import MeshImportSettings
@@ -195,19 +196,17 @@ def _check_urdf(urdf_path: Path, object_id: str) -> None:
     if not urdf_path.is_file():
         raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} does not exist")
     try:
-        root = ElementTree.parse(urdf_path).getroot()
-    except ElementTree.ParseError as exc:
+        document = read_urdf_document(urdf_path)
+    except UrdfSyntaxError as exc:
         raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} is not valid XML: {exc}") from exc
     except OSError as exc:
         raise ObjectLoadError(f"object '{object_id}': cannot read URDF {urdf_path}: {exc.strerror or exc}") from exc
-    if root.tag != "robot":
-        raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} is not a URDF (root element <{root.tag}>, not <robot>)")
-    for mesh in root.iter("mesh"):
-        filename = mesh.get("filename")
+    if document.root_element != "robot":
+        raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} is not a URDF (root element <{document.root_element}>, not <robot>)")
+    for filename in document.mesh_files:
         if not filename:
             raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} has a <mesh> without a filename")
-        # PyBullet reads mesh names relative to the URDF's folder, a ROS "package://" prefix dropped.
-        mesh_path = urdf_path.parent / filename.removeprefix("package://")
+        mesh_path = urdf_file_path(urdf_path, filename)
         if not mesh_path.is_file():
             raise ObjectLoadError(f"object '{object_id}': URDF {urdf_path} names mesh {mesh_path}, which does not exist")
 
@@ -291,7 +290,7 @@ def _measure_builtin(urdf_path: Path) -> tuple[float, tuple[float, float, float]
 
     client = pybullet.connect(pybullet.DIRECT)
     try:
-        body = pybullet.loadURDF(str(urdf_path), physicsClientId=client)
+        body = load_urdf(client, urdf_path)
         lower, upper = pybullet.getAABB(body, physicsClientId=client)
         mass = pybullet.getDynamicsInfo(body, -1, physicsClientId=client)[0]
     finally:

@@ -16,6 +16,7 @@ import pybullet
 from scipy.spatial.transform import Rotation
 
 from ..config import Config, SceneConfig
+from ..description_files import load_urdf
 from ..robot.description import RobotDescription, robot_of
 from ..seeds import scene_seed
 from ..types import CameraData
@@ -192,9 +193,7 @@ class Scene:
         self.trial = trial
         self.target_spec = target
         self.table_id = create_table(client, scene_config)
-        self.robot_id = pybullet.loadURDF(
-            str(robot.urdf_path), basePosition=robot.base_xyz_m, useFixedBase=True, physicsClientId=client
-        )
+        self.robot_id = load_urdf(client, robot.urdf_path, basePosition=robot.base_xyz_m, useFixedBase=True)
         self.robot_indices = body_indices(robot, self.robot_id, client)
         self._arm_max_forces = tuple(pybullet.getJointInfo(self.robot_id, j, physicsClientId=client)[10] for j in self.robot_indices.arm_joints)
         self.set_arm_joints(robot.home_joints)
@@ -318,13 +317,8 @@ class Scene:
         if resting is not None:
             quat = (Rotation.from_quat(quat) * Rotation.from_matrix(resting)).as_quat()
         try:
-            body = pybullet.loadURDF(
-                str(spec.urdf_path),
-                basePosition=(x, y, self.config.scene.table_top_z_m),
-                baseOrientation=quat,
-                flags=pybullet.URDF_USE_INERTIA_FROM_FILE,
-                physicsClientId=self.client,
-            )
+            body = load_urdf(self.client, spec.urdf_path, basePosition=(x, y, self.config.scene.table_top_z_m), baseOrientation=quat,
+                             flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
         except pybullet.error as exc:
             raise ObjectLoadError(f"object '{spec.id}': PyBullet cannot load {spec.urdf_path}: {exc}") from exc
         self._move_on_table(body, x, y, quat)
