@@ -107,7 +107,7 @@ def _origin_matrix(origin) -> np.ndarray:
     if origin is not None:
         xyz = origin.xyz or (0.0, 0.0, 0.0)
         rpy = origin.rpy or (0.0, 0.0, 0.0)
-        matrix[:3, :3] = pk.euler_angles_to_matrix(torch.tensor(rpy, dtype=torch.float64), "XYZ").numpy()
+        matrix[:3, :3] = pk.euler_angles_to_matrix(torch.tensor(rpy[::-1], dtype=torch.float64), "ZYX").numpy()  # fixed-axis x, y, z
         matrix[:3, 3] = xyz
     return matrix
 

@@ -163,3 +163,18 @@ def test_a_linkage_s_fingertips_closing_on_a_thin_part_near_the_table_are_caught
 
     # Closing on a 1 cm part, the fingertips reach 13 mm further along the approach than when open.
     assert closing_dips(0.01) and not closing_dips(0.08)
+
+
+def test_a_collision_origin_turned_about_several_axes_places_the_hull_as_urdf_fixed_axis_rpy_does(tmp_path):
+    from scipy.spatial.transform import Rotation
+
+    from sagp_batched.description_files import link_hulls
+
+    urdf = tmp_path / "tilted.urdf"
+    urdf.write_text('<robot name="tilted"><link name="block"><collision><origin xyz="0.1 0.2 0.3" rpy="0.3 -0.5 1.1"/>'
+                    '<geometry><box size="0.02 0.04 0.06"/></geometry></collision></link></robot>')
+    corners = np.array(np.meshgrid([-0.01, 0.01], [-0.02, 0.02], [-0.03, 0.03], indexing="ij")).reshape(3, -1).T
+    # URDF's rpy: roll about the fixed x, then pitch about the fixed y, then yaw about the fixed z.
+    expected = corners @ Rotation.from_euler("xyz", [0.3, -0.5, 1.1]).as_matrix().T + [0.1, 0.2, 0.3]
+    hull = link_hulls(urdf, ("block",))["block"]
+    assert np.allclose(np.sort(hull, axis=0), np.sort(expected, axis=0), atol=1e-12)
