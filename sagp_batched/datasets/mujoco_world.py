@@ -258,7 +258,7 @@ def _leading(parameters, values: list[float]) -> np.ndarray:
     return array
 
 
-def _set_options(spec: mujoco.MjSpec, config: Config) -> None:
+def _set_options(spec: mujoco.MjSpec, config: Config, multiccd: bool) -> None:
     options = config.labelling.mujoco
     spec.option.timestep = config.scene.time_step_s / options.substeps
     spec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{options.integrator.upper()}")
@@ -267,7 +267,7 @@ def _set_options(spec: mujoco.MjSpec, config: Config) -> None:
     spec.option.impratio = options.impratio
     spec.option.iterations, spec.option.ls_iterations = options.iterations, options.ls_iterations
     spec.option.noslip_iterations = options.noslip_iterations
-    if not options.multiccd:
+    if not multiccd:
         spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_MULTICCD
 
 
@@ -292,7 +292,9 @@ def compile_world(hand_urdf: Path | None, robot: RobotDescription, object_urdf: 
     options = config.labelling.mujoco
     spec = mujoco.MjSpec()
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
-    _set_options(spec, config)
+    # An MJCF hand's pads are on underactuated linkages: on one contact point a pad rocks about it and lets
+    # the object go (the 2F-140 drops the designed box in the shake); several points hold it flat.
+    _set_options(spec, config, multiccd=options.multiccd or builds_from_mjcf(robot))
     link = ElementTree.parse(object_urdf).getroot().find("link")
     inertial, object_surface = link_inertial(link), link_friction(link)
     if inertial is None:
