@@ -178,6 +178,22 @@ def read_mjcf(mjcf_path: Path):
     return spec
 
 
+@functools.lru_cache(maxsize=8)
+def mjcf_body_pose(mjcf_path: Path, body: str) -> np.ndarray:
+    """(4, 4) pose of the MJCF's ``body`` in the model's root (world) frame, every joint at its reference value."""
+    import mujoco
+
+    model = read_mjcf(mjcf_path).compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body)
+    if index < 0:
+        raise ValueError(f"{Path(mjcf_path).name}: no body '{body}'")
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = data.xmat[index].reshape(3, 3), data.xpos[index]
+    return pose
+
+
 def write_collision_urdf(source: Path, destination: Path, meshes: dict[str, tuple[str, tuple[float, float, float]]],
                          header: str) -> None:
     """``source`` without its visuals, written to ``destination`` behind the comment ``header``; each collision

@@ -115,7 +115,8 @@ class MuJoCoConfig(_Section):
     #: friction times this radius, a quarter of the pad's width (0: 79 %, objects turn out of the grip;
     #: 0.01: 93 %, within the sweep's noise of 4 grasps in 344).
     finger_patch_radius_m: float = setting(0.005, at_least=0)
-    #: Several points a hull pair: labels alike (92 %), 1.8 times the time.
+    #: Several points a hull pair: labels alike (92 %), 1.8 times the time. A hand from a gripper's MJCF
+    #: (the Robotiqs) always has them: its pads on underactuated linkages rock about a single point.
     multiccd: bool = False
     #: PyBullet wraps every convex hull it loads from a URDF in a 1 mm collision margin (the table's box
     #: has none): contacts form this far out, twice it between hand and object (MuJoCo adds two geoms'

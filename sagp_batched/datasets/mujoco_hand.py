@@ -21,7 +21,7 @@ from ..execution.poses import pose_matrix
 from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
 from .collision_urdf import floating_hand_urdf
-from .mujoco_world import HandWorld, compile_world
+from .mujoco_world import HandWorld, builds_from_mjcf, compile_world
 from .protocols import Pose, WorldStart
 
 # MuJoCo writes quaternions w first, the protocols x first.
@@ -38,7 +38,7 @@ class MuJoCoHand:
     def __init__(self, config: Config):
         self.config = config
         self.robot = robot_of(config)
-        self.hand_urdf = floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir)
+        self.hand_urdf = None if builds_from_mjcf(self.robot) else floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir)
         self.substeps = config.labelling.mujoco.substeps
         self._worlds: dict[tuple[str, bool], tuple[HandWorld, mujoco.MjData]] = {}
 
@@ -73,8 +73,9 @@ class MuJoCoHand:
             link = link @ np.linalg.inv(pose_matrix(world.com_in_link[0], world.com_in_link[1][XYZW_FROM_WXYZ]))
         self._set_free_joint(world.object_qpos, link)
         self._set_free_joint(world.hand_qpos, pose_matrix(start.hand_position, start.hand_quat) @ world.hand_in_target)
-        # The fingers open, and their servos' set points with them.
-        data.qpos[list(world.finger_qpos)] = data.act[:] = self.robot.gripper.open_width_m / 2.0
+        # The fingers open, and the set points of servos that have them (the URDF hand's) with them.
+        data.qpos[list(world.finger_qpos)] = world.finger_open_qpos
+        data.act[:] = world.finger_ctrl(self.robot.gripper.finger_joint_value(self.robot.gripper.open_width_m))
         self.command_fingers(self.robot.gripper.open_width_m)
         self.quat = np.asarray(start.hand_quat, dtype=float)
         self.move(start.hand_position)
@@ -89,7 +90,7 @@ class MuJoCoHand:
         self.world.model.opt.gravity[:] = (0.0, 0.0, self.config.scene.gravity_m_s2 if on else 0.0)
 
     def command_fingers(self, width_m: float) -> None:
-        self.data.ctrl[:] = width_m / 2.0
+        self.data.ctrl[:] = self.world.finger_ctrl(self.robot.gripper.finger_joint_value(width_m))
 
     def step(self, steps: int) -> None:
         if steps > 0:

@@ -4,9 +4,11 @@ friction) and, for the ``tabletop`` protocol, the study's table. Compiled once p
 reused by every simulation (``mujoco_hand.MuJoCoHand`` resets it).
 
 The hand is the URDF's link tree on a free joint, its prismatic fingers slide joints driven toward their
-commanded opening as PyBullet's position motor drives them (``_add_finger_servos``), and it is carried by
-a weld of its grasp target to a mocap body the engine moves (PyBullet caps its constraint at
-``hand_constraint_max_force_n``; a weld has no cap, and none of these worlds comes near it). Contacts have
+commanded opening as PyBullet's position motor drives them (``_add_finger_servos``); a gripper with its own
+MJCF that the robot does not carry is that MJCF instead, its linkage and servo as the MJCF models them
+(``_add_mjcf_hand``). The hand is carried by a weld of its grasp target to a mocap body the engine moves
+(PyBullet caps its constraint at ``hand_constraint_max_force_n``; a weld has no cap, and none of these
+worlds comes near it). Contacts have
 PyBullet's friction, the product of the two surfaces' (``_product``), and its geometry: every convex hull
 a URDF gives PyBullet is wrapped in ``hull_margin_m``. How soft each contact is, and how the world is
 stepped, is ``[labelling.mujoco]``'s.
@@ -22,6 +24,7 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .. import description_files
 from ..config import Config
 from ..robot.description import RobotDescription
 from ..world.mesh_sources import urdf_origin
@@ -34,25 +37,38 @@ HAND_TARGET_BODY = "hand_target"  # the mocap body the hand's grasp target is we
 TABLE_GEOM = "table"
 # PyBullet's default positionGain: its position motor asks for a tenth of the remaining travel each step.
 PYBULLET_POSITION_GAIN = 0.1
+# An MJCF hand's names are the MJCF's behind this prefix; its grasp target is a body of its own (the URDF has none).
+MJCF_PREFIX = "gripper/"
+MJCF_GRASP_TARGET_BODY = "grasp_target"
 
 
 @dataclass(frozen=True)
 class HandWorld:
     """A compiled world and where its parts are: qpos addresses of the object's and the hand's free joints
-    and of the finger joints, body ids, and the object's centre-of-mass frame in its link frame
-    (position, wxyz quaternion) that poses are reported in."""
+    and of the finger joints (with their values when the hand is open), body ids, and the object's
+    centre-of-mass frame in its link frame (position, wxyz quaternion) that poses are reported in."""
 
     model: mujoco.MjModel
     object_body: int
     object_qpos: int
     hand_qpos: int
     finger_qpos: tuple[int, ...]
-    finger_bodies: tuple[int, ...]
+    finger_open_qpos: tuple[float, ...]
+    finger_bodies: tuple[int, ...]  # per pad link, the body whose geoms press on the object
     grasp_target_body: int
     hand_body_mask: np.ndarray  # (nbody,) True for the hand's bodies
     table_geom: int  # -1 without a table
     com_in_link: tuple[np.ndarray, np.ndarray]
     hand_in_target: np.ndarray  # (4, 4) the hand link's pose in the grasp target's frame
+    # (driven joint values, controls): the fingers' actuator control for ``GripperDescription.finger_joint_value``,
+    # interpolated; None where the control is that value
+    finger_ctrl_table: tuple[np.ndarray, np.ndarray] | None
+
+    def finger_ctrl(self, joint_value: float) -> float:
+        """The fingers' actuator control that drives them to ``joint_value`` of the gripper's driven joints."""
+        if self.finger_ctrl_table is None:
+            return joint_value
+        return float(np.interp(joint_value, *self.finger_ctrl_table))
 
 
 def _wxyz(rotation: np.ndarray) -> np.ndarray:
@@ -135,6 +151,83 @@ def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, obj
     return surfaces
 
 
+@dataclass(frozen=True)
+class _Hand:
+    """A hand added to a spec: per link (or pad) its geoms and their surface, and by name the bodies and
+    joints ``HandWorld`` locates once the world is compiled."""
+
+    surfaces: dict[str, tuple[list[str], tuple[float, float, float]]]
+    target_body: str
+    finger_joints: tuple[str, ...]
+    finger_open_qpos: tuple[float, ...]
+    pad_bodies: tuple[str, ...]
+    finger_ctrl_table: tuple[np.ndarray, np.ndarray] | None
+
+
+def builds_from_mjcf(robot: RobotDescription) -> bool:
+    """Whether the hand is the gripper's own MJCF: the gripper has one and the robot's URDF does not carry it."""
+    return robot.gripper.mjcf_path is not None and not robot.gripper_mounted
+
+
+def _add_urdf_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, object_surface: tuple[float, float, float],
+                   config: Config) -> _Hand:
+    gripper = robot.gripper
+    surfaces = _add_hand(spec, hand_urdf, robot, object_surface, config)
+    _add_finger_servos(spec, robot, config)
+    open_value = gripper.finger_joint_value(gripper.open_width_m)
+    return _Hand(surfaces, gripper.grasp_target_link, gripper.finger_joints, (open_value,) * len(gripper.finger_joints),
+                 gripper.pad_links, None)
+
+
+def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface: tuple[float, float, float], config: Config) -> _Hand:
+    """The gripper's MJCF below a free-floating hand body in the URDF base link's frame (the MJCF's body
+    ``[mujoco] base_body``), its linkage as the MJCF models it: the joints, the equality constraints that
+    close the four-bars, the tendon and the servo on it. The servo's force is capped so that each pad
+    presses with the grip force (``tendon_force_per_pad_n``), and its set point is the tendon length that
+    gives the URDF's opening at the driven joint's value (``driver_at_finger_joint``). The grasp target
+    is a body ``grasp_depth_m`` along the hand's z. The collision geoms touch the object, and the table,
+    as the URDF hand's do, the pads with the study's finger friction and contact."""
+    gripper, execution, options = robot.gripper, config.execution, config.labelling.mujoco
+    hand = spec.worldbody.add_body(name=gripper.base_link)
+    hand.add_freejoint()
+    hand.add_body(name=MJCF_GRASP_TARGET_BODY, pos=[0.0, 0.0, gripper.grasp_depth_m])
+    root_in_hand = np.linalg.inv(description_files.mjcf_body_pose(gripper.mjcf_path, gripper.mujoco_value("base_body")))
+    spec.attach(description_files.read_mjcf(gripper.mjcf_path), prefix=MJCF_PREFIX,
+                frame=hand.add_frame(pos=root_in_hand[:3, 3], quat=_wxyz(root_in_hand[:3, :3])))
+    pad_geoms = [[MJCF_PREFIX + name for name in names] for names in gripper.mujoco_value("pad_geoms")]
+    pad_surface = (execution.finger_lateral_friction, execution.finger_spinning_friction, 0.0)
+    surfaces = {link: (names, pad_surface) for link, names in zip(gripper.pad_links, pad_geoms)}
+    surfaces[gripper.base_link] = ([], DEFAULT_FRICTION)
+    pads = {name for names in pad_geoms for name in names}
+    found = set()
+    for index, geom in enumerate(hand.find_all(mujoco.mjtObj.mjOBJ_GEOM)):
+        if not (geom.contype or geom.conaffinity):
+            continue  # drawn only
+        geom.name = geom.name or f"{MJCF_PREFIX}hull_{index}"  # the table's pairs name their geoms
+        pad = geom.name in pads
+        found.add(geom.name)
+        if not pad:
+            surfaces[gripper.base_link][0].append(geom.name)
+        geom.contype, geom.conaffinity, geom.priority, geom.margin = HAND_BIT, 0, 2, options.hull_margin_m
+        geom.condim = options.finger_condim if pad else 3
+        geom.friction = _mujoco_friction(_product(pad_surface if pad else DEFAULT_FRICTION, object_surface),
+                                         options.finger_patch_radius_m if pad else 0.0)
+        geom.solref = options.finger_contact_solref if pad else options.contact_solref
+        geom.solimp = options.contact_solimp
+    if not pads <= found:
+        raise ValueError(f"{gripper.mjcf_path.name}: no colliding geom {', '.join(sorted(pads - found))} ([mujoco] pad_geoms)")
+    actuator = spec.actuator(MJCF_PREFIX + gripper.mujoco_value("actuator"))
+    tendon_force = execution.gripper_force_n * gripper.mujoco_value("tendon_force_per_pad_n")
+    actuator.forcerange = [-tendon_force, tendon_force]
+    # An affine position servo rests where gain * ctrl = -bias[1] * length: the control per unit of the tendon's length.
+    ctrl_per_length = -actuator.biasprm[1] / actuator.gainprm[0]
+    joint_values, tendon_lengths = np.asarray(gripper.mujoco_value("driver_at_finger_joint"), dtype=np.float64)
+    joints = [joint for joint in hand.find_all(mujoco.mjtObj.mjOBJ_JOINT) if joint.type != mujoco.mjtJoint.mjJNT_FREE]
+    # The MJCF's joints are at their reference values with the gripper open.
+    return _Hand(surfaces, MJCF_GRASP_TARGET_BODY, tuple(joint.name for joint in joints), tuple(float(joint.ref) for joint in joints),
+                 tuple(spec.geom(names[0]).parent.name for names in pad_geoms), (joint_values, tendon_lengths * ctrl_per_length))
+
+
 def _add_finger_servos(spec: mujoco.MjSpec, robot: RobotDescription, config: Config) -> None:
     """PyBullet's position motor as a MuJoCo actuator. PyBullet asks for the speed that closes a tenth of
     the remaining travel a step, with up to ``gripper_force_n``, solved with the contacts: a free finger
@@ -166,7 +259,7 @@ def _leading(parameters, values: list[float]) -> np.ndarray:
     return array
 
 
-def _set_options(spec: mujoco.MjSpec, config: Config) -> None:
+def _set_options(spec: mujoco.MjSpec, config: Config, multiccd: bool) -> None:
     options = config.labelling.mujoco
     spec.option.timestep = config.scene.time_step_s / options.substeps
     spec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{options.integrator.upper()}")
@@ -175,7 +268,7 @@ def _set_options(spec: mujoco.MjSpec, config: Config) -> None:
     spec.option.impratio = options.impratio
     spec.option.iterations, spec.option.ls_iterations = options.iterations, options.ls_iterations
     spec.option.noslip_iterations = options.noslip_iterations
-    if not options.multiccd:
+    if not multiccd:
         spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_MULTICCD
 
 
@@ -193,19 +286,24 @@ def _add_table(spec: mujoco.MjSpec, hand_surfaces: dict[str, tuple[list[str], tu
                           solref=options.contact_solref, solimp=options.contact_solimp, margin=options.hull_margin_m)
 
 
-def compile_world(hand_urdf: Path, robot: RobotDescription, object_urdf: Path, table: bool, config: Config) -> HandWorld:
+def compile_world(hand_urdf: Path | None, robot: RobotDescription, object_urdf: Path, table: bool, config: Config) -> HandWorld:
     """The world of one object, with the study's table where ``table``, compiled. ``object_urdf``: the
-    object's URDF (its first link is the object); the hand's from ``floating_hand_urdf``."""
+    object's URDF (its first link is the object); the hand's from ``floating_hand_urdf``, None where the
+    hand is the gripper's MJCF (``builds_from_mjcf``)."""
     options = config.labelling.mujoco
     spec = mujoco.MjSpec()
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
-    _set_options(spec, config)
+    # An MJCF hand's pads are on underactuated linkages: on one contact point a pad rocks about it and lets
+    # the object go (the 2F-140 drops the designed box in the shake); several points hold it flat.
+    _set_options(spec, config, multiccd=options.multiccd or builds_from_mjcf(robot))
     link = ElementTree.parse(object_urdf).getroot().find("link")
     inertial, object_surface = link_inertial(link), link_friction(link)
     if inertial is None:
         raise ValueError(f"{object_urdf}: the object's link has no mass")
-    hand_surfaces = _add_hand(spec, hand_urdf, robot, object_surface, config)
-    _add_finger_servos(spec, robot, config)
+    if builds_from_mjcf(robot):
+        hand = _add_mjcf_hand(spec, robot, object_surface, config)
+    else:
+        hand = _add_urdf_hand(spec, hand_urdf, robot, object_surface, config)
     body = spec.worldbody.add_body(name=OBJECT_BODY)
     body.add_freejoint()
     _set_inertial(body, inertial)
@@ -213,20 +311,20 @@ def compile_world(hand_urdf: Path, robot: RobotDescription, object_urdf: Path, t
                priority=1, condim=3, friction=_mujoco_friction(_product(object_surface, DEFAULT_FRICTION)),
                solref=options.contact_solref, solimp=options.contact_solimp, margin=options.hull_margin_m)
     if table:
-        _add_table(spec, hand_surfaces, config)
+        _add_table(spec, hand.surfaces, config)
     spec.worldbody.add_body(name=HAND_TARGET_BODY, mocap=True)
     # The grasp target's frame held on the mocap body's (anchor, relative position, relative quaternion, torque scale).
-    weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY, name1=robot.gripper.grasp_target_link,
+    weld = spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, objtype=mujoco.mjtObj.mjOBJ_BODY, name1=hand.target_body,
                              name2=HAND_TARGET_BODY, solref=options.hand_weld_solref, solimp=options.hand_weld_solimp)
     weld.data = _leading(weld.data, [0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 1])
-    return _located(spec.compile(), robot, inertial)
+    return _located(spec.compile(), robot, hand, inertial)
 
 
-def _located(model: mujoco.MjModel, robot: RobotDescription, inertial: LinkInertial) -> HandWorld:
+def _located(model: mujoco.MjModel, robot: RobotDescription, parts: _Hand, inertial: LinkInertial) -> HandWorld:
     def body(name: str) -> int:
         return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
 
-    hand, target = body(robot.gripper.base_link), body(robot.gripper.grasp_target_link)
+    hand, target = body(robot.gripper.base_link), body(parts.target_body)
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     hand_in_target = np.eye(4)
@@ -240,8 +338,9 @@ def _located(model: mujoco.MjModel, robot: RobotDescription, inertial: LinkInert
     return HandWorld(
         model=model, object_body=object_body, object_qpos=int(model.jnt_qposadr[model.body_jntadr[object_body]]),
         hand_qpos=int(model.jnt_qposadr[model.body_jntadr[hand]]),
-        finger_qpos=tuple(int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]) for j in robot.gripper.finger_joints),
-        finger_bodies=tuple(body(name) for name in robot.gripper.pad_links), grasp_target_body=target, hand_body_mask=hand_bodies,
+        finger_qpos=tuple(int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]) for j in parts.finger_joints),
+        finger_open_qpos=parts.finger_open_qpos, finger_bodies=tuple(body(name) for name in parts.pad_bodies), grasp_target_body=target,
+        hand_body_mask=hand_bodies, finger_ctrl_table=parts.finger_ctrl_table,
         table_geom=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM),
         com_in_link=(frame[:3, 3].copy(), _wxyz(frame[:3, :3])), hand_in_target=hand_in_target,
     )

@@ -105,6 +105,11 @@ def pad_gap_m(gripper: GripperDescription, joint_value: float) -> float:
     return float(high.min() - low.max())
 
 
+def _frozen(value):
+    """A TOML value with its arrays as tuples: the description is hashed (``linkage_table``'s cache)."""
+    return tuple(_frozen(item) for item in value) if isinstance(value, list) else value
+
+
 def _path(entry: str, folder: Path) -> Path:
     if entry.startswith("pybullet_data:"):
         return Path(pybullet_data.getDataPath()) / entry.removeprefix("pybullet_data:")
@@ -138,7 +143,7 @@ def load_gripper(name: str) -> GripperDescription:
         file_name=values["file_name"],
         file_aliases=tuple(values.get("file_aliases", ())),
         gripper_boxes=GripperBoxes(**{key: float(value) for key, value in values["gripper_boxes"].items()}),
-        mujoco=tuple(sorted(values.get("mujoco", {}).items())),
+        mujoco=tuple(sorted((key, _frozen(value)) for key, value in values.get("mujoco", {}).items())),
     )
 
 
