@@ -19,7 +19,7 @@ import numpy as np
 import pybullet
 import trimesh
 
-from sagp_batched.description_files import collision_meshes, write_collision_urdf
+from sagp_batched.description_files import read_urdf_document, write_collision_urdf
 
 # Package name -> (source folder, URDF file, MJCF file).
 GRIPPERS = {
@@ -63,7 +63,8 @@ def import_gripper(source: Path, out: Path, urdf_name: str, mjcf_name: str) -> N
     source_urdf = source / "urdf" / urdf_name
     renamed = {}
     converted = _pybullet_collision_meshes(source_urdf)
-    for relative, scale in collision_meshes(source_urdf).items():
+    meshes = {c.filename: c.scale for link in read_urdf_document(source_urdf).links for c in link.collisions if c.shape == "mesh"}
+    for relative, scale in meshes.items():
         path = source / "urdf" / relative
         if path.suffix.lower() == ".dae":
             vertices = next(v for name, v in converted.items() if Path(name).resolve() == path.resolve())

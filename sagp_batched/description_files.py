@@ -23,11 +23,8 @@ log = logging.getLogger(__name__)
 
 
 def _quietly(parse: Callable[[str], Any], urdf_path: Path) -> Any:
-    """``parse(text)`` of a URDF with pytorch-kinematics' parser, its reports sent to the debug log.
-
-    pybullet_data's panda.urdf carries PyBullet-only tags (``<contact>``, collision ``<material>``)
-    that the parser reports on stderr once per link; they affect neither kinematics nor geometry.
-    """
+    """``parse(text)`` of a URDF with pytorch-kinematics' parser, its reports sent to the debug log: panda.urdf's
+    PyBullet-only tags (``<contact>``, collision ``<material>``), reported once per link, change nothing it reads."""
     from pytorch_kinematics.urdf_parser_py.xml_reflection import core
 
     previous, core.on_error = core.on_error, lambda message: log.debug("%s: %s", urdf_path.name, message)
@@ -158,17 +155,6 @@ def link_hulls(urdf_path: Path, links: tuple[str, ...]) -> dict[str, np.ndarray]
     return hulls
 
 
-def subtree_links(urdf_path: Path, root_link: str) -> tuple[str, ...]:
-    """``root_link`` and every link below it in the URDF's tree, in the file's order."""
-    model = read_urdf(Path(urdf_path))
-    keep, grown = {root_link}, True
-    while grown:
-        below = {joint.child for joint in model.joints if joint.parent in keep}
-        grown = not below <= keep
-        keep |= below
-    return tuple(link.name for link in model.links if link.name in keep)
-
-
 def read_mjcf(mjcf_path: Path):
     """The MJCF as a MuJoCo model specification (``mujoco.MjSpec``), its mesh folder made absolute."""
     import mujoco
@@ -198,55 +184,52 @@ def write_collision_urdf(source: Path, destination: Path, meshes: dict[str, tupl
                          header: str) -> None:
     """``source`` without its visuals, written to ``destination`` behind the comment ``header``; each collision
     mesh whose file name is a key of ``meshes`` renamed to its (file name, scale)."""
-    import xml.etree.ElementTree as ElementTree
-
     root = ElementTree.parse(source).getroot()
-    for link in root.findall("link"):
-        for visual in link.findall("visual"):
-            link.remove(visual)
-        for mesh in link.iter("mesh"):
-            if mesh.get("filename") in meshes:
-                filename, scale = meshes[mesh.get("filename")]
-                mesh.set("filename", filename)
-                mesh.set("scale", " ".join(f"{v:g}" for v in scale))
+    root[:] = [_collision_only(element, lambda mesh: meshes.get(mesh.get("filename"))) if element.tag == "link" else element for element in root]
     ElementTree.indent(root)
     destination.write_text(f"<?xml version=\"1.0\"?>\n<!-- {header} -->\n{ElementTree.tostring(root, encoding='unicode')}\n")
 
 
-def _collision_only(link: ElementTree.Element, base: Path) -> ElementTree.Element:
-    """A copy of a URDF link without visuals, its mesh file names made absolute (from ``base``)."""
+def _collision_only(link: ElementTree.Element, renamed: Callable[[ElementTree.Element], tuple[str, tuple[float, ...]] | None]) -> ElementTree.Element:
+    """A copy of a URDF link without visuals, each mesh whose ``renamed(mesh)`` is a (file name, scale) renamed to it."""
     link = copy.deepcopy(link)
     for visual in link.findall("visual"):
         link.remove(visual)
     for mesh in link.iter("mesh"):
-        mesh.set("filename", str(base / mesh.get("filename").removeprefix("package://")))
+        if (new := renamed(mesh)) is not None:
+            mesh.set("filename", new[0])
+            if new[1] is not None:
+                mesh.set("scale", " ".join(f"{v:g}" for v in new[1]))
     return link
+
+
+def _absolute(base: Path) -> Callable[[ElementTree.Element], tuple[str, None]]:
+    """Mesh file names made absolute from ``base``, so a URDF written elsewhere loads from anywhere."""
+    return lambda mesh: (str(base / mesh.get("filename").removeprefix("package://")), None)
 
 
 def collision_only_urdf_text(urdf_path: Path) -> str:
     """``urdf_path`` without its visual geometry, its mesh file names made absolute so it loads from anywhere."""
     root = ElementTree.parse(urdf_path).getroot()
-    root[:] = [_collision_only(element, Path(urdf_path).parent) if element.tag == "link" else element for element in root]
+    root[:] = [_collision_only(element, _absolute(Path(urdf_path).parent)) if element.tag == "link" else element for element in root]
     return ElementTree.tostring(root, encoding="unicode")
 
 
 def subtree_urdf_text(urdf_path: Path, root_link: str, robot_name: str) -> str:
     """A URDF named ``robot_name`` of ``root_link``, the links below it and the joints between them, collision
     geometry only, its mesh file names made absolute so it loads from anywhere."""
-    source, keep = ElementTree.parse(urdf_path).getroot(), set(subtree_links(urdf_path, root_link))
+    source, keep, grown = ElementTree.parse(urdf_path).getroot(), {root_link}, True
+    joints = source.findall("joint")
+    while grown:
+        below = {joint.find("child").get("link") for joint in joints if joint.find("parent").get("link") in keep}
+        grown, keep = not below <= keep, keep | below
     subtree = ElementTree.Element("robot", name=robot_name)
     for element in source:
         if element.tag == "link" and element.get("name") in keep:
-            subtree.append(_collision_only(element, Path(urdf_path).parent))
+            subtree.append(_collision_only(element, _absolute(Path(urdf_path).parent)))
         elif element.tag == "joint" and element.find("parent").get("link") in keep:
             subtree.append(element)
     return ElementTree.tostring(subtree, encoding="unicode")
-
-
-def collision_meshes(urdf_path: Path) -> dict[str, tuple[float, ...]]:
-    """Per mesh file the URDF's collision geometry names (as written), its scale."""
-    return {collision.geometry.filename: tuple(collision.geometry.scale or (1.0, 1.0, 1.0))
-            for link in read_urdf(Path(urdf_path)).links for collision in link.collisions if hasattr(collision.geometry, "filename")}
 
 
 # -- URDFs that PyBullet loads as bodies -------------------------------------------------------------------

@@ -96,12 +96,16 @@ def test_files_name_their_gripper_and_its_grasp_depth_places_the_gripper_frame()
 
 
 def test_a_gripper_the_arm_does_not_carry_has_no_arm_and_a_grip_force_outside_its_range_is_refused():
+    from sagp_batched.execution.pick import execute_grasp
+    from sagp_batched.grasps import Grasp
     from sagp_batched.robot.kinematics import arm_chain
     from sagp_batched.world.scene import Scene
 
     config = Config().override("planner", gripper="robotiq_2f85")
-    with pytest.raises(ConfigError, match="needs the gripper on the arm: robot 'panda' carries no 'robotiq_2f85'"):
-        Scene(config)
+    with Scene(config) as scene:  # a scene settles objects and renders captures for any gripper; the arm keeps its own
+        assert scene.robot.gripper.name == "franka_panda"
+        with pytest.raises(ConfigError, match="executing a grasp with the arm needs the gripper on the arm: robot 'panda' carries no 'robotiq_2f85'"):
+            execute_grasp(scene, config, Grasp.from_pose((0.5, 0.0, 0.7), (1.0, 0.0, 0.0, 0.0), 0.03, (0.0, 0.0, -1.0)))
     with pytest.raises(ConfigError, match="the arm's IK needs the gripper on the arm"):
         arm_chain(robot_of(config))
     with pytest.raises(ConfigError, match="execution.gripper_force_n 150 N is outside the 10-125 N of gripper 'robotiq_2f140'"):

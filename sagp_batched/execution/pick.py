@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 from ..attempt import AttemptDiagnostics, PlannerPrediction
 from ..config import Config, ExecutionConfig, MotionConfig, ShakeConfig
 from ..grasps import Grasp, GraspCandidates, InvalidGraspError, as_finite_vector
-from ..robot.description import RobotDescription
+from ..robot.description import RobotDescription, robot_of
 from ..robot.motion import grasp_waypoint_index, motion_waypoints
 from ..types import GraspAttempt
 from ..world.scene import Scene, make_camera
@@ -117,6 +117,7 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     "pregrasp", "descent", "close", "lift", "shake").
     """
     execution = config.execution
+    robot_of(config).require_mounted_gripper("executing a grasp with the arm")
     quat, waypoints, joint_path = checked_grasp(grasp, config.motion, scene.robot)
     grasp_index = grasp_waypoint_index(config.motion)
     set_finger_friction(scene.client, scene.robot_id, scene.robot_indices.finger_joints, execution)

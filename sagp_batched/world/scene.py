@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from ..config import Config, SceneConfig
 from ..description_files import load_urdf
-from ..robot.description import RobotDescription, robot_of
+from ..robot.description import RobotDescription, load_robot
 from ..seeds import scene_seed
 from ..types import CameraData
 from .objects import ObjectLoadError, ObjectSpec
@@ -150,8 +150,10 @@ class Scene:
 
     def __init__(self, config: Config, gui: bool = False):
         self.config = config
-        self.robot = robot_of(config)  # before connecting: an unknown robot leaves no client behind
-        self.robot.require_mounted_gripper("a scene with the arm")
+        # The arm with the gripper its URDF carries, whichever gripper is planned for: a scene also settles
+        # objects and renders captures for grippers no arm carries (the arm waits out of view); execution
+        # refuses those. Read before connecting: an unknown robot leaves no client behind.
+        self.robot = load_robot(config.scene.robot)
         self.client = pybullet.connect(pybullet.GUI if gui else pybullet.DIRECT)
         self.robot_id: int = -1
         self.table_id: int = -1
