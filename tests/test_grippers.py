@@ -182,3 +182,25 @@ def test_a_collision_origin_turned_about_several_axes_places_the_hull_as_urdf_fi
     expected = corners @ Rotation.from_euler("xyz", [0.3, -0.5, 1.1]).as_matrix().T + [0.1, 0.2, 0.3]
     hull = link_hulls(urdf, ("block",))["block"]
     assert np.allclose(np.sort(hull, axis=0), np.sort(expected, axis=0), atol=1e-12)
+
+
+def test_the_gripper_agreement_runner_labels_the_same_grasps_with_each_gripper_and_refuses_one_gripper(tmp_path):
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench_dataset", "--grippers", "franka_panda,robotiq_2f85", "--objects", "005_tomato_soup_can",
+         "--grasps", "3", "--pairs", "2000", "--perturbed-simulations", "1", "--out", str(out)],
+        cwd=repo, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads((out / "gripper_agreement.json").read_text())
+    assert report["planned_for"] == "franka_panda" and set(report["grippers"]) == {"franka_panda", "robotiq_2f85"}
+    assert all(row["grasps"] == 3 for row in report["grippers"].values()) and report["pairs"]["franka_panda/robotiq_2f85"]["n"] <= 3
+    assert json.loads((out / "provenance.json").read_text())["grippers"] == ["franka_panda", "robotiq_2f85"]
+    refused = subprocess.run([sys.executable, "-m", "runners.bench_dataset", "--grippers", "robotiq_2f85", "--out", str(tmp_path / "x")],
+                             cwd=repo, capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "--grippers takes two or more" in refused.stderr and not (tmp_path / "x").exists()
