@@ -3,7 +3,6 @@ visual meshes, each with absolute mesh paths and written once per content into a
 an engine that builds its world itself reads of a URDF link (collision hulls, inertia, contact friction)."""
 from __future__ import annotations
 
-import copy
 import hashlib
 import os
 import tempfile
@@ -13,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import description_files
 from ..robot.description import RobotDescription
 from ..world.mesh_sources import urdf_origin
 
@@ -21,25 +21,14 @@ DEFAULT_FRICTION = (0.5, 0.0, 0.0)
 
 
 def floating_hand_urdf(robot: RobotDescription, cache_dir: str | Path) -> Path:
-    """A URDF of ``robot``'s hand alone: the hand link and every link below it (fingers on their
-    prismatic joints, the grasp target), collision geometry only, mesh paths made absolute so it
-    loads from anywhere. Written once per content into ``cache_dir`` (named by its hash)."""
-    tree = ElementTree.parse(robot.urdf_path)
-    source = tree.getroot()
-    joints = [element for element in source if element.tag == "joint"]
-    keep = {robot.gripper.base_link}
-    grown = True
-    while grown:
-        below = {joint.find("child").get("link") for joint in joints if joint.find("parent").get("link") in keep}
-        grown = not below <= keep
-        keep |= below
-    hand = ElementTree.Element("robot", name=f"{robot.name}_floating_hand")
-    for element in source:
-        if element.tag == "link" and element.get("name") in keep:
-            hand.append(_collision_only(element, robot.urdf_path.parent))
-        elif element.tag == "joint" and element.find("parent").get("link") in keep:
-            hand.append(element)
-    return _cached_urdf(ElementTree.tostring(hand, encoding="unicode"), cache_dir, f"{robot.name}_hand")
+    """A URDF of ``robot``'s gripper alone: its base link and every link below it (fingers on their joints,
+    the grasp target), collision geometry only, mesh paths made absolute so it loads from anywhere; taken
+    from the robot's URDF where the robot carries the gripper, else from the gripper's own. Written once
+    per content into ``cache_dir`` (named by its hash)."""
+    gripper = robot.gripper
+    source, name = (robot.urdf_path, robot.name) if robot.gripper_mounted else (gripper.urdf_path, gripper.name)
+    text = description_files.subtree_urdf_text(source, gripper.base_link, f"{name}_floating_hand")
+    return _cached_urdf(text, cache_dir, f"{name}_hand")
 
 
 def collision_only_urdf(urdf_path: str | Path, cache_dir: str | Path) -> Path:
@@ -48,21 +37,8 @@ def collision_only_urdf(urdf_path: str | Path, cache_dir: str | Path) -> Path:
     A world built for every grasp would otherwise parse the object's visual mesh each time (often
     far larger than its convex hulls) for a simulation that never renders."""
     urdf_path = Path(urdf_path)
-    root = ElementTree.parse(urdf_path).getroot()
-    for position, element in enumerate(list(root)):
-        if element.tag == "link":
-            root[position] = _collision_only(element, urdf_path.parent)
-    return _cached_urdf(ElementTree.tostring(root, encoding="unicode"), cache_dir, root.get("name", urdf_path.stem))
-
-
-def _collision_only(link: ElementTree.Element, base: Path) -> ElementTree.Element:
-    """A copy of a URDF link without visuals, its mesh file names made absolute (from ``base``)."""
-    link = copy.deepcopy(link)
-    for visual in link.findall("visual"):
-        link.remove(visual)
-    for mesh in link.iter("mesh"):
-        mesh.set("filename", str(base / mesh.get("filename").removeprefix("package://")))
-    return link
+    text = description_files.collision_only_urdf_text(urdf_path)
+    return _cached_urdf(text, cache_dir, description_files.read_urdf_document(urdf_path).name or urdf_path.stem)
 
 
 def _cached_urdf(text: str, cache_dir: str | Path, stem: str) -> Path:
