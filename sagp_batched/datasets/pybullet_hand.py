@@ -1,24 +1,31 @@
-"""The PyBullet engine of hand-mode labels: one floating Panda hand and one object, in a world built
-from nothing for every simulation.
+"""The PyBullet engine of hand-mode labels: one floating hand (the configured gripper) and one object, in
+a world built from nothing for every simulation.
 
 The engine knows how to simulate, not what to test: a protocol (``protocols.LabelProtocol``) says
 what to build (``protocols.WorldStart``), moves the hand and judges the outcome through the methods
 here, so a second engine implements the same methods and the protocols stay as they are.
 
-The hand is the robot URDF's hand subtree (collision meshes only, fingers as prismatic joints),
-carried by a fixed constraint on its grasp target. Simulations do not share a world: PyBullet's
-solver stops on the residual of the whole world, sorts constraints and contact manifolds by island
-with an unstable quicksort (the several manifolds between a finger and a decomposed object tie, so
-their order depends on the other pairs' bodies), and drops stale broadphase pairs a few per step
-across the whole world. Hands at the same pose beside others then differ after one step, and
+The hand is the gripper's subtree of its URDF (collision meshes only), carried by a fixed constraint on
+its grasp target. A "slide" gripper (the Panda) drives its prismatic fingers with the grip force; a
+"linkage" gripper (the Robotiq) has its mimic joints geared to the driven joint and the driven joint's
+torque set every step from the linkage's leverage, so each pad presses with the grip force wherever
+the fingers stop; its world steps in the gripper's ``pybullet_substeps``, without which the gears
+give under the grip and the pads tilt onto the finger links behind them.
+
+Simulations do not share a world: PyBullet's solver stops on the residual of the whole world, sorts
+constraints and contact manifolds by island with an unstable quicksort (the several manifolds between a
+finger and a decomposed object tie, so their order depends on the other pairs' bodies), and drops stale
+broadphase pairs a few per step across the whole world. Hands at the same pose beside others then differ after one step, and
 outcomes after a lift and a shake.
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Sequence
 
 import pybullet
 
+from .. import description_files
 from ..config import Config
 from ..execution.pick import fingers_touching, push_n, set_finger_friction
 from ..robot.description import robot_of
@@ -39,7 +46,12 @@ class PyBulletHand:
         self.client = pybullet.connect(pybullet.DIRECT)
         self.robot = robot_of(config)
         self.hand_urdf = str(floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir))
-        self.grasp_offset_m = self.robot.gripper.grasp_depth_m
+        self.gripper = self.robot.gripper
+        self.grasp_offset_m = self.gripper.grasp_depth_m
+        if self.gripper.finger_motion == "linkage":
+            self.mimics = description_files.mimics(Path(self.hand_urdf))
+            # A gear carries a follower's share of the drive: the driven joint's effort limit bounds it.
+            self.gear_max_torque_n_m = description_files.joint_effort_limit(Path(self.hand_urdf), self.gripper.finger_joints[0])
         self._object_urdfs: dict[str, str] = {}
         self.table: int | None = None
 
@@ -68,6 +80,8 @@ class PyBulletHand:
         configure_physics(client, config.scene)
         self.set_gravity(start.gravity)
         pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
+        if self.gripper.pybullet_substeps > 1:
+            pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps, physicsClientId=client)
         self.table = create_table(client, config.scene) if start.table else None
         try:
             # loadURDF places the link frame; resetBasePositionAndOrientation the centre-of-mass frame.
@@ -78,17 +92,23 @@ class PyBulletHand:
         if start.object_frame == "com":
             pybullet.resetBasePositionAndOrientation(self.target, object_pose[0], object_pose[1], physicsClientId=client)
         self.hand = pybullet.loadURDF(self.hand_urdf, physicsClientId=client)
-        names = {pybullet.getJointInfo(self.hand, j, physicsClientId=client)[1].decode(): j for j in range(pybullet.getNumJoints(self.hand, physicsClientId=client))}
-        self.finger_joints = tuple(names[name] for name in self.robot.gripper.finger_joints)
+        infos = [pybullet.getJointInfo(self.hand, j, physicsClientId=client) for j in range(pybullet.getNumJoints(self.hand, physicsClientId=client))]
+        joints = {info[1].decode(): info[0] for info in infos}
+        links = {info[12].decode(): info[0] for info in infos}  # a link's index is its parent joint's
+        self.finger_joints = tuple(joints[name] for name in self.gripper.finger_joints)
+        self.pad_links = tuple(links[name] for name in self.gripper.pad_links)
         # The constraint holds the grasp target; PyBullet pins a base by its inertial frame.
         inertial = pybullet.getDynamicsInfo(self.hand, -1, physicsClientId=client)[3:5]
         self.target_in_base = pybullet.multiplyTransforms(*pybullet.invertTransform(*inertial), [0.0, 0.0, self.grasp_offset_m], [0.0, 0.0, 0.0, 1.0])
         base = pybullet.multiplyTransforms(list(hand_position), list(quat), *pybullet.invertTransform(*self.target_in_base))
         pybullet.resetBasePositionAndOrientation(self.hand, *base, physicsClientId=client)
-        for joint in self.finger_joints:
-            pybullet.resetJointState(self.hand, joint, self.robot.gripper.open_width_m / 2.0, physicsClientId=client)
-        self.command_fingers(self.robot.gripper.open_width_m)
-        set_finger_friction(client, self.hand, self.finger_joints, config.execution)
+        if self.gripper.finger_motion == "slide":
+            for joint in self.finger_joints:
+                pybullet.resetJointState(self.hand, joint, self.gripper.open_width_m / 2.0, physicsClientId=client)
+        else:
+            self._tie_linkage(joints)
+        self.command_fingers(self.gripper.open_width_m)
+        set_finger_friction(client, self.hand, self.pad_links, config.execution)
         self.constraint = pybullet.createConstraint(
             self.hand, -1, -1, -1, pybullet.JOINT_FIXED, [0.0, 0.0, 0.0],
             parentFramePosition=self.target_in_base[0], childFramePosition=list(hand_position),
@@ -103,11 +123,45 @@ class PyBulletHand:
         pybullet.setGravity(0.0, 0.0, self.config.scene.gravity_m_s2 if on else 0.0, physicsClientId=self.client)
 
     def command_fingers(self, width_m: float) -> None:
-        command_fingers(self.client, self.hand, self.finger_joints, width_m, self.config.execution.gripper_force_n)
+        if self.gripper.finger_motion == "slide":
+            command_fingers(self.client, self.hand, self.finger_joints, width_m, self.config.execution.gripper_force_n)
+        else:
+            self.finger_target = self.gripper.finger_joint_value(width_m)
+            self._drive_linkage()
 
     def step(self, steps: int) -> None:
         for _ in range(steps):
+            if self.gripper.finger_motion == "linkage":
+                self._drive_linkage()
             pybullet.stepSimulation(physicsClientId=self.client)
+
+    def _tie_linkage(self, joints: dict[str, int]) -> None:
+        """Every driven and mimic joint at the open configuration, each mimic joint geared to its leader:
+        PyBullet ignores ``<mimic>``, and without the gears the pads neither stay parallel nor move together."""
+        client, open_value = self.client, self.gripper.finger_joint_value(self.gripper.open_width_m)
+        for joint in self.finger_joints:
+            pybullet.resetJointState(self.hand, joint, open_value, physicsClientId=client)
+        for name, rule in self.mimics.items():
+            leader, follower = joints[rule.leader], joints[name]
+            pybullet.resetJointState(self.hand, follower, rule.multiplier * open_value + rule.offset, physicsClientId=client)
+            # PyBullet gives every joint a velocity motor; a follower's would fight its gear.
+            pybullet.setJointMotorControl2(self.hand, follower, pybullet.VELOCITY_CONTROL, force=0.0, physicsClientId=client)
+            gear = pybullet.createConstraint(self.hand, leader, self.hand, follower, pybullet.JOINT_GEAR, [1.0, 0.0, 0.0],
+                                             [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=client)
+            # The gear holds leader + ratio * follower at the target: follower = multiplier * leader + offset.
+            pybullet.changeConstraint(gear, gearRatio=-1.0 / rule.multiplier, relativePositionTarget=-rule.offset / rule.multiplier,
+                                      erp=1.0, maxForce=self.gear_max_torque_n_m, physicsClientId=client)
+
+    def _drive_linkage(self) -> None:
+        """The driven joint toward its target with the torque that presses each pad with the grip force
+        where the fingers stand now: the linkage's leverage changes along the stroke, and the fingers stop
+        wherever the object is."""
+        client = self.client
+        joint_value = pybullet.getJointState(self.hand, self.finger_joints[0], physicsClientId=client)[0]
+        torque = self.config.execution.gripper_force_n * self.gripper.drive_torque_per_pad_newton(joint_value)
+        pybullet.setJointMotorControlArray(self.hand, list(self.finger_joints), pybullet.POSITION_CONTROL,
+                                           targetPositions=[self.finger_target] * len(self.finger_joints),
+                                           forces=[torque] * len(self.finger_joints), physicsClientId=client)
 
     def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None:
         """Send the hand's grasp target toward a pose; it follows over the next steps."""
@@ -141,4 +195,4 @@ class PyBulletHand:
         return push_n(self._contacts(self.table))
 
     def fingers_touching(self) -> bool:
-        return fingers_touching(self.client, self.hand, self.finger_joints, self.target)
+        return fingers_touching(self.client, self.hand, self.pad_links, self.target)

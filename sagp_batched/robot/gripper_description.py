@@ -58,6 +58,7 @@ class GripperDescription:
     file_aliases: tuple[str, ...]  # other names grasp files give it
     gripper_boxes: GripperBoxes
     mujoco: tuple[tuple[str, object], ...] = ()  # the MJCF's names and calibration ([mujoco] table)
+    pybullet_substeps: int = 1  # solver substeps per PyBullet step ([pybullet] substeps)
 
     @property
     def grasp_depth_m(self) -> float:
@@ -73,6 +74,13 @@ class GripperDescription:
             return width_m / 2.0
         values, gaps = linkage_table(self)
         return float(np.interp(width_m, gaps[::-1], values[::-1]))
+
+    def drive_torque_per_pad_newton(self, joint_value: float) -> float:
+        """The torque (N m) the driven joint of a linkage exerts per newton each pad presses with, at
+        ``joint_value``: by virtual work, the rate at which the gap between the pads closes per radian,
+        |d gap / d q|, from the URDF's kinematics (one driven joint moves both pads)."""
+        values, closing_rates = linkage_closing_rates(self)
+        return float(np.interp(joint_value, values, closing_rates))
 
     def mujoco_value(self, key: str):
         return dict(self.mujoco)[key]
@@ -94,6 +102,13 @@ def linkage_table(gripper: GripperDescription) -> tuple[np.ndarray, np.ndarray]:
     lower, upper = description_files.joint_limits(gripper.urdf_path, gripper.finger_joints[0])
     values = np.linspace(lower, upper, LINKAGE_SAMPLES)
     return values, np.array([pad_gap_m(gripper, value) for value in values])
+
+
+@functools.lru_cache(maxsize=8)
+def linkage_closing_rates(gripper: GripperDescription) -> tuple[np.ndarray, np.ndarray]:
+    """(driven joint values, |d gap / d value| there, m per radian): how fast the pads close along the stroke."""
+    values, gaps = linkage_table(gripper)
+    return values, np.abs(np.gradient(gaps, values))
 
 
 def pad_gap_m(gripper: GripperDescription, joint_value: float) -> float:
@@ -144,6 +159,7 @@ def load_gripper(name: str) -> GripperDescription:
         file_aliases=tuple(values.get("file_aliases", ())),
         gripper_boxes=GripperBoxes(**{key: float(value) for key, value in values["gripper_boxes"].items()}),
         mujoco=tuple(sorted((key, _frozen(value)) for key, value in values.get("mujoco", {}).items())),
+        pybullet_substeps=int(values.get("pybullet", {}).get("substeps", 1)),
     )
 
 
