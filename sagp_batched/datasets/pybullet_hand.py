@@ -9,8 +9,9 @@ The hand is the gripper's subtree of its URDF (collision meshes only), carried b
 its grasp target. A "slide" gripper (the Panda) drives its prismatic fingers with the grip force; a
 "linkage" gripper (the Robotiq) has its mimic joints geared to the driven joint and the driven joint's
 torque set every step from the linkage's leverage, so each pad presses with the grip force wherever
-the fingers stop; its world steps in the gripper's ``pybullet_substeps``, without which the gears
-give under the grip and the pads tilt onto the finger links behind them.
+the fingers stop; its world steps in the gripper's ``pybullet_substeps`` with its
+``pybullet_solver_iterations``, without which the gears give under the grip and the pads tilt onto the
+finger links behind them.
 
 Simulations do not share a world: PyBullet's solver stops on the residual of the whole world, sorts
 constraints and contact manifolds by island with an unstable quicksort (the several manifolds between a
@@ -80,8 +81,9 @@ class PyBulletHand:
         configure_physics(client, config.scene)
         self.set_gravity(start.gravity)
         pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
-        if self.gripper.pybullet_substeps > 1:
-            pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps, physicsClientId=client)
+        if self.gripper.finger_motion == "linkage":
+            pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps, physicsClientId=client,
+                                               numSolverIterations=self.gripper.pybullet_solver_iterations or config.scene.solver_iterations)
         self.table = create_table(client, config.scene) if start.table else None
         try:
             # loadURDF places the link frame; resetBasePositionAndOrientation the centre-of-mass frame.

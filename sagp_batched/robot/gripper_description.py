@@ -58,7 +58,9 @@ class GripperDescription:
     file_aliases: tuple[str, ...]  # other names grasp files give it
     gripper_boxes: GripperBoxes
     mujoco: tuple[tuple[str, object], ...] = ()  # the MJCF's names and calibration ([mujoco] table)
-    pybullet_substeps: int = 1  # solver substeps per PyBullet step ([pybullet] substeps)
+    # PyBullet's solver substeps per step and iterations ([pybullet] table); None: the scene's iterations.
+    pybullet_substeps: int = 1
+    pybullet_solver_iterations: int | None = None
 
     @property
     def grasp_depth_m(self) -> float:
@@ -160,6 +162,7 @@ def load_gripper(name: str) -> GripperDescription:
         gripper_boxes=GripperBoxes(**{key: float(value) for key, value in values["gripper_boxes"].items()}),
         mujoco=tuple(sorted((key, _frozen(value)) for key, value in values.get("mujoco", {}).items())),
         pybullet_substeps=int(values.get("pybullet", {}).get("substeps", 1)),
+        pybullet_solver_iterations=values.get("pybullet", {}).get("solver_iterations"),
     )
 
 
