@@ -80,14 +80,6 @@ def joint_limits(urdf_path: Path, joint_name: str) -> tuple[float, float]:
     return float(joint.limit.lower), float(joint.limit.upper)
 
 
-def joint_effort_limit(urdf_path: Path, joint_name: str) -> float:
-    """The largest force (N) or torque (N m) the URDF lets a joint exert."""
-    joint = next((joint for joint in read_urdf(Path(urdf_path)).joints if joint.name == joint_name), None)
-    if joint is None or joint.limit is None or not joint.limit.effort:
-        raise ValueError(f"{Path(urdf_path).name}: no joint '{joint_name}' with an effort limit")
-    return float(joint.limit.effort)
-
-
 def link_poses(urdf_path: Path, joint_values: dict[str, float]) -> dict[str, np.ndarray]:
     """(4, 4) float64 pose of every link in the URDF's root frame, with the joints at ``joint_values``
     (others at 0) and every mimic joint where its leader puts it: pytorch-kinematics' forward kinematics,

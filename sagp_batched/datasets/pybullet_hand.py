@@ -49,10 +49,7 @@ class PyBulletHand:
         self.hand_urdf = str(floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir))
         self.gripper = self.robot.gripper
         self.grasp_offset_m = self.gripper.grasp_depth_m
-        if self.gripper.finger_motion == "linkage":
-            self.mimics = description_files.mimics(Path(self.hand_urdf))
-            # A gear carries a follower's share of the drive: the driven joint's effort limit bounds it.
-            self.gear_max_torque_n_m = description_files.joint_effort_limit(Path(self.hand_urdf), self.gripper.finger_joints[0])
+        self.mimics = description_files.mimics(Path(self.hand_urdf)) if self.gripper.finger_motion == "linkage" else {}
         self._object_urdfs: dict[str, str] = {}
         self.table: int | None = None
 
@@ -88,12 +85,13 @@ class PyBulletHand:
         try:
             # loadURDF places the link frame; resetBasePositionAndOrientation the centre-of-mass frame.
             link_pose = object_pose if start.object_frame == "link" else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
-            self.target = pybullet.loadURDF(self._object_urdf(spec), *link_pose, flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
+            self.target = description_files.load_urdf(client, self._object_urdf(spec), basePosition=link_pose[0], baseOrientation=link_pose[1],
+                                                      flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
         except pybullet.error as exc:
             raise ObjectLoadError(f"object '{spec.id}': PyBullet cannot load {spec.urdf_path}: {exc}") from exc
         if start.object_frame == "com":
             pybullet.resetBasePositionAndOrientation(self.target, object_pose[0], object_pose[1], physicsClientId=client)
-        self.hand = pybullet.loadURDF(self.hand_urdf, physicsClientId=client)
+        self.hand = description_files.load_urdf(client, self.hand_urdf)
         infos = [pybullet.getJointInfo(self.hand, j, physicsClientId=client) for j in range(pybullet.getNumJoints(self.hand, physicsClientId=client))]
         joints = {info[1].decode(): info[0] for info in infos}
         links = {info[12].decode(): info[0] for info in infos}  # a link's index is its parent joint's
@@ -141,6 +139,8 @@ class PyBulletHand:
         """Every driven and mimic joint at the open configuration, each mimic joint geared to its leader:
         PyBullet ignores ``<mimic>``, and without the gears the pads neither stay parallel nor move together."""
         client, open_value = self.client, self.gripper.finger_joint_value(self.gripper.open_width_m)
+        # A gear carries a follower's share of the drive: the driven joint's effort limit (URDF) bounds it.
+        gear_max_torque = pybullet.getJointInfo(self.hand, self.finger_joints[0], physicsClientId=client)[10]
         for joint in self.finger_joints:
             pybullet.resetJointState(self.hand, joint, open_value, physicsClientId=client)
         for name, rule in self.mimics.items():
@@ -152,7 +152,7 @@ class PyBulletHand:
                                              [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=client)
             # The gear holds leader + ratio * follower at the target: follower = multiplier * leader + offset.
             pybullet.changeConstraint(gear, gearRatio=-1.0 / rule.multiplier, relativePositionTarget=-rule.offset / rule.multiplier,
-                                      erp=1.0, maxForce=self.gear_max_torque_n_m, physicsClientId=client)
+                                      erp=1.0, maxForce=gear_max_torque, physicsClientId=client)
 
     def _drive_linkage(self) -> None:
         """The driven joint toward its target with the torque that presses each pad with the grip force
