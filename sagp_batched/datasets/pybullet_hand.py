@@ -16,8 +16,8 @@ finger links behind them.
 Simulations do not share a world: PyBullet's solver stops on the residual of the whole world, sorts
 constraints and contact manifolds by island with an unstable quicksort (the several manifolds between a
 finger and a decomposed object tie, so their order depends on the other pairs' bodies), and drops stale
-broadphase pairs a few per step across the whole world. Hands at the same pose beside others then differ after one step, and
-outcomes after a lift and a shake.
+broadphase pairs a few per step across the whole world. Hands at the same pose beside others then differ
+after one step, and outcomes after a lift and a shake.
 """
 from __future__ import annotations
 
@@ -79,8 +79,8 @@ class PyBulletHand:
         self.set_gravity(start.gravity)
         pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
         if self.gripper.finger_motion == "linkage":
-            pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps, physicsClientId=client,
-                                               numSolverIterations=self.gripper.pybullet_solver_iterations or config.scene.solver_iterations)
+            iterations = self.gripper.pybullet_solver_iterations or config.scene.solver_iterations
+            pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps, numSolverIterations=iterations, physicsClientId=client)
         self.table = create_table(client, config.scene) if start.table else None
         try:
             # loadURDF places the link frame; resetBasePositionAndOrientation the centre-of-mass frame.
