@@ -103,13 +103,11 @@ def test_one_module_writes_hdf5():
 # PyBullet the URDFs it loads, and it sits below every stage that asks it (it imports the config at most).
 DESCRIPTION_READER = "sagp_batched/description_files.py"
 DESCRIPTION_PARSING = re.compile(r"ElementTree|fromstring|URDF\(")
-# Temporary: other branches are moving these onto description_files; remove each once it is merged.
-STILL_PARSING = {"sagp_batched/datasets/collision_urdf.py", "sagp_batched/datasets/mujoco_world.py"}
 
 
 def test_one_module_reads_description_files():
     readers = {str(p.relative_to(ROOT)) for p in (ROOT / "sagp_batched").rglob("*.py") if DESCRIPTION_PARSING.search(p.read_text())}
-    assert readers - STILL_PARSING == {DESCRIPTION_READER}
+    assert readers == {DESCRIPTION_READER}
 
 
 def test_description_files_import_nothing_of_the_package_but_the_config():

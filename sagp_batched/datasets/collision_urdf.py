@@ -6,19 +6,13 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
-import xml.etree.ElementTree as ElementTree
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import description_files
+from ..description_files import UrdfLink, urdf_file_path
 from ..robot.description import RobotDescription
-from ..world.mesh_sources import urdf_origin
-
-# PyBullet's surface of a link whose URDF gives no ``<contact>``: lateral friction 0.5, no spinning or rolling friction.
-DEFAULT_FRICTION = (0.5, 0.0, 0.0)
-
 
 def floating_hand_urdf(robot: RobotDescription, cache_dir: str | Path) -> Path:
     """A URDF of ``robot``'s gripper alone: its base link and every link below it (fingers on their joints,
@@ -55,62 +49,24 @@ def _cached_urdf(text: str, cache_dir: str | Path, stem: str) -> Path:
 
 
 # -- what an engine reads of a link ------------------------------------------------------------------------
-@dataclass(frozen=True)
-class LinkInertial:
-    """A link's ``<inertial>``: mass (kg), its frame in the link frame (4, 4: the centre of mass and the
-    axes the tensor is written in) and the (3, 3) tensor about the centre of mass (kg m^2)."""
-
-    mass_kg: float
-    frame_in_link: np.ndarray
-    tensor_kg_m2: np.ndarray
-
-
-def link_inertial(link: ElementTree.Element) -> LinkInertial | None:
-    """The link's ``<inertial>``; None where it has none or a massless one (a frame, not a body)."""
-    inertial = link.find("inertial")
-    mass = inertial.find("mass") if inertial is not None else None
-    if mass is None or float(mass.get("value")) <= 0.0:
-        return None
-    terms = inertial.find("inertia")
-    value = {key: float(terms.get(key, 0.0)) if terms is not None else 0.0 for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
-    tensor = np.array([[value["ixx"], value["ixy"], value["ixz"]], [value["ixy"], value["iyy"], value["iyz"]],
-                       [value["ixz"], value["iyz"], value["izz"]]])
-    return LinkInertial(float(mass.get("value")), urdf_origin(inertial.find("origin")), tensor)
-
-
-def link_friction(link: ElementTree.Element) -> tuple[float, float, float]:
-    """(lateral, spinning, rolling) friction of the link's ``<contact>``, PyBullet's default for any it leaves out."""
-    contact = link.find("contact")
-    values = []
-    for name, default in zip(("lateral_friction", "spinning_friction", "rolling_friction"), DEFAULT_FRICTION):
-        element = contact.find(name) if contact is not None else None
-        values.append(float(element.get("value")) if element is not None else default)
-    return values[0], values[1], values[2]
-
-
-def link_collision_hulls(link: ElementTree.Element, base: Path) -> list[np.ndarray]:
-    """(V, 3) vertices of each convex hull the link collides as, in the link frame, as PyBullet builds
-    them: one hull per ``o`` part of an OBJ mesh (a decomposition's hulls), one of any other mesh file,
-    a box's corners; the ``<origin>`` and mesh ``scale`` applied. Other primitives raise ``ValueError``."""
+def link_collision_hulls(link: UrdfLink, urdf_path: Path) -> list[np.ndarray]:
+    """(V, 3) vertices of each convex hull the link (of the URDF at ``urdf_path``) collides as, in the link frame, as
+    PyBullet builds them: one hull per ``o`` part of an OBJ mesh (a decomposition's hulls), one of any other mesh
+    file, a box's corners; the ``<origin>`` and mesh ``scale`` applied. Other primitives raise ``ValueError``."""
     import trimesh
 
     from ..world.mesh_files import _read_obj_parts
 
     hulls = []
-    for collision in link.findall("collision"):
-        geometry = collision.find("geometry")
-        mesh, box = geometry.find("mesh"), geometry.find("box")
-        if mesh is not None:
-            path = base / mesh.get("filename").removeprefix("package://")
-            scale = np.array([float(v) for v in (mesh.get("scale") or "1 1 1").split()])
+    for collision in link.collisions:
+        if collision.shape == "mesh":
+            path = urdf_file_path(urdf_path, collision.filename)
             parts = _read_obj_parts(path) if path.suffix.lower() == ".obj" else [trimesh.load(path, force="mesh").convex_hull]
-            vertices = [np.asarray(part.vertices) * scale for part in parts]
-        elif box is not None:
+            vertices = [np.asarray(part.vertices) * np.array(collision.scale) for part in parts]
+        elif collision.shape == "box":
             corners = np.array(np.meshgrid([-0.5, 0.5], [-0.5, 0.5], [-0.5, 0.5], indexing="ij")).reshape(3, -1).T
-            vertices = [corners * [float(v) for v in box.get("size").split()]]
+            vertices = [corners * np.array(collision.size)]
         else:
-            kind = next((child.tag for child in geometry), "nothing")
-            raise ValueError(f"link '{link.get('name')}' collides as a {kind}; only meshes and boxes are read")
-        origin = urdf_origin(collision.find("origin"))
-        hulls.extend(part @ origin[:3, :3].T + origin[:3, 3] for part in vertices)
+            raise ValueError(f"link '{link.name}' collides as a {collision.shape or 'nothing'}; only meshes and boxes are read")
+        hulls.extend(part @ collision.origin[:3, :3].T + collision.origin[:3, 3] for part in vertices)
     return hulls

@@ -15,7 +15,6 @@ stepped, is ``[labelling.mujoco]``'s.
 """
 from __future__ import annotations
 
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,9 +25,9 @@ from scipy.spatial.transform import Rotation
 
 from .. import description_files
 from ..config import Config
+from ..description_files import DEFAULT_FRICTION, LinkInertial, UrdfJoint, read_urdf_document
 from ..robot.description import RobotDescription
-from ..world.mesh_sources import urdf_origin
-from .collision_urdf import DEFAULT_FRICTION, LinkInertial, link_collision_hulls, link_friction, link_inertial
+from .collision_urdf import link_collision_hulls
 
 OBJECT_BODY = "object"
 # Collision bits: the hand touches the object, the object the table; the hand touches the table through explicit pairs.
@@ -119,32 +118,31 @@ def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, obj
     """The hand's links as bodies below a free-floating hand link, their geoms touching the object with
     the product of the two surfaces' friction (the fingers' the study's pads); per link, its geoms and surface."""
     execution, options = config.execution, config.labelling.mujoco
-    root = ElementTree.parse(hand_urdf).getroot()
-    links = {link.get("name"): link for link in root.findall("link")}
-    joints_below: dict[str, list[ElementTree.Element]] = {}
-    for joint in root.findall("joint"):
-        joints_below.setdefault(joint.find("parent").get("link"), []).append(joint)
+    document = read_urdf_document(hand_urdf)
+    links = {link.name: link for link in document.links}
+    joints_below: dict[str, list[UrdfJoint]] = {}
+    for joint in document.joints:
+        joints_below.setdefault(joint.parent, []).append(joint)
     surfaces = {}
 
     def add(parent: mujoco.MjsBody, name: str, frame: np.ndarray) -> mujoco.MjsBody:
         body = parent.add_body(name=name, pos=frame[:3, 3], quat=_wxyz(frame[:3, :3]))
-        _set_inertial(body, link_inertial(links[name]))
+        _set_inertial(body, links[name].body_inertial)
         pad = name in robot.gripper.pad_links
-        surface = (execution.finger_lateral_friction, execution.finger_spinning_friction, 0.0) if pad else link_friction(links[name])
-        geoms = _add_hulls(spec, body, link_collision_hulls(links[name], hand_urdf.parent), name, contype=HAND_BIT, conaffinity=0,
+        surface = (execution.finger_lateral_friction, execution.finger_spinning_friction, 0.0) if pad else links[name].friction
+        geoms = _add_hulls(spec, body, link_collision_hulls(links[name], hand_urdf), name, contype=HAND_BIT, conaffinity=0,
                            priority=2, condim=options.finger_condim if pad else 3,
                            friction=_mujoco_friction(_product(surface, object_surface), options.finger_patch_radius_m if pad else 0.0),
                            solref=options.finger_contact_solref if pad else options.contact_solref, solimp=options.contact_solimp,
                            margin=options.hull_margin_m)
         surfaces[name] = (geoms, surface)
         for joint in joints_below.get(name, []):
-            child = add(body, joint.find("child").get("link"), urdf_origin(joint.find("origin")))
-            if joint.get("type") == "prismatic":
-                limit = joint.find("limit")
-                child.add_joint(name=joint.get("name"), type=mujoco.mjtJoint.mjJNT_SLIDE, range=[float(limit.get("lower")), float(limit.get("upper"))],
-                                axis=[float(v) for v in (joint.find("axis").get("xyz") or "1 0 0").split()], limited=mujoco.mjtLimited.mjLIMITED_TRUE)
-            elif joint.get("type") != "fixed":
-                raise ValueError(f"hand joint '{joint.get('name')}' is {joint.get('type')}; the MuJoCo hand takes prismatic and fixed joints")
+            child = add(body, joint.child, joint.origin)
+            if joint.kind == "prismatic":
+                child.add_joint(name=joint.name, type=mujoco.mjtJoint.mjJNT_SLIDE, range=list(joint.limits), axis=list(joint.axis),
+                                limited=mujoco.mjtLimited.mjLIMITED_TRUE)
+            elif joint.kind != "fixed":
+                raise ValueError(f"hand joint '{joint.name}' is {joint.kind}; the MuJoCo hand takes prismatic and fixed joints")
         return body
 
     add(spec.worldbody, robot.gripper.base_link, np.eye(4)).add_freejoint()
@@ -296,8 +294,8 @@ def compile_world(hand_urdf: Path | None, robot: RobotDescription, object_urdf: 
     # An MJCF hand's pads are on underactuated linkages: on one contact point a pad rocks about it and lets
     # the object go (the 2F-140 drops the designed box in the shake); several points hold it flat.
     _set_options(spec, config, multiccd=options.multiccd or builds_from_mjcf(robot))
-    link = ElementTree.parse(object_urdf).getroot().find("link")
-    inertial, object_surface = link_inertial(link), link_friction(link)
+    link = read_urdf_document(object_urdf).links[0]
+    inertial, object_surface = link.body_inertial, link.friction
     if inertial is None:
         raise ValueError(f"{object_urdf}: the object's link has no mass")
     if builds_from_mjcf(robot):
@@ -307,7 +305,7 @@ def compile_world(hand_urdf: Path | None, robot: RobotDescription, object_urdf: 
     body = spec.worldbody.add_body(name=OBJECT_BODY)
     body.add_freejoint()
     _set_inertial(body, inertial)
-    _add_hulls(spec, body, link_collision_hulls(link, object_urdf.parent), OBJECT_BODY, contype=OBJECT_BIT, conaffinity=HAND_BIT | TABLE_BIT,
+    _add_hulls(spec, body, link_collision_hulls(link, object_urdf), OBJECT_BODY, contype=OBJECT_BIT, conaffinity=HAND_BIT | TABLE_BIT,
                priority=1, condim=3, friction=_mujoco_friction(_product(object_surface, DEFAULT_FRICTION)),
                solref=options.contact_solref, solimp=options.contact_solimp, margin=options.hull_margin_m)
     if table:

@@ -11,9 +11,6 @@ import numpy as np
 import trimesh
 
 from ..description_files import UrdfGeometry, UrdfLink, UrdfSyntaxError, read_urdf_document, urdf_file_path
-# Temporary: datasets.collision_urdf and datasets.mujoco_world still import it from here until they read their
-# URDFs through description_files.
-from ..description_files import urdf_origin  # noqa: F401
 
 MESH_SUFFIXES = frozenset({".obj", ".stl", ".ply", ".glb"})
 
