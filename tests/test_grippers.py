@@ -204,3 +204,12 @@ def test_the_gripper_agreement_runner_labels_the_same_grasps_with_each_gripper_a
     refused = subprocess.run([sys.executable, "-m", "runners.bench_dataset", "--grippers", "robotiq_2f85", "--out", str(tmp_path / "x")],
                              cwd=repo, capture_output=True, text=True, timeout=120)
     assert refused.returncode == 2 and "--grippers takes two or more" in refused.stderr and not (tmp_path / "x").exists()
+
+
+def test_the_open_hand_test_of_no_grasps_is_empty(designed_box):
+    from sagp_batched.datasets.grasp_geometry import floating_hand_links, object_surface, open_hand_collisions
+
+    robot = load_robot("panda", "robotiq_2f85")
+    none = GraspPoses(torch.zeros(0, 3, dtype=torch.float64), torch.zeros(0, 3, 3, dtype=torch.float64), "object")
+    object_hit, table_hit = open_hand_collisions(object_surface(designed_box), none, robot, floating_hand_links(robot), 0.001)
+    assert object_hit.shape == table_hit.shape == (0,)

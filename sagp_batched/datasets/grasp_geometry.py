@@ -168,7 +168,7 @@ def open_hand_collisions(
         block = slice(first, first + GRASPS_PER_BLOCK)
         object_hit[block] = _surface_in_hulls(surface.points, rotation[block], position[block], hulls, tolerance_m)
     centres = (rotation @ hulls.centres.T).transpose(1, 2) + position[:, None]  # (N, H, 3)
-    object_hit |= surface.inside(centres.reshape(-1, 3).numpy()).reshape(len(poses), -1).any(axis=1)
+    object_hit |= surface.inside(centres.reshape(-1, 3).numpy()).reshape(len(poses), len(hulls.centres)).any(axis=1)
     table_hit = np.zeros(len(poses), dtype=bool)
     if table_plane is not None:
         normal, offset = table_plane
