@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from sagp_batched.benchmarks.designed_grasps import wide_box_candidates
-from sagp_batched.config import Config, ConfigError
+from sagp_batched.benchmarks.designed_grasps import wide_ball_candidates
+from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.config.world import GRIPPERS
 from sagp_batched.description_files import link_hulls, link_poses
 from sagp_batched.formats.frames import acronym_gripper_transforms_object, grasp_poses_from_acronym
@@ -73,8 +73,8 @@ def test_the_planner_draws_pairs_up_to_the_named_gripper_s_opening_and_no_wider(
 
 
 @pytest.mark.parametrize("name", GRIPPERS)
-def test_a_cube_wider_than_the_gripper_s_opening_is_never_a_candidate(name):
-    assert wide_box_candidates(Config().override("planner", gripper=name)) == 0
+def test_a_ball_too_wide_for_the_gripper_is_never_a_candidate(name):
+    assert wide_ball_candidates(load_config("dataset").override("planner", gripper=name)) == 0
 
 
 def test_files_name_their_gripper_and_its_grasp_depth_places_the_gripper_frame():

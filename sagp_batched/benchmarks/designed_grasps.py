@@ -6,10 +6,12 @@ On a box lying 4 cm tall (``DESIGNED_BOX_M``), top-down:
 2. the same, moved beyond its end until both fingers close beside it: dropped (not lifted);
 3. the palm 6 mm into its top: a collision, decided by geometry before any simulation;
 
-and on a cube wider than the gripper's opening every way (``wide_box_m``):
+and on a ball too wide for the gripper (``wide_ball_radius_m``: every pair of its points whose normals lie within
+the planner's contact angle of the line between them is wider than the opening; a cube would not do, its edges
+are narrow pinches):
 
-4. across it: a collision (the open hand cannot surround it), and
-5. the planner, given the cube's surface, proposes no candidate at all (``wide_box_candidates``).
+4. across its middle: a collision (the open hand cannot surround it), and
+5. the planner, given the ball's surface, proposes no candidate at all (``wide_ball_candidates``).
 
 Depths and offsets come from the gripper's hulls (``robot.hand``), so the same five hold for any gripper.
 """
@@ -40,9 +42,10 @@ FINGERTIP_TABLE_CLEARANCE_M = 0.008
 # How far the fingers clear the box's end in the dropped grasp, and how deep the palm goes into it.
 FINGERS_CLEAR_M = 0.004
 PALM_INTO_BOX_M = 0.006
-# The wide cube's side, as a multiple of the gripper's opening.
-WIDE_BOX_OPENINGS = 1.25
-# Per designed grasp on the box, then the grasp across the wide cube, (held, simulated).
+# The wide ball's diameter as a multiple of the gripper's opening: a chord meeting the surface within 45 deg of
+# its normals is at least cos(45 deg) = 0.71 diameters long, here 1.13 openings.
+WIDE_BALL_OPENINGS = 1.6
+# Per designed grasp on the box, then the grasp across the wide ball, (held, simulated).
 DESIGNED_OUTCOMES = ((True, True), (False, True), (False, False), (False, False))
 DOWN, CLOSING = np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0])
 
@@ -64,33 +67,32 @@ def designed_box_grasps(box: ObjectSpec, robot: RobotDescription) -> GraspPoses:
     return _top_down([[0.0, 0.0, height - depth], [beside, 0.0, height - depth], [0.0, 0.0, height + palm_face - PALM_INTO_BOX_M]])
 
 
-def wide_box_m(robot: RobotDescription) -> tuple[float, float, float]:
-    """A cube wider than ``robot.gripper``'s opening along every axis."""
-    side = WIDE_BOX_OPENINGS * robot.gripper.open_width_m
-    return side, side, side
+def wide_ball_radius_m(robot: RobotDescription) -> float:
+    """The radius of a ball too wide for ``robot.gripper`` to pinch anywhere."""
+    return WIDE_BALL_OPENINGS * robot.gripper.open_width_m / 2.0
 
 
-def _imported_box(extents_m: tuple[float, float, float], folder: Path, cache_dir: Path | None) -> ObjectSpec:
-    import trimesh
-
+def _imported(mesh, folder: Path, cache_dir: Path | None) -> ObjectSpec:
     from ..world.objects import load_object_set
 
-    trimesh.creation.box(extents_m).export(folder / "box.obj")
-    # The wide cube is wider than every hand on purpose: the import would refuse it as ungraspable.
-    return load_object_set(folder, MeshImportSettings(max_grasp_width_m=2.0 * max(extents_m), cache_dir=cache_dir)).get("box")
+    mesh.export(folder / "shape.obj")
+    # The wide ball is wider than every hand on purpose: the import would refuse it as ungraspable.
+    return load_object_set(folder, MeshImportSettings(max_grasp_width_m=2.0 * float(mesh.extents.max()), cache_dir=cache_dir)).get("shape")
 
 
 def designed_grasps(config: Config, cache_dir: Path | None = None, engine: str = "pybullet") -> dict[str, dict[str, Any]]:
     """Per protocol, how many of the designed grasps ``engine`` labels with the outcome they were designed for,
     with the configured gripper."""
+    import trimesh
+
     from ..datasets.labelling import label_object_grasps
 
     robot = robot_of(config)
     results = {}
-    with tempfile.TemporaryDirectory(prefix="sagp_designed_box_") as box_folder, tempfile.TemporaryDirectory(prefix="sagp_wide_box_") as wide_folder:
-        box = _imported_box(DESIGNED_BOX_M, Path(box_folder), cache_dir)
-        wide = _imported_box(wide_box_m(robot), Path(wide_folder), cache_dir)
-        across_wide = _top_down([[0.0, 0.0, wide.extents_m[2] - ACROSS_DEPTH_M]])
+    with tempfile.TemporaryDirectory(prefix="sagp_designed_box_") as box_folder, tempfile.TemporaryDirectory(prefix="sagp_wide_ball_") as wide_folder:
+        box = _imported(trimesh.creation.box(DESIGNED_BOX_M), Path(box_folder), cache_dir)
+        wide = _imported(trimesh.creation.icosphere(subdivisions=3, radius=wide_ball_radius_m(robot)), Path(wide_folder), cache_dir)
+        across_wide = _top_down([[0.0, 0.0, wide.extents_m[2] / 2.0]])
         for protocol in LABEL_PROTOCOLS:
             labels = label_object_grasps(box, designed_box_grasps(box, robot), None, protocol, config, engine=engine)
             labels += label_object_grasps(wide, across_wide, None, protocol, config, engine=engine)
@@ -100,29 +102,20 @@ def designed_grasps(config: Config, cache_dir: Path | None = None, engine: str =
     return results
 
 
-def wide_box_candidates(config: Config, spacing_m: float = 0.004) -> int:
-    """How many candidates the planner returns for the surface of a cube wider than the configured gripper's
-    opening, standing on the table: none, where the jaws' limit holds."""
+def wide_ball_candidates(config: Config, n_points: int = 4000) -> int:
+    """How many candidates the planner returns for the surface of a ball too wide for the configured gripper,
+    resting on the table: none, where the width limits hold."""
     from ..planning import plan_batch
 
-    side = wide_box_m(robot_of(config))[0]
-    axis = np.arange(-side / 2, side / 2 + 1e-9, spacing_m)
-    u, v = (grid.ravel() for grid in np.meshgrid(axis, axis, indexing="ij"))
-    points, normals = [], []
-    for normal_axis in range(3):
-        others = [a for a in range(3) if a != normal_axis]
-        for sign in (-1.0, 1.0):
-            face = np.zeros((u.size, 3))
-            face[:, others[0]], face[:, others[1]], face[:, normal_axis] = u, v, sign * side / 2
-            normal = np.zeros((u.size, 3))
-            normal[:, normal_axis] = sign
-            points.append(face)
-            normals.append(normal)
-    centre = np.array([*config.scene.table_center_xy_m, config.scene.table_top_z_m + side / 2])
+    radius = wide_ball_radius_m(robot_of(config))
+    # A Fibonacci sphere: points spread evenly, each its own outward normal.
+    index = np.arange(n_points) + 0.5
+    polar, azimuth = np.arccos(1.0 - 2.0 * index / n_points), np.pi * (1.0 + 5.0**0.5) * index
+    normals = np.stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)], axis=1)
+    centre = np.array([*config.scene.table_center_xy_m, config.scene.table_top_z_m + radius])
     cloud = PerceivedCloud(
-        points_world=torch.as_tensor(np.concatenate(points) + centre, dtype=torch.float32),
-        normals_world=torch.as_tensor(np.concatenate(normals), dtype=torch.float32),
-        view_index=torch.zeros(sum(len(p) for p in points), dtype=torch.int64), crop_rgb=np.zeros((1, 1, 3), dtype=np.uint8),
-        cameras=[], object_id="wide_box", object_position_world=centre, object_quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]),
+        points_world=torch.as_tensor(normals * radius + centre, dtype=torch.float32), normals_world=torch.as_tensor(normals, dtype=torch.float32),
+        view_index=torch.zeros(n_points, dtype=torch.int64), crop_rgb=np.zeros((1, 1, 3), dtype=np.uint8), cameras=[],
+        object_id="wide_ball", object_position_world=centre, object_quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]),
     )
     return len(plan_batch([cloud], config)[0].candidates)

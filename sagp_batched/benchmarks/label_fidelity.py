@@ -275,7 +275,7 @@ def fidelity_markdown(report: dict[str, Any]) -> str:
                      f"| {count_and_rate(*_pooled(done, 'protocol_agreement'))} | | | |")
     designed = report["designed"]
     lines += [
-        "", "Designed grasps (across a box: held; beside it: dropped; the palm in it and across a cube wider than the opening: collisions): "
+        "", "Designed grasps (across a box: held; beside it: dropped; the palm in it and across a ball too wide for the opening: collisions): "
         + ", ".join(f"{protocol} {result['correct']}/{result['of']}" for protocol, result in designed.items()) + ".",
         "", f"Grasps: {settings['grasps_per_object']} an object, planned all around it (the floating dataset's planning), "
         f"each label {settings['perturbed_simulations']} simulation(s). Agreements count the grasps both labellings simulated; "
