@@ -162,8 +162,8 @@ def test_the_engine_benchmark_compares_both_engines_on_planned_grasps(tmp_path):
     objects = load_object_set(tmp_path, MeshImportSettings(max_resting_poses=1, cache_dir=tmp_path / "cache"))
     config = load_config("dataset", {"planner": {"n_pairs": 2000}, **ONE_SIMULATION})
     report = engine_agreement(config, objects, ["cube"], 8, [{}, {"substeps": 2}], note=lambda line: None)
-    assert report["pybullet"]["designed"] == {"tabletop": 3, "floating": 3}
+    assert report["pybullet"]["designed"] == {"tabletop": 4, "floating": 4}
     for row in report["variants"]:
-        assert row["designed"] == {"tabletop": 3, "floating": 3} and row["agreement"]["all"]["n"] > 0
+        assert row["designed"] == {"tabletop": 4, "floating": 4} and row["agreement"]["all"]["n"] > 0
         assert row["speed"]["simulations_per_s_per_core"] > 0
     assert "| substeps=2 |" in agreement_markdown(report)
