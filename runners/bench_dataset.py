@@ -47,6 +47,8 @@ from sagp_batched.runtime import configure_torch
 from sagp_batched.world.mesh_settings import MeshImportSettings
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
 
+from .cli import names_and_unknown
+
 PROJECTION_CORES = (2, 64)
 FIDELITY_JSON = "label_fidelity.json"
 FIDELITY_MARKDOWN = "label_fidelity.md"
@@ -254,8 +256,7 @@ def _engines_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
 
 
 def _grippers_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    names = [name.strip() for name in args.grippers.split(",") if name.strip()]
-    unknown = [name for name in names if name not in GRIPPERS]
+    names, unknown = names_and_unknown(args.grippers, GRIPPERS)
     if unknown or len(names) < 2:
         parser.error(f"--grippers takes two or more of {', '.join(GRIPPERS)}, got {args.grippers!r}")
     inputs = _fidelity_inputs(parser, args, "--grippers", engines.DEFAULT_OBJECTS)

@@ -37,6 +37,12 @@ def config_or_report(args: argparse.Namespace, setting_flags: SettingFlags) -> C
         return None
 
 
+def names_and_unknown(text: str, known: tuple[str, ...]) -> tuple[list[str], list[str]]:
+    """The names of the comma list ``text``, and those of them not in ``known``."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    return names, [name for name in names if name not in known]
+
+
 def workers_line(args: argparse.Namespace, config: Config) -> str:
     """The run's first word on its workers: how many, and whether ``--workers``, the profile or the cores
     available to this process (the default: ``sagp_batched.config.run.available_cores``) chose them."""

@@ -17,6 +17,8 @@ from sagp_batched.config.world import GRIPPERS
 from sagp_batched.formats.frame_pictures import draw_gripper_frame
 from sagp_batched.world.objects import embedded_ycb_dir, load_object_set
 
+from .cli import names_and_unknown
+
 OBJECT_ID = "025_mug"
 
 
@@ -29,8 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    names = [name.strip() for name in args.grippers.split(",") if name.strip()]
-    unknown = [name for name in names if name not in GRIPPERS]
+    names, unknown = names_and_unknown(args.grippers, GRIPPERS)
     if unknown or not names:
         print(f"error: --grippers: unknown {', '.join(unknown) or '(none given)'}; known: {', '.join(GRIPPERS)}", file=sys.stderr)
         return 2

@@ -1,6 +1,9 @@
 """Copy the Robotiq grippers' description files into the package (``sagp_batched/data/grippers``).
 
-    python -m runners.import_grippers --source ../shared/grippers --out sagp_batched/data/grippers
+    python -m runners.import_grippers --source GRIPPER_MODELS --out sagp_batched/data/grippers
+
+GRIPPER_MODELS holds robotiq_2f85/ and robotiq_2f140/, each with Menagerie's MJCF (mjcf/) and ros-industrial's
+URDF expanded from its xacro (urdf/).
 
 For each gripper: the MuJoCo Menagerie MJCF with its meshes and licence as they are; the URDF without its
 visuals (the package simulates and checks collisions; it never renders the gripper's own meshes), its

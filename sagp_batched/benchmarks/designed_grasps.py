@@ -24,6 +24,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from sagp_batched_kernels.grasp_frames import grasp_rotations
+
 from ..config import Config
 from ..config.run import LABEL_PROTOCOLS
 from ..grasps import GraspPoses
@@ -51,8 +53,8 @@ DOWN, CLOSING = np.array([0.0, 0.0, -1.0]), np.array([0.0, 1.0, 0.0])
 
 
 def _top_down(positions: list[list[float]]) -> GraspPoses:
-    rotation = np.column_stack([np.cross(CLOSING, DOWN), CLOSING, DOWN])
-    return GraspPoses(torch.tensor(positions, dtype=torch.float64), torch.tensor(np.stack([rotation] * len(positions))), "object")
+    rotation = grasp_rotations(torch.tensor(CLOSING), torch.tensor(DOWN))
+    return GraspPoses(torch.tensor(positions, dtype=torch.float64), rotation.expand(len(positions), 3, 3).clone(), "object")
 
 
 def designed_box_grasps(box: ObjectSpec, robot: RobotDescription) -> GraspPoses:

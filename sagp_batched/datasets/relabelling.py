@@ -302,7 +302,7 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
     relabel of other inputs or an object whose frame cannot take the file's grasps, and the object set's and run
     directory's own errors."""
     config = inputs.configured(config)
-    robot_of(config)  # the file's gripper takes the configured grip force, checked before any work
+    gripper = robot_of(config).gripper  # the file's gripper, its grip force range checked before any work
     record = input_record(inputs)
     with RunLock(out_dir):
         _check_same_input(out_dir, record)
@@ -320,7 +320,7 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
         widths = None if inputs.grasp_file.width_m is None else inputs.grasp_file.width_m[inputs.selection]
         labels = label_pending(spec, transforms_link, widths, inputs, config, out_dir,
                                lambda done, total: note(f"chunk {done}/{total} labelled"))
-        regions = grasp_regions(grasp_poses_from_acronym(transforms_link, robot_of(config).gripper).position.numpy(), object_bounds(spec))
+        regions = grasp_regions(grasp_poses_from_acronym(transforms_link, gripper).position.numpy(), object_bounds(spec))
         phases = [label["failed_at"] for label in labels]
         result = label_agreement(inputs.grasp_file.labels[inputs.selection], np.array([label["held"] for label in labels]), phases, regions)
         result.update(file=record["file"], protocol=inputs.protocol, engine=inputs.engine, object_id=spec.id)
@@ -328,7 +328,7 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
             result.update(_engine_agreements(inputs.grasp_file.labels[inputs.selection], labels, regions, inputs.engines))
         write_file_atomically(out_dir / RELABEL_FILE, relabel_file_bytes(
             inputs.grasp_file, inputs.selection, link_from_file, labels, regions, object_id=spec.id, mass_kg=spec.mass_kg,
-            protocol=inputs.protocol, engine=inputs.engine, gripper=robot_of(config).gripper))
+            protocol=inputs.protocol, engine=inputs.engine, gripper=gripper))
         write_json(out_dir / AGREEMENT_FILE, result)
         name = f"{inputs.grasp_file.path.name} ({inputs.grasp_file.format})"
         markdown = agreement_markdown(result, f"Label agreement: {name} vs ours ({inputs.protocol}, {inputs.engine})")

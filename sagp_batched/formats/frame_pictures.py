@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from sagp_batched_kernels.grasp_frames import grasp_rotations
+
 from ..grasps import GraspPoses
 from ..robot.description import load_robot
 from ..robot.hand import load_hand_geometry
@@ -26,10 +28,9 @@ def rim_grasp(mesh) -> GraspPoses:
     top = vertices[:, 2].max()
     near_top = vertices[vertices[:, 2] > top - 0.005]
     rim = near_top[np.argmax(near_top[:, 0])]
-    down, closing = np.array([0.0, 0.0, -1.0]), np.array([1.0, 0.0, 0.0])
-    rotation = np.column_stack([np.cross(closing, down), closing, down])
+    rotation = grasp_rotations(torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64), torch.tensor([[0.0, 0.0, -1.0]], dtype=torch.float64))
     centre = np.array([rim[0] - 0.003, 0.0, top - RIM_DEPTH_M])
-    return GraspPoses(torch.tensor(centre[None], dtype=torch.float64), torch.tensor(rotation[None]), "object")
+    return GraspPoses(torch.tensor(centre[None], dtype=torch.float64), rotation, "object")
 
 
 def draw_gripper_frame(gripper_name: str, spec: ObjectSpec, mesh, out_path: Path) -> Path:
