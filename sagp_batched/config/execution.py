@@ -21,12 +21,17 @@ class ExecutionConfig(_Section):
     close_steps: int = setting(120, at_least=1)
     # Panda hand: 70 N continuous grip force per the datasheet; enough for the 1.13 kg bleach bottle.
     gripper_force_n: float = setting(70.0, above=0)
-    # Rubber-like finger pads; PyBullet multiplies this with the object's friction (YCB URDFs: 0.9).
+    # The finger pads' friction factor: the pad-object coefficient is this times the object's (YCB URDFs: 0.9),
+    # as both engines combine them.
     finger_lateral_friction: float = setting(1.5, at_least=0)
-    # Torsional friction (m). Bullet bounds the torque a contact resists about its normal by this
-    # times the object's friction times the normal force; a pad pressed on a patch of radius a
-    # resists (2/3) mu a N, so 0.003 stands for a ~4.5 mm patch (0.05 stood for one of 7.5 cm).
-    finger_spinning_friction: float = setting(0.003, at_least=0)
+    # The pads' rubber (``execution.contact_model``): soft rubber (Shore ~50A, E ~2 MPa, nearly incompressible)
+    # in a 2 mm layer; the patch, torsional friction, stiffness and damping of both engines follow from these,
+    # the grip force and the pad's face measured from the gripper's hulls.
+    pad_young_modulus_pa: float = setting(2.0e6, above=0)
+    pad_poisson_ratio: float = setting(0.49, at_least=0, below=0.5)
+    pad_thickness_m: float = setting(0.002, above=0)
+    # Critically damped: the pad catches a free object without bouncing it.
+    pad_damping_ratio: float = setting(1.0, above=0)
     arm_position_gain: float = setting(0.3, above=0, at_most=1)
     # PyBullet IK restarts from seeded random joints inside the limits when the given seeds fail.
     ik_random_restarts: int = setting(8, at_least=0)
@@ -107,14 +112,9 @@ class MuJoCoConfig(_Section):
     ls_iterations: int = setting(20, at_least=1, at_most=10_000)
     #: A no-slip pass stops what creep is left: 5 passes label alike (92 %) at 1.3 times the time.
     noslip_iterations: int = setting(0, at_least=0, at_most=10_000)
-    #: The finger pads' contacts resist turning (torsional friction); 6 adds rolling friction, which the
-    #: grip does not need (6: labels alike, 15 % slower).
-    finger_condim: int = setting(4, choices=(3, 4, 6))
-    #: PyBullet resists a turn in the grip with its manifold's several points across a pad; MuJoCo's
-    #: convex collision gives one point a hull pair, so the pad's torsional friction is its lateral
-    #: friction times this radius, a quarter of the pad's width (0: 79 %, objects turn out of the grip;
-    #: 0.01: 93 %, within the sweep's noise of 4 grasps in 344).
-    finger_patch_radius_m: float = setting(0.005, at_least=0)
+    #: The finger pads' contacts resist turning (torsional friction, ``execution.contact_model``); 6 would add
+    #: rolling friction, which the pad model has none of.
+    finger_condim: int = setting(4, choices=(4, 6))
     #: Several points a hull pair: labels alike (92 %), 1.8 times the time. A hand from a gripper's MJCF
     #: (the Robotiqs) always has them: its pads on underactuated linkages rock about a single point.
     multiccd: bool = False
@@ -123,16 +123,10 @@ class MuJoCoConfig(_Section):
     #: margins), and the hand meets and knocks what PyBullet's does on the way down (0: as many labels
     #: alike, 92 %, but it holds every tabletop grasp PyBullet drops: kappa 0.12 there, against 0.37).
     hull_margin_m: float = setting(0.001, at_least=0)
-    #: (time constant s, damping ratio) of the finger pads' contacts. PyBullet's are the finger URDF's
-    #: ``<contact>`` spring and damper (30000 N/m, 1000 N s/m): soft and damped far beyond critical, they
-    #: catch a free object rather than bounce it. MuJoCo damps most at the shortest time constant it
-    #: integrates (two substeps); a ratio of 4 softens the spring to near PyBullet's damping-to-stiffness
-    #: ratio ((0.004, 1), as the other contacts: 84 %).
-    finger_contact_solref: tuple[float, float] = setting((0.0021, 4.0), shape=(2,))
     #: Every other contact (palm, table) stiff and critically damped, as PyBullet's rigid contacts are.
     contact_solref: tuple[float, float] = setting((0.004, 1.0), shape=(2,))
-    #: Impedance near 1: the 70 N squeeze presses a pad 0.25 mm into the object's hulls (2.25 mm into
-    #: the margins, as PyBullet's 30000 N/m pads sink 2.3 mm).
+    #: Impedance near 1 for the rigid contacts; the pads' (d, d) comes from the contact model and their
+    #: (width, midpoint, power) from here.
     contact_solimp: tuple[float, float, float, float, float] = setting((0.95, 0.99, 0.001, 0.5, 2.0), shape=(5,))
     #: The weld that carries the hand, as stiff as the substeps integrate: the hand reaches 98 % of the
     #: shake's peaks, PyBullet's constraint (erp 0.8) 99.7 %.

@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from .. import description_files
 from ..config import Config
 from ..description_files import DEFAULT_FRICTION, LinkInertial, UrdfJoint, read_urdf_document
+from ..execution.contact_model import engine_pad, mujoco_pad_contact, reduced_mass_kg
 from ..robot.description import RobotDescription
 from .collision_urdf import link_collision_hulls
 
@@ -93,13 +94,6 @@ def _product(first: tuple[float, float, float], second: tuple[float, float, floa
     return first[0] * second[0], first[1] * second[1], first[2] * second[2]
 
 
-def _mujoco_friction(surface: tuple[float, float, float], patch_radius_m: float = 0.0) -> list[float]:
-    """MuJoCo's (sliding, torsional, rolling) friction of ``surface``; a finger pad's torsional friction
-    adds the patch's resistance to turning (``finger_patch_radius_m``)."""
-    lateral, spinning, rolling = surface
-    return [lateral, spinning + lateral * patch_radius_m, rolling]
-
-
 def _add_hulls(spec: mujoco.MjSpec, body: mujoco.MjsBody, hulls: list[np.ndarray], prefix: str, **geom: Any) -> list[str]:
     """The hulls as mesh geoms of ``body`` with the attributes ``geom`` (MuJoCo collides a mesh as its
     convex hull); their names."""
@@ -113,11 +107,28 @@ def _add_hulls(spec: mujoco.MjSpec, body: mujoco.MjsBody, hulls: list[np.ndarray
     return names
 
 
+def _pad_surface(config: Config) -> tuple[float, float, float]:
+    """A pad's (lateral, spinning, rolling) friction where it touches the table: the pad's friction factor alone."""
+    return config.execution.finger_lateral_friction, 0.0, 0.0
+
+
+def _pad_contact_of(robot: RobotDescription, object_surface: tuple[float, float, float], object_mass_kg: float, config: Config):
+    """Per pad body's mass, the (friction, solref, solimp) of its geoms from the contact model."""
+    pad, options = engine_pad(config.execution, robot), config.labelling.mujoco
+    timestep = config.scene.time_step_s / options.substeps
+
+    def pad_contact(pad_mass_kg: float):
+        return mujoco_pad_contact(pad, object_surface, reduced_mass_kg(pad_mass_kg, object_mass_kg), timestep, options.contact_solimp[2:])
+
+    return pad_contact
+
+
 def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, object_surface: tuple[float, float, float],
-              config: Config) -> dict[str, tuple[list[str], tuple[float, float, float]]]:
+              object_mass_kg: float, config: Config) -> dict[str, tuple[list[str], tuple[float, float, float]]]:
     """The hand's links as bodies below a free-floating hand link, their geoms touching the object with
-    the product of the two surfaces' friction (the fingers' the study's pads); per link, its geoms and surface."""
-    execution, options = config.execution, config.labelling.mujoco
+    the product of the two surfaces' friction, the pads' from the contact model; per link, its geoms and surface."""
+    options = config.labelling.mujoco
+    pad_contact = _pad_contact_of(robot, object_surface, object_mass_kg, config)
     document = read_urdf_document(hand_urdf)
     links = {link.name: link for link in document.links}
     joints_below: dict[str, list[UrdfJoint]] = {}
@@ -128,13 +139,16 @@ def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, obj
     def add(parent: mujoco.MjsBody, name: str, frame: np.ndarray) -> mujoco.MjsBody:
         body = parent.add_body(name=name, pos=frame[:3, 3], quat=_wxyz(frame[:3, :3]))
         _set_inertial(body, links[name].body_inertial)
-        pad = name in robot.gripper.pad_links
-        surface = (execution.finger_lateral_friction, execution.finger_spinning_friction, 0.0) if pad else links[name].friction
+        if name in robot.gripper.pad_links:
+            surface = _pad_surface(config)
+            friction, solref, solimp = pad_contact(body.mass)
+            contact = {"condim": options.finger_condim, "friction": friction, "solref": solref, "solimp": solimp}
+        else:
+            surface = links[name].friction
+            contact = {"condim": 3, "friction": list(_product(surface, object_surface)), "solref": options.contact_solref,
+                       "solimp": options.contact_solimp}
         geoms = _add_hulls(spec, body, link_collision_hulls(links[name], hand_urdf), name, contype=HAND_BIT, conaffinity=0,
-                           priority=2, condim=options.finger_condim if pad else 3,
-                           friction=_mujoco_friction(_product(surface, object_surface), options.finger_patch_radius_m if pad else 0.0),
-                           solref=options.finger_contact_solref if pad else options.contact_solref, solimp=options.contact_solimp,
-                           margin=options.hull_margin_m)
+                           priority=2, margin=options.hull_margin_m, **contact)
         surfaces[name] = (geoms, surface)
         for joint in joints_below.get(name, []):
             child = add(body, joint.child, joint.origin)
@@ -168,16 +182,17 @@ def builds_from_mjcf(robot: RobotDescription) -> bool:
 
 
 def _add_urdf_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, object_surface: tuple[float, float, float],
-                   config: Config) -> _Hand:
+                   object_mass_kg: float, config: Config) -> _Hand:
     gripper = robot.gripper
-    surfaces = _add_hand(spec, hand_urdf, robot, object_surface, config)
+    surfaces = _add_hand(spec, hand_urdf, robot, object_surface, object_mass_kg, config)
     _add_finger_servos(spec, robot, config)
     open_value = gripper.finger_joint_value(gripper.open_width_m)
     return _Hand(surfaces, gripper.grasp_target_link, gripper.finger_joints, (open_value,) * len(gripper.finger_joints),
                  gripper.pad_links, None)
 
 
-def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface: tuple[float, float, float], config: Config) -> _Hand:
+def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface: tuple[float, float, float], object_mass_kg: float,
+                   config: Config) -> _Hand:
     """The gripper's MJCF below a free-floating hand body in the URDF base link's frame (the MJCF's body
     ``[mujoco] base_body``), its linkage as the MJCF models it: the joints, the equality constraints that
     close the four-bars, the tendon and the servo on it. The servo's force is capped so that each pad
@@ -193,7 +208,7 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
     spec.attach(description_files.read_mjcf(gripper.mjcf_path), prefix=MJCF_PREFIX,
                 frame=hand.add_frame(pos=root_in_hand[:3, 3], quat=_wxyz(root_in_hand[:3, :3])))
     pad_geoms = [[MJCF_PREFIX + name for name in names] for names in gripper.mujoco_value("pad_geoms")]
-    pad_surface = (execution.finger_lateral_friction, execution.finger_spinning_friction, 0.0)
+    pad_surface, pad_contact = _pad_surface(config), _pad_contact_of(robot, object_surface, object_mass_kg, config)
     surfaces = {link: (names, pad_surface) for link, names in zip(gripper.pad_links, pad_geoms)}
     surfaces[gripper.base_link] = ([], DEFAULT_FRICTION)
     pads = {name for names in pad_geoms for name in names}
@@ -207,11 +222,12 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
         if not pad:
             surfaces[gripper.base_link][0].append(geom.name)
         geom.contype, geom.conaffinity, geom.priority, geom.margin = HAND_BIT, 0, 2, options.hull_margin_m
-        geom.condim = options.finger_condim if pad else 3
-        geom.friction = _mujoco_friction(_product(pad_surface if pad else DEFAULT_FRICTION, object_surface),
-                                         options.finger_patch_radius_m if pad else 0.0)
-        geom.solref = options.finger_contact_solref if pad else options.contact_solref
-        geom.solimp = options.contact_solimp
+        if pad:
+            geom.condim = options.finger_condim
+            geom.friction, geom.solref, geom.solimp = pad_contact(geom.parent.mass)
+        else:
+            geom.condim, geom.friction = 3, list(_product(DEFAULT_FRICTION, object_surface))
+            geom.solref, geom.solimp = options.contact_solref, options.contact_solimp
     if not pads <= found:
         raise ValueError(f"{gripper.mjcf_path.name}: no colliding geom {', '.join(sorted(pads - found))} ([mujoco] pad_geoms)")
     actuator = spec.actuator(MJCF_PREFIX + gripper.mujoco_value("actuator"))
@@ -299,14 +315,14 @@ def compile_world(hand_urdf: Path | None, robot: RobotDescription, object_urdf: 
     if inertial is None:
         raise ValueError(f"{object_urdf}: the object's link has no mass")
     if builds_from_mjcf(robot):
-        hand = _add_mjcf_hand(spec, robot, object_surface, config)
+        hand = _add_mjcf_hand(spec, robot, object_surface, inertial.mass_kg, config)
     else:
-        hand = _add_urdf_hand(spec, hand_urdf, robot, object_surface, config)
+        hand = _add_urdf_hand(spec, hand_urdf, robot, object_surface, inertial.mass_kg, config)
     body = spec.worldbody.add_body(name=OBJECT_BODY)
     body.add_freejoint()
     _set_inertial(body, inertial)
     _add_hulls(spec, body, link_collision_hulls(link, object_urdf), OBJECT_BODY, contype=OBJECT_BIT, conaffinity=HAND_BIT | TABLE_BIT,
-               priority=1, condim=3, friction=_mujoco_friction(_product(object_surface, DEFAULT_FRICTION)),
+               priority=1, condim=3, friction=list(_product(object_surface, DEFAULT_FRICTION)),
                solref=options.contact_solref, solimp=options.contact_solimp, margin=options.hull_margin_m)
     if table:
         _add_table(spec, hand.surfaces, config)

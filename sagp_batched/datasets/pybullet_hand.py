@@ -28,6 +28,7 @@ import pybullet
 
 from .. import description_files
 from ..config import Config
+from ..execution.contact_model import engine_pad
 from ..execution.pick import fingers_touching, push_n, set_finger_friction
 from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
@@ -48,6 +49,7 @@ class PyBulletHand:
         self.robot = robot_of(config)
         self.hand_urdf = str(floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir))
         self.gripper = self.robot.gripper
+        self.pad = engine_pad(config.execution, self.robot)
         self.grasp_offset_m = self.gripper.grasp_depth_m
         self.mimics = description_files.mimics(Path(self.hand_urdf)) if self.gripper.finger_motion == "linkage" else {}
         self._object_urdfs: dict[str, str] = {}
@@ -108,7 +110,7 @@ class PyBulletHand:
         else:
             self._tie_linkage(joints)
         self.command_fingers(self.gripper.open_width_m)
-        set_finger_friction(client, self.hand, self.pad_links, config.execution)
+        set_finger_friction(client, self.hand, self.pad_links, self.pad, self.target)
         self.constraint = pybullet.createConstraint(
             self.hand, -1, -1, -1, pybullet.JOINT_FIXED, [0.0, 0.0, 0.0],
             parentFramePosition=self.target_in_base[0], childFramePosition=list(hand_position),

@@ -32,6 +32,7 @@ from ..robot.motion import grasp_waypoint_index, motion_waypoints
 from ..types import GraspAttempt
 from ..world.scene import Scene, make_camera
 from .arm_joints import path_to_execute
+from .contact_model import EnginePad, engine_pad, pybullet_pad_dynamics, reduced_mass_kg
 from .held import lift_failure, object_held
 from .poses import pose_change, quat_angle_deg, relative_pose
 from .shake import achieved_shake_peaks, frame_offsets, shake_profile
@@ -120,7 +121,7 @@ def execute_grasp(scene: Scene, config: Config, grasp: Grasp, record_frames: boo
     robot_of(config).require_mounted_gripper("executing a grasp with the arm")
     quat, waypoints, joint_path = checked_grasp(grasp, config.motion, scene.robot)
     grasp_index = grasp_waypoint_index(config.motion)
-    set_finger_friction(scene.client, scene.robot_id, scene.robot_indices.finger_joints, execution)
+    set_finger_friction(scene.client, scene.robot_id, scene.robot_indices.finger_joints, engine_pad(execution, robot_of(config)), scene.target_id)
     outcome = _AttemptOutcome(scene, config, record_frames)
     diagnostics, finish = outcome.diagnostics, outcome.finish
 
@@ -304,17 +305,15 @@ def _close_fingers(scene: Scene, execution: ExecutionConfig, planned_width_m: fl
         diagnostics.object_motion_during_closing_linear, diagnostics.object_motion_during_closing_angular = closing
 
 
-def set_finger_friction(client: int, gripper_id: int, finger_links: Sequence[int], execution: ExecutionConfig) -> None:
-    """The study's finger-pad friction on the gripper's finger links."""
-    for finger in finger_links:
-        pybullet.changeDynamics(
-            gripper_id,
-            finger,
-            lateralFriction=execution.finger_lateral_friction,
-            spinningFriction=execution.finger_spinning_friction,
-            physicsClientId=client,
-        )
-
+def set_finger_friction(client: int, gripper_id: int, pad_links: Sequence[int], pad: EnginePad, object_id: int) -> None:
+    """The contact model's pads (``contact_model.pybullet_pad_dynamics``) on the gripper's pad links, for
+    their contacts with ``object_id``: its friction and mass enter what the pads are given."""
+    info = pybullet.getDynamicsInfo(object_id, -1, physicsClientId=client)
+    object_mass, object_surface = info[0], (info[1], info[7], info[6])  # lateral, spinning, rolling
+    for link in pad_links:
+        pad_mass = pybullet.getDynamicsInfo(gripper_id, link, physicsClientId=client)[0]
+        dynamics = pybullet_pad_dynamics(pad, object_surface, reduced_mass_kg(pad_mass, object_mass))
+        pybullet.changeDynamics(gripper_id, link, physicsClientId=client, **dynamics)
 
 
 def execute_ranked(
