@@ -1,0 +1,260 @@
+"""Grasps whose outcome is known on paper, from the contact model (``execution.contact_model``), labelled by
+each engine in each protocol.
+
+Every case is a top-down pinch of an object lying on the table in its link frame (x along its length, z up;
+in the floating protocol gravity pulls along the same -z): the grasp's z (approach) is vertical, its y (the
+closing axis) and x horizontal. Gravity g and the protocol's peaks act on the object in separate windows: the
+lift (``lift_peak_m_s2``, up), the shake along the grasp's x, y and z (``[labelling.shake]``, one axis at a time)
+and about them. Two pads each press with the grip force F and friction mu = the pad's factor times the
+object's. A case holds on paper iff, in every window,
+
+* sliding: the force the pads' friction must carry in their plane is within ``2 mu F``: ``m (g + a_z)`` along
+  the vertical (the largest of the lift's and the shake's z peaks), ``m sqrt(g^2 + a_x^2)`` along x, ``m (g +
+  alpha r)`` while turning about the grasp target (r the centre of mass's distance from it); along the
+  closing axis both pads keep pressing with F (their drives are force-limited, so the object lags the hand
+  rather than loading one pad), which leaves the limit as it is;
+* torsion: the torque about the closing axis (the pads' normal) is within the two pads' torsional limits
+  (``contact_model.pad_torsional_limit_n_m`` for the surface the pads press on): ``m (g + a_z) d`` for a centre
+  of mass d from the pads along x, ``m (g d + a_x h)`` in the x window (h its height above them), ``m g d +
+  (I + m r^2) alpha`` while turning about the closing axis.
+
+Rotations about the grasp's x and z load the pads by their pressure's spread and by a couple across the
+object's width, a few per cent of the limits at these sizes, and are left out. The cases, each either side of
+its threshold (``MARGIN``): a box pinched at its centre of mass (mass), a bar pinched ``d`` from it (distance; its
+mass keeps sliding at ``BAR_SLIDING_SHARE`` of its limit, so torsion decides), a cylinder pinched across its
+axis (its curved side) and along it (its flat ends) (mass).
+"""
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from sagp_batched_kernels.grasp_frames import grasp_rotations
+
+from ..config import Config
+from ..config.run import LABEL_PROTOCOLS
+from ..datasets.engines import ENGINES
+from ..execution.contact_model import ContactSurface, RubberPad, engine_pad, pad_torsional_limit_n_m
+from ..grasps import GraspPoses
+from ..robot.description import RobotDescription, robot_of
+from ..robot.hand import load_hand_geometry
+from ..world.mesh_settings import MeshImportSettings
+from .designed_grasps import FINGERTIP_TABLE_CLEARANCE_M
+
+# Each case at its threshold times (1 - MARGIN) and (1 + MARGIN).
+MARGIN = 0.2
+# The object's friction coefficient (the pads' factor multiplies it): a painted or plastic surface.
+OBJECT_FRICTION = 0.3
+# The bar's mass uses this share of the pads' sliding limit at the worst acceleration.
+BAR_SLIDING_SHARE = 0.15
+# Clearances (m): the box and bar this much taller than the pad's face reaches above the grasp target; the
+# objects this much narrower than the opening; a resting face this much wider than the object is tall.
+PAD_COVER_M, OPENING_SPARE_M, RESTING_SPARE_M = 0.002, 0.012, 0.006
+BAR_LENGTH_M, BOX_LENGTH_M = 0.30, 0.10
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+@dataclass(frozen=True)
+class Case:
+    """One analytic grasp: the object (a trimesh box or cylinder's dimensions and its mass), the grasp target and
+    closing axis in its link frame, the surface the pads press on, and the paper's answer with its numbers."""
+
+    name: str
+    shape: str  # "box" (extents x, y, z) or "cylinder" (radius, length; axis along x)
+    dimensions_m: tuple[float, ...]
+    mass_kg: float
+    target_m: tuple[float, float, float]
+    closing_axis: tuple[float, float, float]
+    surface: ContactSurface
+    paper_held: bool
+    paper: dict[str, float] = field(default_factory=dict)
+
+
+def lift_peak_m_s2(config: Config) -> float:
+    """The floating hand's lift, ``lift_height_m`` on a half-cosine in ``hand_lift_steps``: peak (pi / T)^2 h / 2."""
+    duration = config.labelling.hand_lift_steps * config.scene.time_step_s
+    return (math.pi / duration) ** 2 * config.motion.lift_height_m / 2.0
+
+
+def worst_loads(config: Config, mass_kg: float, inertia_kg_m2: float, offset_x_m: float, height_m: float) -> tuple[float, float]:
+    """(sliding force N, torque N m about the closing axis): the worst over the lift's and the shake's windows
+    of an object of ``mass_kg`` and moment of inertia ``inertia_kg_m2`` about its centre of mass (about the
+    closing axis), its centre of mass ``offset_x_m`` from the pads along the grasp's x and ``height_m`` above them."""
+    shake = config.labelling.shake
+    if shake.linear_with_angular:
+        raise ValueError("the analytic cases take the shake one axis at a time ([labelling.shake] linear_with_angular = false)")
+    g = abs(config.scene.gravity_m_s2)
+    (a_x, _, a_z), (_, alpha_y, _) = shake.linear_peak_acceleration_m_s2, shake.angular_peak_acceleration_rad_s2
+    vertical = g + max(a_z, lift_peak_m_s2(config))
+    lever = math.hypot(offset_x_m, height_m)
+    sliding = mass_kg * max(vertical, math.hypot(g, a_x), g + alpha_y * lever)
+    torque = max(mass_kg * vertical * abs(offset_x_m), mass_kg * (g * abs(offset_x_m) + a_x * abs(height_m)),
+                 mass_kg * g * abs(offset_x_m) + (inertia_kg_m2 + mass_kg * lever**2) * alpha_y)
+    return sliding, torque
+
+
+def _pad_geometry(robot: RobotDescription) -> tuple[float, float]:
+    """(how far the pad's face reaches above the grasp target, how far the fingertips reach below it), m."""
+    hand, pads = load_hand_geometry(robot), robot.gripper.pad_links
+    vertices = np.asarray(hand.vertices(pads[:1]))
+    inward = np.abs(vertices[:, 1])
+    face = vertices[inward <= inward.min() + 0.0005]
+    return float(-face[:, 2].min()), float(np.asarray(hand.vertices(pads))[:, 2].max())
+
+
+def analytic_cases(config: Config) -> list[Case]:
+    """The cases for ``config``'s gripper, grip force and pad model, each either side of its threshold."""
+    robot = robot_of(config)
+    engine = engine_pad(config.execution, robot)
+    pad, force = engine.pad, config.execution.gripper_force_n
+    mu = engine.friction_factor * OBJECT_FRICTION
+    pad_top, fingertip = _pad_geometry(robot)
+    target_height = fingertip + FINGERTIP_TABLE_CLEARANCE_M  # the fingertips clear the table below
+    opening = robot.gripper.open_width_m
+    sliding_limit = 2.0 * mu * force
+    cases: list[Case] = []
+
+    def add(name: str, shape: str, dimensions: tuple[float, ...], target: tuple[float, float, float], closing: tuple[float, float, float],
+            surface: ContactSurface, threshold: float, vary: str, loads) -> None:
+        """The case either side of ``threshold`` (of the mass or the distance ``vary``); ``loads(value)`` the
+        mass, the sliding force and the torque it then asks of the pads."""
+        torsion_limit = 2.0 * pad_torsional_limit_n_m(pad, force, mu, surface)
+        for factor in (1.0 - MARGIN, 1.0 + MARGIN):
+            value = threshold * factor
+            mass, sliding, torque = loads(value)
+            at = target if vary == "mass" else (value, target[1], target[2])
+            held = sliding <= sliding_limit and torque <= torsion_limit
+            cases.append(Case(f"{name} {vary} x{factor:.1f}", shape, dimensions, mass, at, closing, surface, held, {
+                vary: value, "threshold": threshold, "sliding_n": sliding, "sliding_limit_n": sliding_limit, "torque_n_m": torque,
+                "torsion_limit_n_m": torsion_limit, "patch_radius_m": _patch_radius(pad, force, surface)}))
+
+    # The box and the bar: tall enough that the pad's face is on their side, resting on a face wider than tall.
+    height = 2.0 * max(target_height, pad_top + PAD_COVER_M)
+    width = min(height + RESTING_SPARE_M, opening - OPENING_SPARE_M)
+    box = (BOX_LENGTH_M, width, height)
+    box_inertia = (box[0] ** 2 + box[2] ** 2) / 12.0  # per kg, about the closing axis (y)
+    box_mass = _mass_threshold(config, sliding_limit, box_inertia)
+    add("box at its centre of mass", "box", box, (0.0, 0.0, height / 2), (0.0, 1.0, 0.0), ContactSurface(), box_mass, "mass",
+        lambda m: (m, *worst_loads(config, m, m * box_inertia, 0.0, 0.0)))
+
+    bar = (BAR_LENGTH_M, width, height)
+    bar_inertia = (bar[0] ** 2 + bar[2] ** 2) / 12.0
+    vertical = abs(config.scene.gravity_m_s2) + max(config.labelling.shake.linear_peak_acceleration_m_s2[2], lift_peak_m_s2(config))
+    bar_mass = BAR_SLIDING_SHARE * sliding_limit / vertical
+    torsion_limit = 2.0 * pad_torsional_limit_n_m(pad, force, mu, ContactSurface())
+    bar_distance = _distance_threshold(config, bar_mass, bar_mass * bar_inertia, torsion_limit)
+    add("bar", "box", bar, (0.0, 0.0, height / 2), (0.0, 1.0, 0.0), ContactSurface(), bar_distance, "distance",
+        lambda d: (bar_mass, *worst_loads(config, bar_mass, bar_mass * bar_inertia, d, 0.0)))
+
+    # The cylinders lie along x; across: pinched on their curved side at the axis' height, their axis along the
+    # pad's width; along: pinched on their flat ends, which are narrower than the pad's face where it is small.
+    radius = min(max(target_height, 0.015), (opening - OPENING_SPARE_M) / 2.0)
+    across = (radius, 4.0 * radius + 0.02)
+    across_inertia = (3.0 * radius**2 + across[1] ** 2) / 12.0
+    curved = ContactSurface(curvature_radius_m=radius, cylinder_axis="width")
+    add("cylinder across its axis", "cylinder", across, (0.0, 0.0, radius), (0.0, 1.0, 0.0), curved,
+        _mass_threshold(config, sliding_limit, across_inertia), "mass", lambda m: (m, *worst_loads(config, m, m * across_inertia, 0.0, 0.0)))
+    along = (radius, min(opening - OPENING_SPARE_M, 2.0 * radius + 2.0 * RESTING_SPARE_M + 0.01))
+    ends = ContactSurface(face_radius_m=radius)
+    along_inertia = radius**2 / 2.0  # about its own axis, which is the closing axis
+    add("cylinder along its axis", "cylinder", along, (0.0, 0.0, radius), (1.0, 0.0, 0.0), ends,
+        _mass_threshold(config, sliding_limit, along_inertia), "mass", lambda m: (m, *worst_loads(config, m, m * along_inertia, 0.0, 0.0)))
+    return cases
+
+
+def _patch_radius(pad: RubberPad, force: float, surface: ContactSurface) -> float:
+    from ..execution.contact_model import patch
+
+    return patch(pad, force, surface).radius_m
+
+
+def _mass_threshold(config: Config, sliding_limit: float, inertia_per_kg: float) -> float:
+    """The mass at which the worst sliding force reaches ``sliding_limit`` (loads grow with the mass)."""
+    return sliding_limit / worst_loads(config, 1.0, inertia_per_kg, 0.0, 0.0)[0]
+
+
+def _distance_threshold(config: Config, mass: float, inertia: float, torsion_limit: float) -> float:
+    """The centre-of-mass distance at which the worst torque reaches ``torsion_limit``, by bisection."""
+    low, high = 0.0, BAR_LENGTH_M / 2.0
+    if worst_loads(config, mass, inertia, 0.0, 0.0)[1] >= torsion_limit or worst_loads(config, mass, inertia, high, 0.0)[1] <= torsion_limit:
+        raise ValueError(f"the bar's torsion threshold is not within its half length: limit {torsion_limit:.4f} N m")
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if worst_loads(config, mass, inertia, middle, 0.0)[1] < torsion_limit else (low, middle)
+    return 0.5 * (low + high)
+
+
+def _mesh(case: Case):
+    import trimesh
+
+    if case.shape == "box":
+        return trimesh.creation.box(case.dimensions_m)
+    radius, length = case.dimensions_m
+    cylinder = trimesh.creation.cylinder(radius=radius, height=length, sections=64)
+    cylinder.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [0.0, 1.0, 0.0]))  # axis along x
+    return cylinder
+
+
+def analytic_grasps(config: Config, engines: tuple[str, ...] = ENGINES, protocols: tuple[str, ...] = LABEL_PROTOCOLS,
+                    cache_dir: Path | None = None, note=print) -> dict[str, Any]:
+    """Every analytic case labelled by each engine in each protocol (one simulation a label: the pose is exact),
+    against its paper answer."""
+    from ..datasets.labelling import label_object_grasps
+    from ..world.objects import load_object_set
+
+    config = config.override("labelling", perturbed_simulations=1)
+    cases = analytic_cases(config)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="sagp_analytic_") as folder:
+        entries = {}
+        for index, case in enumerate(cases):
+            object_id = f"case{index}"
+            _mesh(case).export(Path(folder) / f"{object_id}.obj")
+            entries[object_id] = {"mass_kg": case.mass_kg, "friction": OBJECT_FRICTION}
+        (Path(folder) / "objects.json").write_text(json.dumps(entries))
+        objects = load_object_set(folder, MeshImportSettings(max_grasp_width_m=1.0, cache_dir=cache_dir))
+        for index, case in enumerate(cases):
+            spec = objects.get(f"case{index}")
+            rotation = grasp_rotations(torch.tensor(case.closing_axis, dtype=torch.float64), torch.tensor(DOWN))
+            poses = GraspPoses(torch.tensor([case.target_m], dtype=torch.float64), rotation[None].clone(), "object")
+            outcomes = {}
+            for engine in engines:
+                for protocol in protocols:
+                    label = label_object_grasps(spec, poses, None, protocol, config, engine=engine)[0]
+                    outcomes[f"{engine}/{protocol}"] = {"held": label.held, "failure": label.failure_reason, "failed_at": label.failed_at}
+            row = {"case": case.name, "paper_held": case.paper_held, "mass_kg": case.mass_kg, "extents_m": list(spec.extents_m),
+                   "paper": case.paper, "outcomes": outcomes,
+                   "agree": sum(outcome["held"] == case.paper_held for outcome in outcomes.values()), "of": len(outcomes)}
+            note(analytic_line(row))
+            rows.append(row)
+    return {"gripper": config.planner.gripper, "grip_force_n": config.execution.gripper_force_n,
+            "friction": engine_pad(config.execution, robot_of(config)).friction_factor * OBJECT_FRICTION, "cases": rows,
+            "agree": sum(row["agree"] for row in rows), "of": sum(row["of"] for row in rows)}
+
+
+def analytic_line(row: dict[str, Any]) -> str:
+    outcomes = " ".join(f"{key}={'held' if o['held'] else 'dropped'}" + ("" if o["held"] == row["paper_held"] else "(!)")
+                        for key, o in row["outcomes"].items())
+    return f"{row['case']:<38} paper {'held' if row['paper_held'] else 'dropped':<8} {outcomes}"
+
+
+def analytic_markdown(report: dict[str, Any]) -> str:
+    keys = list(report["cases"][0]["outcomes"]) if report["cases"] else []
+    lines = [f"# Analytic grasps ({report['gripper']}, grip force {report['grip_force_n']:g} N, mu {report['friction']:.2f})", "",
+             f"{report['agree']} of {report['of']} outcomes as on paper.", "",
+             "| case | mass (kg) | load / limit (sliding, torsion) | paper | " + " | ".join(keys) + " |",
+             "|---|---:|---|---|" + "---|" * len(keys)]
+    for row in report["cases"]:
+        paper = row["paper"]
+        loads = f"{paper['sliding_n']:.2f}/{paper['sliding_limit_n']:.2f} N, {paper['torque_n_m']:.4f}/{paper['torsion_limit_n_m']:.4f} N m"
+        cells = [("held" if o["held"] else f"dropped ({o['failure']})") + ("" if o["held"] == row["paper_held"] else " **x**")
+                 for o in row["outcomes"].values()]
+        lines.append(f"| {row['case']} | {row['mass_kg']:.3f} | {loads} | {'held' if row['paper_held'] else 'dropped'} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
