@@ -19,6 +19,13 @@ stability across resting poses and re-simulation, floating against tabletop, des
 labels/s per core, written to ``label_fidelity.json``, ``label_fidelity.md`` and ``provenance.json`` in --out.
 Objects: --objects, else a few of the embedded YCB set, else (with --objects-dir) every target object there.
 
+    python -m runners.bench_dataset --analytic --out DIR [--gripper NAME] [--label-engines pybullet,mujoco]
+        [--protocols tabletop,floating]
+
+labels grasps whose outcome is known on paper instead (``benchmarks.analytic_grasps``): a box, a bar and a
+cylinder either side of the thresholds the contact model gives, in each engine and protocol, written to
+``analytic_grasps.json``, ``analytic_grasps.md`` and ``provenance.json`` in --out (``--json FILE``: the JSON there too).
+
     python -m runners.bench_dataset --engines --out DIR [--objects-dir DIR] [--objects a,b] [--grasps 60]
         [--perturbed-simulations K] [--mujoco-variants '[{}, {"substeps": 2}]']
 
@@ -36,10 +43,12 @@ import sys
 from pathlib import Path
 
 from sagp_batched.benchmarks import engine_agreement as engines
+from sagp_batched.benchmarks.analytic_grasps import analytic_config, analytic_grasps, analytic_markdown
 from sagp_batched.benchmarks.dataset_speed import STAGES, DatasetCase, benchmark_dataset, projected_hours, shared_world_step_cost
 from sagp_batched.benchmarks.gripper_agreement import gripper_agreement, gripper_agreement_markdown
 from sagp_batched.benchmarks.label_fidelity import DEFAULT_OBJECTS, fidelity_markdown, label_fidelity
 from sagp_batched.config import Config, ConfigError, load_config
+from sagp_batched.config.run import LABEL_PROTOCOLS
 from sagp_batched.config.world import GRIPPERS
 from sagp_batched.datasets.engines import ENGINES
 from sagp_batched.provenance import collect
@@ -54,6 +63,8 @@ FIDELITY_JSON = "label_fidelity.json"
 FIDELITY_MARKDOWN = "label_fidelity.md"
 ENGINES_JSON = "engine_agreement.json"
 ENGINES_MARKDOWN = "engine_agreement.md"
+ANALYTIC_JSON = "analytic_grasps.json"
+ANALYTIC_MARKDOWN = "analytic_grasps.md"
 GRIPPERS_JSON = "gripper_agreement.json"
 GRIPPERS_MARKDOWN = "gripper_agreement.md"
 
@@ -93,6 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
     agreement = parser.add_argument_group("engine agreement (--engines; --out, --objects, --grasps and --perturbed-simulations as above)")
     agreement.add_argument("--engines", action="store_true", help="compare MuJoCo's labels with PyBullet's instead of speed")
     agreement.add_argument("--mujoco-variants", default="[{}]", help="JSON list of [labelling.mujoco] override tables, one a variant")
+    analytic = parser.add_argument_group("analytic grasps (--analytic; --out, --label-engines and --protocols as above)")
+    analytic.add_argument("--analytic", action="store_true", help="label grasps whose outcome is known on paper instead of speed")
+    analytic.add_argument("--gripper", default=None, help="the gripper the analytic cases are made for (default: the profile's)")
     grippers = parser.add_argument_group("gripper agreement (--grippers; --out, --objects, --grasps and --perturbed-simulations as above)")
     grippers.add_argument("--grippers", default=None, help="comma list of grippers: label the same planned grasps with each (floating) instead of speed")
     grippers.add_argument("--gripper-engine", default="mujoco", choices=ENGINES, help="the engine the grippers' labels are made in")
@@ -106,6 +120,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fidelity_main(parser, args)
     if args.engines:
         return _engines_main(parser, args)
+    if args.analytic:
+        return _analytic_main(parser, args)
     if args.grippers is not None:
         return _grippers_main(parser, args)
     if args.json is None:
@@ -253,6 +269,33 @@ def _engines_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
     report = engines.engine_agreement(config, objects, object_ids, args.grasps, variants, note=lambda line: print(line, file=sys.stderr))
     return _write_results(args.out, (ENGINES_JSON, ENGINES_MARKDOWN), report, engines.agreement_markdown(report), collect(
         config.to_dict(), objects_source=objects.source, objects=object_ids, grasps_per_object=args.grasps, mujoco_variants=variants))
+
+
+def _analytic_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    if args.out is None:
+        parser.error("--analytic needs --out DIR")
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out {args.out} is a file, not a folder")
+    engines_asked, unknown_engines = names_and_unknown(args.label_engines, ENGINES)
+    protocols, unknown_protocols = names_and_unknown(args.protocols, LABEL_PROTOCOLS)
+    if unknown_engines or not engines_asked:
+        parser.error(f"--label-engines takes a comma list of {', '.join(ENGINES)}, got {args.label_engines!r}")
+    if unknown_protocols or not protocols:
+        parser.error(f"--protocols takes a comma list of {', '.join(LABEL_PROTOCOLS)}, got {args.protocols!r}")
+    if args.gripper is not None and args.gripper not in GRIPPERS:
+        parser.error(f"--gripper takes one of {', '.join(GRIPPERS)}, got {args.gripper!r}")
+    try:
+        config = load_config(args.profile, overrides={"planner": {"gripper": args.gripper}} if args.gripper else None)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    configure_torch()
+    report = analytic_grasps(config, tuple(engines_asked), tuple(protocols), note=lambda line: print(line, file=sys.stderr))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2, default=str))
+    return _write_results(args.out, (ANALYTIC_JSON, ANALYTIC_MARKDOWN), report, analytic_markdown(report), collect(
+        analytic_config(config).to_dict(), engines=engines_asked, protocols=protocols))
 
 
 def _grippers_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:

@@ -87,6 +87,25 @@ def test_dataset_bench_refuses_an_unknown_object_engine_or_protocol_in_one_line(
     assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith("error:") and named in done.stderr
 
 
+def test_dataset_bench_labels_the_analytic_grasps_and_writes_their_table(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "runners.bench_dataset", "--analytic", "--out", str(tmp_path / "out"),
+                           "--json", str(tmp_path / "analytic.json"), "--protocols", "floating"],
+                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    report = json.loads((tmp_path / "analytic.json").read_text())
+    assert len(report["cases"]) == 8 and report["of"] == 16
+    assert all(set(row["outcomes"]) == {"pybullet/floating", "mujoco/floating"} for row in report["cases"])
+    assert "| bar distance x1.2 |" in (tmp_path / "out" / "analytic_grasps.md").read_text()
+
+
+@pytest.mark.parametrize("flags, named", [(["--gripper", "no_hand"], "no_hand"), (["--label-engines", "flex"], "flex"),
+                                          (["--protocols", "upside_down"], "upside_down")])
+def test_dataset_bench_analytic_refuses_an_unknown_gripper_engine_or_protocol_in_one_line(tmp_path, flags, named):
+    done = subprocess.run([sys.executable, "-m", "runners.bench_dataset", "--analytic", "--out", str(tmp_path), *flags],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].count("\n") == 0 and named in done.stderr
+
+
 def test_bench_compares_single_plans_with_one_plan_batch_per_batch_size(tmp_path, ycb_dir):
     out = tmp_path / "bench.json"
     done = subprocess.run(

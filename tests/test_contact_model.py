@@ -1,0 +1,113 @@
+"""The rubber-pad contact model: its derivations against closed forms, its refusals, the engines' parameters
+computed from it, and a slice of the analytic grasps labelled in both engines."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from sagp_batched.config import Config
+from sagp_batched.execution.contact_model import (ContactModelError, ContactSurface, EnginePad, RubberPad, engine_pad,
+                                                  mujoco_pad_contact, patch, pybullet_pad_dynamics, reduced_mass_kg)
+from sagp_batched.robot.description import robot_of
+
+PAD = RubberPad(young_modulus_pa=2.0e6, poisson_ratio=0.49, thickness_m=0.002, face_m=(0.02, 0.02), damping_ratio=1.0)
+YCB = (0.9, 0.001, 0.001)  # the YCB URDFs' lateral, spinning and rolling friction
+
+
+def test_flat_face_is_pressed_uniformly_over_the_whole_pad():
+    flat = patch(PAD, 10.0)
+    assert flat.area_m2 == pytest.approx(0.02 * 0.02, rel=1e-6)
+    # Uniform pressure on a square of side s: the mean distance from its centre is 0.38260 s.
+    assert flat.torsional_radius_m == pytest.approx(0.38260 * 0.02, rel=2e-3)
+    assert flat.compression_m == pytest.approx(10.0 / PAD.stiffness_n_m, rel=1e-6)
+
+
+def test_sphere_gives_the_thin_layer_paraboloid():
+    radius, force = 0.04, 5.0
+    sphere = patch(PAD, force, ContactSurface(curvature_radius_m=radius))
+    expected_radius = (4.0 * force * radius / (math.pi * PAD.foundation_modulus_pa_m)) ** 0.25
+    assert expected_radius < 0.01  # within the face: no cap
+    assert sphere.radius_m == pytest.approx(expected_radius, rel=0.02)
+    assert sphere.torsional_radius_m == pytest.approx(8.0 / 15.0 * expected_radius, rel=0.02)
+    # The half-space patch would be wider than the layer is thick: why the thin-layer model applies.
+    assert PAD.hertz_radius_m(force, radius) > PAD.thickness_m
+
+
+def test_a_harder_squeeze_spreads_a_curved_patch_until_the_face_caps_it():
+    surface = ContactSurface(curvature_radius_m=0.03, cylinder_axis="width")
+    radii = [patch(PAD, force, surface).torsional_radius_m for force in (2.0, 20.0, 2000.0)]
+    assert radii[0] < radii[1] < radii[2] <= patch(PAD, 1.0).torsional_radius_m * 1.001
+
+
+def test_a_round_face_smaller_than_the_pad_caps_the_patch():
+    assert patch(PAD, 10.0, ContactSurface(face_radius_m=0.005)).area_m2 == pytest.approx(math.pi * 0.005**2, rel=0.03)
+
+
+def test_stiffness_and_damping_follow_the_layer():
+    assert PAD.stiffness_n_m == pytest.approx(2.0e6 * 0.02 * 0.02 / 0.002)
+    assert PAD.damping_n_s_m(0.1) == pytest.approx(2.0 * math.sqrt(PAD.stiffness_n_m * 0.1))
+    assert reduced_mass_kg(0.1, 0.4) == pytest.approx(0.08)
+
+
+@pytest.mark.parametrize("build, message", [
+    (lambda: RubberPad(2.0e6, 0.5, 0.002, (0.02, 0.02), 1.0), "Poisson's ratio"),
+    (lambda: RubberPad(2.0e6, 0.49, 0.0, (0.02, 0.02), 1.0), "positive Young's modulus, thickness"),
+    (lambda: RubberPad(2.0e6, 0.49, 0.002, (0.02, -0.01), 1.0), "two positive lengths"),
+    (lambda: patch(PAD, 0.0), "normal force must be positive"),
+    (lambda: ContactSurface(curvature_radius_m=-1.0), "curvature radius must be positive"),
+    (lambda: ContactSurface(cylinder_axis="diagonal"), "'width' or 'length'"),
+    (lambda: patch(PAD, 1.0, ContactSurface(face_half_m=(0.0, -1.0))), "does not meet the pad's face"),
+    (lambda: PAD.damping_n_s_m(0.0), "mass a pad's contact moves"),
+    (lambda: pybullet_pad_dynamics(EnginePad.of(PAD, 10.0, 1.5), (0.0, 0.0, 0.0), 0.1), "lateral friction must be positive"),
+])
+def test_bad_inputs_are_refused_in_one_line(build, message):
+    with pytest.raises(ContactModelError, match=message) as error:
+        build()
+    assert "\n" not in str(error.value)
+
+
+def test_pybullet_combines_to_the_models_torsion():
+    pad = EnginePad.of(PAD, 10.0, 1.5)
+    dynamics = pybullet_pad_dynamics(pad, YCB, 0.08)
+    lateral, spinning, _ = YCB
+    # btManifoldResult: spinning = s_pad f_obj + s_obj f_pad; lateral = f_pad f_obj.
+    combined_spinning = dynamics["spinningFriction"] * lateral + spinning * dynamics["lateralFriction"]
+    assert combined_spinning == pytest.approx(dynamics["lateralFriction"] * lateral * pad.torsional_radius_m)
+    assert dynamics["rollingFriction"] == 0.0
+    assert dynamics["contactStiffness"] == pytest.approx(PAD.stiffness_n_m)
+    assert dynamics["contactDamping"] == pytest.approx(PAD.damping_n_s_m(0.08))
+
+
+def test_mujoco_pad_sinks_under_a_held_force_as_far_as_the_model():
+    pad, mass, step = EnginePad.of(PAD, 10.0, 1.5), 0.08, 1.0 / 960.0
+    friction, (time_constant, damping_ratio), solimp = mujoco_pad_contact(pad, YCB, mass, step, (0.001, 0.5, 2.0))
+    assert friction == pytest.approx([1.35, 1.35 * pad.torsional_radius_m, 0.0])
+    assert time_constant >= 2.0 * step and damping_ratio == PAD.damping_ratio
+    impedance = solimp[0]
+    assert solimp == (impedance, impedance, 0.001, 0.5, 2.0)
+    static_stiffness = mass / (impedance * (1.0 - impedance) * time_constant**2 * damping_ratio**2)
+    assert static_stiffness == pytest.approx(PAD.stiffness_n_m, rel=1e-9)
+
+
+def test_the_pads_face_is_measured_from_the_grippers_hulls():
+    config = Config()
+    width, length = engine_pad(config.execution, robot_of(config)).pad.face_m
+    assert width == pytest.approx(0.0174, abs=5e-4) and length == pytest.approx(0.0176, abs=5e-4)
+    robotiq = engine_pad(config.execution, robot_of(config.override("planner", gripper="robotiq_2f85"))).pad.face_m
+    assert robotiq == pytest.approx((0.022, 0.0375), abs=5e-4)
+
+
+def test_analytic_cases_agree_with_paper_in_both_engines():
+    """The cases both engines answer as the paper does (the benchmark reports the rest): a bar below its
+    torsion threshold held, a cylinder on its ends below its sliding threshold held, one across its axis
+    above it dropped."""
+    import sagp_batched.benchmarks.analytic_grasps as analytic
+
+    config = Config()
+    chosen = ("bar distance x0.8", "cylinder along its axis mass x0.8", "cylinder across its axis mass x1.2")
+    cases = [case for case in analytic.analytic_cases(analytic.analytic_config(config)) if case.name in chosen]
+    assert len(cases) == 3
+    report = analytic.analytic_grasps(config, protocols=("floating",), note=lambda line: None, cases=cases)
+    for row in report["cases"]:
+        assert row["agree"] == row["of"] == 2, row
