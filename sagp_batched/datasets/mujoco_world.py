@@ -118,9 +118,19 @@ def _pad_contact_of(robot: RobotDescription, object_surface: tuple[float, float,
     timestep = config.scene.time_step_s / options.substeps
 
     def pad_contact(pad_mass_kg: float):
-        return mujoco_pad_contact(pad, object_surface, reduced_mass_kg(pad_mass_kg, object_mass_kg), timestep, options.contact_solimp[2:])
+        return mujoco_pad_contact(pad, object_surface, reduced_mass_kg(pad_mass_kg, object_mass_kg), timestep, options.contact_solimp[2:],
+                                  options.contact_solimp[1])
 
     return pad_contact
+
+
+def _finger_mass(body: mujoco.MjsBody, hand_body: str) -> float:
+    """The mass a pad's contact pushes: the pad's body and the bodies between it and the hand (a linkage's
+    finger moves with its pad)."""
+    mass = 0.0
+    while body.name != hand_body and body.name != "world":
+        mass, body = mass + body.mass, body.parent
+    return mass
 
 
 def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, object_surface: tuple[float, float, float],
@@ -141,7 +151,7 @@ def _add_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription, obj
         _set_inertial(body, links[name].body_inertial)
         if name in robot.gripper.pad_links:
             surface = _pad_surface(config)
-            friction, solref, solimp = pad_contact(body.mass)
+            friction, solref, solimp = pad_contact(_finger_mass(body, robot.gripper.base_link))
             contact = {"condim": options.finger_condim, "friction": friction, "solref": solref, "solimp": solimp}
         else:
             surface = links[name].friction
@@ -224,7 +234,7 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
         geom.contype, geom.conaffinity, geom.priority, geom.margin = HAND_BIT, 0, 2, options.hull_margin_m
         if pad:
             geom.condim = options.finger_condim
-            geom.friction, geom.solref, geom.solimp = pad_contact(geom.parent.mass)
+            geom.friction, geom.solref, geom.solimp = pad_contact(_finger_mass(geom.parent, gripper.base_link))
         else:
             geom.condim, geom.friction = 3, list(_product(DEFAULT_FRICTION, object_surface))
             geom.solref, geom.solimp = options.contact_solref, options.contact_solimp

@@ -305,14 +305,23 @@ def _close_fingers(scene: Scene, execution: ExecutionConfig, planned_width_m: fl
         diagnostics.object_motion_during_closing_linear, diagnostics.object_motion_during_closing_angular = closing
 
 
+def _finger_mass(client: int, body: int, link: int) -> float:
+    """The mass a pad's contact pushes: the pad's link and the links between it and the base (a linkage's
+    finger moves with its pad; a Panda finger is its own pad)."""
+    mass = 0.0
+    while link != -1:
+        mass += pybullet.getDynamicsInfo(body, link, physicsClientId=client)[0]
+        link = pybullet.getJointInfo(body, link, physicsClientId=client)[16]
+    return mass
+
+
 def set_finger_friction(client: int, gripper_id: int, pad_links: Sequence[int], pad: EnginePad, object_id: int) -> None:
     """The contact model's pads (``contact_model.pybullet_pad_dynamics``) on the gripper's pad links, for
     their contacts with ``object_id``: its friction and mass enter what the pads are given."""
     info = pybullet.getDynamicsInfo(object_id, -1, physicsClientId=client)
     object_mass, object_surface = info[0], (info[1], info[7], info[6])  # lateral, spinning, rolling
     for link in pad_links:
-        pad_mass = pybullet.getDynamicsInfo(gripper_id, link, physicsClientId=client)[0]
-        dynamics = pybullet_pad_dynamics(pad, object_surface, reduced_mass_kg(pad_mass, object_mass))
+        dynamics = pybullet_pad_dynamics(pad, object_surface, reduced_mass_kg(_finger_mass(client, gripper_id, link), object_mass))
         pybullet.changeDynamics(gripper_id, link, physicsClientId=client, **dynamics)
 
 
