@@ -81,15 +81,13 @@ def test_pybullet_combines_to_the_models_torsion():
 
 def test_mujoco_pad_sinks_under_a_held_force_as_far_as_the_model():
     pad, mass, step = EnginePad.of(PAD, 10.0, 1.5), 0.08, 1.0 / 960.0
-    friction, (time_constant, damping_ratio), solimp = mujoco_pad_contact(pad, YCB, mass, step, (0.001, 0.5, 2.0), 0.99)
+    friction, (time_constant, damping_ratio), solimp = mujoco_pad_contact(pad, YCB, mass, step, (0.001, 0.5, 2.0))
     assert friction == pytest.approx([1.35, 1.35 * pad.torsional_radius_m, 0.0])
     assert time_constant >= 2.0 * step and damping_ratio == PAD.damping_ratio
     impedance = solimp[0]
     assert solimp == (impedance, impedance, 0.001, 0.5, 2.0)
     static_stiffness = mass / (impedance * (1.0 - impedance) * time_constant**2 * damping_ratio**2)
     assert static_stiffness == pytest.approx(PAD.stiffness_n_m, rel=1e-9)
-    # A pad stiffer than the rigid contacts' impedance allows is held to it.
-    assert mujoco_pad_contact(pad, YCB, mass / 100.0, step, (0.001, 0.5, 2.0), 0.99)[2][:2] == (0.99, 0.99)
 
 
 def test_the_pads_face_is_measured_from_the_grippers_hulls():

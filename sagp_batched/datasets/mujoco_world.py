@@ -118,8 +118,7 @@ def _pad_contact_of(robot: RobotDescription, object_surface: tuple[float, float,
     timestep = config.scene.time_step_s / options.substeps
 
     def pad_contact(pad_mass_kg: float):
-        return mujoco_pad_contact(pad, object_surface, reduced_mass_kg(pad_mass_kg, object_mass_kg), timestep, options.contact_solimp[2:],
-                                  options.contact_solimp[1])
+        return mujoco_pad_contact(pad, object_surface, reduced_mass_kg(pad_mass_kg, object_mass_kg), timestep, options.contact_solimp[2:])
 
     return pad_contact
 
@@ -209,7 +208,7 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
     presses with the grip force (``tendon_force_per_pad_n``), and its set point is the tendon length that
     gives the URDF's opening at the driven joint's value (``driver_at_finger_joint``). The grasp target
     is a body ``grasp_depth_m`` along the hand's z. The collision geoms touch the object, and the table,
-    as the URDF hand's do, the pads with the study's finger friction and contact."""
+    as the URDF hand's do, the pads with the contact model's friction and the MJCF's own softness."""
     gripper, execution, options = robot.gripper, config.execution, config.labelling.mujoco
     hand = spec.worldbody.add_body(name=gripper.base_link)
     hand.add_freejoint()
@@ -233,8 +232,8 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
             surfaces[gripper.base_link][0].append(geom.name)
         geom.contype, geom.conaffinity, geom.priority, geom.margin = HAND_BIT, 0, 2, options.hull_margin_m
         if pad:
-            geom.condim = options.finger_condim
-            geom.friction, geom.solref, geom.solimp = pad_contact(_finger_mass(geom.parent, gripper.base_link))
+            # The MJCF's own solref and solimp stay: see ``contact_model``.
+            geom.condim, geom.friction = options.finger_condim, pad_contact(_finger_mass(geom.parent, gripper.base_link))[0]
         else:
             geom.condim, geom.friction = 3, list(_product(DEFAULT_FRICTION, object_surface))
             geom.solref, geom.solimp = options.contact_solref, options.contact_solimp

@@ -47,10 +47,11 @@ face's uniform pressure), the pad's own value whatever it touches (``EnginePad``
   ``r = (1 - d) a0 / (d k')``: a static stiffness ``m / (d (1 - d) timeconst^2 dampratio^2)``. That is the model's
   k where ``d (1 - d) = m / (k timeconst^2 zeta^2)``, which has a solution for ``timeconst >= 2 / (zeta w)``, w =
   sqrt(k / m); the time constant is the larger of that and the two steps MuJoCo integrates stably, the
-  dampratio the model's zeta, and d the root nearer 1 (the contact that yields least in between), capped at
-  the rigid contacts' impedance: the 2F-140's large pads on a light finger would ask 0.997, and such a stiff
-  pad shakes the linkage's soft equality constraints loose (it drops the designed box); there the pad is
-  softer than the model.
+  dampratio the model's zeta, and d the root nearer 1 (the contact that yields least in between). A hand
+  built from a gripper's MJCF (the Robotiqs) keeps its pads' own solref and solimp: its linkage closes through
+  soft equality constraints (5 ms), and pads as stiff as the model (d 0.997 on the 2F-140's 30 x 70 mm pads)
+  press twice the grip force through it, or, at 4-5 ms, chatter off the object; the MJCF's pads are what its
+  linkage was fitted with. Their friction and torsion are the model's.
 """
 from __future__ import annotations
 
@@ -233,11 +234,10 @@ def pybullet_pad_dynamics(engine: EnginePad, object_surface: tuple[float, float,
 
 
 def mujoco_pad_contact(engine: EnginePad, object_surface: tuple[float, float, float], mass_kg: float, timestep_s: float,
-                       solimp_shape: tuple[float, float, float], max_impedance: float) -> tuple[list[float], tuple[float, float], tuple[float, ...]]:
+                       solimp_shape: tuple[float, float, float]) -> tuple[list[float], tuple[float, float], tuple[float, ...]]:
     """(friction, solref, solimp) of a MuJoCo pad geom touching an object of ``object_surface``, ``mass_kg`` the
     two bodies' reduced mass, ``timestep_s`` MuJoCo's step; ``solimp_shape`` (width, midpoint, power) of the
-    impedance, which is the same d at every depth, at most ``max_impedance`` (the rigid contacts' own: a pad
-    no stiffer than they are, as stiffer ones fight a linkage's soft equality constraints)."""
+    impedance, which is the same d at every depth."""
     if not timestep_s > 0:
         raise ContactModelError(f"MuJoCo's step must be positive, got {timestep_s} s")
     pad = engine.pad
@@ -246,7 +246,7 @@ def mujoco_pad_contact(engine: EnginePad, object_surface: tuple[float, float, fl
     natural_frequency = math.sqrt(pad.stiffness_n_m / mass_kg)
     time_constant = max(2.0 / (zeta * natural_frequency), MUJOCO_MIN_STEPS_PER_TIME_CONSTANT * timestep_s)
     stiffness_ratio = pad.stiffness_n_m * time_constant**2 * zeta**2 / mass_kg  # 1 / (d (1 - d)), >= 4
-    impedance = min(0.5 * (1.0 + math.sqrt(1.0 - 4.0 / stiffness_ratio)), max_impedance)
+    impedance = 0.5 * (1.0 + math.sqrt(1.0 - 4.0 / stiffness_ratio))
     return [friction, friction * engine.torsional_radius_m, 0.0], (time_constant, zeta), (impedance, impedance, *solimp_shape)
 
 
