@@ -97,10 +97,12 @@ def test_a_firm_grasp_across_the_box_survives_the_shake_and_the_box_stays_put_in
     firm = label_grasps_hand(box_scene, [_across_the_box(box_scene)], config)[0]
     pinched = label_grasps_hand(bottle_scene, [_cap_pinch(bottle_scene)], config)[0]
     assert firm.held and firm.failure_reason is None and firm.failed_at is None
-    # Closing on a box that fits the jaws barely moves it (the pads square it up on its decomposed faces:
-    # 4 mm and 1.7 deg); the shake shifts it under a centimetre in the hand, while the pinched bottle
-    # leaves the fingers.
-    assert firm.object_motion_during_closing_linear < 0.005 and firm.object_motion_during_closing_angular < 0.05
+    # Closing on a box that fits the jaws moves it less than a knock (the pads square it up on its decomposed
+    # faces: 9 mm and 6.9 deg with the contact model's 3e5 N/m pads, 0.2 mm deep at 70 N; the finger URDF's
+    # 3e4 N/m pads sank 2.3 mm into them instead, 4 mm and 1.7 deg); the shake shifts it under a centimetre
+    # in the hand, while the pinched bottle leaves the fingers.
+    assert firm.object_motion_during_closing_linear < config.execution.knock_tolerance_m
+    assert firm.object_motion_during_closing_angular < 0.15
     assert firm.object_motion_during_shaking_linear < 0.01 and firm.object_motion_during_shaking_angular < 0.01
     assert not pinched.held and pinched.failed_at == "shake" and pinched.object_motion_during_shaking_linear > 0.1
 
@@ -160,9 +162,9 @@ def test_a_grasp_the_arm_cannot_reach_gets_no_label(box_scene, config):
 # The study's attempts for top-down grasps on the soup can (trial 0): on it, beside it, off its axis,
 # as ``_summary`` gives them (fields named by ATTEMPT_FIELDS).
 STUDY_ATTEMPTS = [
-    ((0.0, 0.0), (True, None, 0.24954546267639777, 0.11103612312939096, 0.0038322139116154785, 0.06878294343809965, 0.0004203188565174987)),
-    ((0.05, 0.0), (False, "not_lifted", 0.0508565100170133, 0.0201470696997326, 0.00779555599254389, 2.6445522999465764e-07, 0.0004056578480918782)),
-    ((0.0, 0.03), (False, "not_lifted", 0.03413946137170121, 89.76689506442244, 0.05345348020572227, 2.6889094086132582e-06, 0.21744632621634086)),
+    ((0.0, 0.0), (True, None, 0.24951641557443938, 0.15711297757140877, 0.0038322139116154785, 0.07074739873563052, 0.0004203173583792186)),
+    ((0.05, 0.0), (False, "not_lifted", 0.05085651001699931, 0.020088109634489187, 0.00779555599254389, 2.6445522999465764e-07, 0.00040565325104124916)),
+    ((0.0, 0.03), (False, "not_lifted", 0.03414153676546583, 92.55910734323896, 0.05549971575636303, 1.6400540600760912e-05, 0.21533905174759305)),
 ]
 
 
