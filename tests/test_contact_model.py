@@ -111,3 +111,21 @@ def test_analytic_cases_agree_with_paper_in_both_engines():
     report = analytic.analytic_grasps(config, protocols=("floating",), note=lambda line: None, cases=cases)
     for row in report["cases"]:
         assert row["agree"] == row["of"] == 2, row
+
+
+def test_the_paper_thresholds_come_from_the_model_and_the_protocols_peaks():
+    import sagp_batched.benchmarks.analytic_grasps as analytic
+
+    config = analytic.analytic_config(Config())
+    cases = {case.name: case for case in analytic.analytic_cases(config)}
+    pad = engine_pad(config.execution, robot_of(config))
+    mu, force = pad.friction_factor * analytic.OBJECT_FRICTION, config.execution.gripper_force_n
+    # The shake's 13 m/s^2 along the vertical approach is the worst acceleration (the slowed lift's is 2.7).
+    assert analytic.lift_peak_m_s2(config) == pytest.approx(2.74, abs=0.01)
+    box = cases["box at its centre of mass mass x0.8"]
+    assert box.paper["threshold"] == pytest.approx(2.0 * mu * force / (9.81 + 13.0), rel=1e-6) and box.paper_held
+    assert not cases["box at its centre of mass mass x1.2"].paper_held
+    bar = cases["bar distance x1.2"]
+    flat_limit = 2.0 * mu * force * pad.torsional_radius_m
+    assert bar.paper["torsion_limit_n_m"] == pytest.approx(flat_limit, rel=1e-6)
+    assert bar.paper["threshold"] * bar.mass_kg * (9.81 + 13.0) == pytest.approx(flat_limit, rel=1e-6) and not bar.paper_held
