@@ -167,65 +167,72 @@ def write_cause_pictures(out_dir: Path, disagreements: list[Disagreement], objec
     return written
 
 
-def draw_disagreement(out_dir: Path, disagreement: Disagreement, objects: Any, gripper: Any, picture: Path) -> Path:
-    """The object's surface points in the hand's grasp-target frame as planned (grey: the hand at the grasp before
-    the close), at the close's end (blue) and at the verdict (red), with the pads' centres where the grasp's width
-    puts them (black), the planned contacts as they moved with the object (blue crosses) and the centre of mass's
-    path from the close's end (arrow): seen along the contact normal (the pad plane) and along the hand's x."""
+def _object_in_hand(out_dir: Path, disagreement: Disagreement, objects: Any, gripper: Any) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, Any]]:
+    """The disagreement's object in the hand's grasp-target frame as planned, at the close's end and at the verdict
+    (where recorded): name -> (its surface points, its planned contacts); and the grasp's width and recorded poses."""
     import h5py
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import trimesh
 
     from ..execution.poses import pose_matrix
     from ..formats.frames import grasp_poses_from_acronym
     from .protocols import com_in_link
 
+    row = disagreement.row
     with h5py.File(out_dir / "grasps" / f"{disagreement.object_id}.h5", "r") as f:
         mesh_file, mesh_to_link = f["object/file"][()].decode(), f["object/mesh_to_link"][()]
-        row = disagreement.row
         transform, contacts, width = f["grasps/transforms"][row:row + 1], f["grasps/contacts"][row], float(f["grasps/width"][row])
-        after = f["grasps/qualities/flex/object_in_hand_after_closing"][row]
-        verdict = f["grasps/qualities/flex/object_in_hand_at_verdict"][row]
+        recorded = {"after": f["grasps/qualities/flex/object_in_hand_after_closing"][row],
+                    "verdict": f["grasps/qualities/flex/object_in_hand_at_verdict"][row]}
     mesh = trimesh.load(out_dir / "meshes" / mesh_file, force="mesh")
-    rng = np.random.default_rng(0)
-    vertices = mesh.vertices[rng.choice(len(mesh.vertices), min(PICTURE_POINTS, len(mesh.vertices)), replace=False)]
+    vertices = mesh.vertices[np.random.default_rng(0).choice(len(mesh.vertices), min(PICTURE_POINTS, len(mesh.vertices)), replace=False)]
     points_link = vertices @ mesh_to_link[:3, :3].T + mesh_to_link[:3, 3]
     link_in_com = np.linalg.inv(com_in_link(objects.get(disagreement.object_id)))
     planned = grasp_poses_from_acronym(transform, gripper)
     link_from_hand = np.eye(4)
     link_from_hand[:3, :3], link_from_hand[:3, 3] = planned.rotation[0].numpy(), planned.position[0].numpy()
+    hand_from_link = {"as planned": np.linalg.inv(link_from_hand)}
+    for name, key in (("at the close's end", "after"), ("at the verdict", "verdict")):
+        if np.isfinite(recorded[key]).all():
+            hand_from_link[name] = pose_matrix(recorded[key][:3], recorded[key][3:]) @ link_in_com
+    shown = {name: (points_link @ pose[:3, :3].T + pose[:3, 3], contacts @ pose[:3, :3].T + pose[:3, 3]) for name, pose in hand_from_link.items()}
+    return shown, {"width": width, **recorded}
+
+
+def draw_disagreement(out_dir: Path, disagreement: Disagreement, objects: Any, gripper: Any, picture: Path) -> Path:
+    """The object's surface points in the hand's grasp-target frame as planned (grey: the hand at the grasp before
+    the close), at the close's end (blue) and at the verdict (red), with the pads' centres where the grasp's width
+    puts them (black), the planned contacts as they moved with the object (blue crosses) and the centre of mass's
+    path from the close's end (arrow): seen along the contact normal (the pad plane) and along the hand's x."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    shown, recorded = _object_in_hand(out_dir, disagreement, objects, gripper)
+    after, verdict = recorded["after"], recorded["verdict"]
     views = ((0, 2), (1, 2))
+    colours = {"as planned": "0.6", "at the close's end": "tab:blue", "at the verdict": "tab:red"}
     figure, axes = plt.subplots(1, 2, figsize=(9, 4.6))
-    poses = [("as planned", np.linalg.inv(link_from_hand), "0.6"), ("close's end", after, "tab:blue"), ("verdict", verdict, "tab:red")]
-    for name, pose, colour in poses:
-        if not np.isfinite(pose).all():
-            continue
-        hand_from_link = pose if pose.shape == (4, 4) else pose_matrix(pose[:3], pose[3:]) @ link_in_com
-        points = points_link @ hand_from_link[:3, :3].T + hand_from_link[:3, 3]
-        moved_contacts = contacts @ hand_from_link[:3, :3].T + hand_from_link[:3, 3]
-        for axis, (u, v) in zip(axes, views):
-            axis.scatter(points[:, u], points[:, v], s=1.5, color=colour, alpha=0.35, label=f"object {name}")
-            if name == "close's end":
-                axis.scatter(moved_contacts[:, u], moved_contacts[:, v], marker="x", s=40, color="tab:blue", label="planned contacts at the close's end")
-    pads = np.array([[0.0, -width / 2, 0.0], [0.0, width / 2, 0.0]])
+    pads = np.array([[0.0, -recorded["width"] / 2, 0.0], [0.0, recorded["width"] / 2, 0.0]])
     motion = motion_in_hand(after, verdict)
     for axis, (u, v) in zip(axes, views):
+        for name, (points, contacts) in shown.items():
+            axis.scatter(points[:, u], points[:, v], s=1.5, color=colours[name], alpha=0.35, label=f"object {name}")
+            if name == "at the close's end":
+                axis.scatter(contacts[:, u], contacts[:, v], marker="x", s=40, color="tab:blue", label="planned contacts at the close's end")
         axis.scatter(pads[:, u], pads[:, v], marker="s", s=40, color="black", label="pads (grasp width)")
         if motion is not None:
             axis.annotate("", xy=(verdict[u], verdict[v]), xytext=(after[u], after[v]), arrowprops={"arrowstyle": "->", "color": "darkgreen", "lw": 1.5})
-    for axis, (u, v), view in zip(axes, (("x", "z"), ("y, the contact normal", "z")), ("along the contact normal (pad plane)", "along the hand's x")):
+    for axis, u, view in zip(axes, ("x", "y, the contact normal"), ("along the contact normal (pad plane)", "along the hand's x")):
         axis.set_xlabel(f"{u} (m)")
-        axis.set_ylabel(f"{v}, the approach (m)")
+        axis.set_ylabel("z, the approach (m)")
         axis.set_aspect("equal", adjustable="datalim")
         axis.set_title(f"seen {view}", fontsize=8)
     axes[0].legend(fontsize=6, loc="best")
     numbers = "" if motion is None else (
         f"; from the close's end: turn about the normal {math.degrees(motion.turn_about_normal_rad):.0f} deg, other {math.degrees(motion.turn_other_rad):.0f} deg, "
         f"grasp-centre point {1000 * motion.slip_in_pad_plane_m:.0f} mm in the pad plane, {1000 * motion.slip_along_normal_m:.0f} mm along the normal")
-    figure.suptitle(f"{disagreement.cause}: {disagreement.object_id} grasp {row}, dropped by {disagreement.dropped_by} "
+    figure.suptitle(f"{disagreement.cause}: {disagreement.object_id} grasp {disagreement.row}, dropped by {disagreement.dropped_by} "
                     f"({disagreement.failure}){numbers}; arrow: its centre of mass", fontsize=7, wrap=True)
     figure.tight_layout()
     figure.savefig(picture, dpi=100)
