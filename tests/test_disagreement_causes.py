@@ -36,10 +36,11 @@ def test_a_turn_splits_into_its_twist_about_the_normal_and_the_rest_and_the_gras
     motion = motion_in_hand(REST, _turned([0.0, 0.5, 0.0]))
     assert motion.turn_about_normal_rad == pytest.approx(0.5) and motion.turn_other_rad == pytest.approx(0.0, abs=1e-9)
     assert motion.slip_in_pad_plane_m == pytest.approx(0.0, abs=1e-9), "a turn about the grasp centre moves its point nowhere"
-    # A swing about x after a twist about y: the split gives each back.
-    both = Rotation.from_rotvec([0.3, 0.0, 0.0]) * Rotation.from_rotvec([0.0, 0.4, 0.0])
-    motion = motion_in_hand(REST, (*both.apply(REST[:3]), *both.as_quat()))
+    # A turn about an axis between the normal and the pad plane: split by its axis, also near half a turn.
+    motion = motion_in_hand(REST, _turned([0.3, 0.4, 0.0]))
     assert (motion.turn_about_normal_rad, motion.turn_other_rad) == (pytest.approx(0.4), pytest.approx(0.3))
+    motion = motion_in_hand(REST, _turned([2.4, 1.6, 0.0]))
+    assert (motion.turn_about_normal_rad, motion.turn_other_rad) == (pytest.approx(1.6), pytest.approx(2.4))
     motion = motion_in_hand(REST, _turned([0.0, 0.0, 0.0], (0.02, 0.01, -0.3)))
     assert (motion.slip_in_pad_plane_m, motion.slip_along_normal_m) == (pytest.approx(math.hypot(0.02, 0.3)), pytest.approx(0.01))
     assert motion_in_hand(None, REST) is None and motion_in_hand(REST, (math.nan,) * 7) is None

@@ -40,7 +40,8 @@ PICTURE_POINTS = 1500
 
 @dataclass(frozen=True)
 class MotionInHand:
-    """The object's motion in the hand from the close's end to the verdict (rad, m)."""
+    """The object's motion in the hand from the close's end to the verdict (rad, m): its turn's rotation vector
+    along the contact normal and in the pad plane, its grasp-centre point's travel in the pad plane and along the normal."""
 
     turn_about_normal_rad: float
     turn_other_rad: float
@@ -58,10 +59,10 @@ def motion_in_hand(after_closing: Sequence[float] | None, at_verdict: Sequence[f
         return None
     start, end = Rotation.from_quat(before[3:]), Rotation.from_quat(after[3:])
     turn = end * start.inv()  # in the hand's frame
-    _, y, _, w = turn.as_quat()
-    # Swing-twist split: the twist is the turn's quaternion projected on the normal, the swing the rest.
-    twist = Rotation.from_quat([0.0, y, 0.0, w]) if math.hypot(y, w) > 1e-12 else Rotation.identity()
-    about_normal, other = float(twist.magnitude()), float((turn * twist.inv()).magnitude())
+    # Split by the turn's axis (its rotation vector along the normal and in the pad plane), not by a swing-twist
+    # split, whose twist tends to half a turn for any axis off the pad plane as the turn nears half a turn.
+    x, y, z = turn.as_rotvec()
+    about_normal, other = abs(float(y)), float(math.hypot(x, z))
     centre_point = end.apply(start.inv().apply(-before[:3])) + after[:3]  # where the grasp centre's point of the object went
     return MotionInHand(about_normal, other, float(math.hypot(centre_point[0], centre_point[2])), float(abs(centre_point[1])))
 
