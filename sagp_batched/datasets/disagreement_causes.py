@@ -163,8 +163,11 @@ def write_cause_pictures(out_dir: Path, disagreements: list[Disagreement], objec
     written = {}
     for cause in CAUSES:
         example = next((d for d in disagreements if d.cause == cause), None)
+        picture = pictures_dir / f"cause_{cause.replace(' ', '_')}.png"
         if example is not None:
-            written[cause] = draw_disagreement(out_dir, example, objects, gripper, pictures_dir / f"cause_{cause.replace(' ', '_')}.png")
+            written[cause] = draw_disagreement(out_dir, example, objects, gripper, picture)
+        else:  # a picture an earlier report of this directory drew, of a cause it no longer has
+            picture.unlink(missing_ok=True)
     return written
 
 
