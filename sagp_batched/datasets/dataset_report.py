@@ -142,10 +142,11 @@ def _causes_lines(out_dir: Path, config: Config, objects, entries: list[dict[str
     engines = next((entry["engine_agreement"]["engines"] for entry in entries if entry.get("engine_agreement")), None)
     if engines is None:
         return []
-    found = dataset_disagreements(out_dir, entries, config.execution.knock_tolerance_m)
+    knock_tolerance_m = config.execution.knock_tolerance_m
+    found = dataset_disagreements(out_dir, entries, knock_tolerance_m)
     pictures = {cause: path.relative_to(out_dir).as_posix() for cause, path in write_cause_pictures(out_dir, found, objects, robot_of(config).gripper).items()}
     counts = cause_counts([d.dropped_by for d in found], [d.cause for d in found], engines)
-    return ["", *causes_table_lines(counts, engines, pictures)]
+    return ["", *causes_table_lines(counts, engines, knock_tolerance_m, pictures)]
 
 
 def _report_markdown(out_dir, manifest, summary, entries, pictures, plots, causes_lines) -> str:
