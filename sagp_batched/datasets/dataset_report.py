@@ -2,7 +2,8 @@
 
 ``report.md``: per object, the labelled grasps, the share held, how many are distinct at 1 cm /
 20 deg, success by the planner's verdict (its calibration), the semantics' source; overall, the
-negatives' share and the hand-vs-arm agreement where it was measured. Plots: success by verdict,
+negatives' share, the hand-vs-arm agreement where it was measured and, with two engines, their
+agreement and disagreements by cause (``disagreement_causes``). Plots: success by verdict,
 per-object rates, and one picture per object of its labelled grasps on the mesh (held green,
 dropped red), drawn the way ACRONYM's grasp viewer draws its gripper markers.
 """
@@ -144,7 +145,8 @@ def _causes_lines(out_dir: Path, config: Config, objects, entries: list[dict[str
         return []
     knock_tolerance_m = config.execution.knock_tolerance_m
     found = dataset_disagreements(out_dir, entries, knock_tolerance_m)
-    pictures = {cause: path.relative_to(out_dir).as_posix() for cause, path in write_cause_pictures(out_dir, found, objects, robot_of(config).gripper).items()}
+    drawn = write_cause_pictures(out_dir, found, objects, robot_of(config).gripper)
+    pictures = {cause: path.relative_to(out_dir).as_posix() for cause, path in drawn.items()}
     counts = cause_counts([d.dropped_by for d in found], [d.cause for d in found], engines)
     return ["", *causes_table_lines(counts, engines, knock_tolerance_m, pictures)]
 

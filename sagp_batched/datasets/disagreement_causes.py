@@ -173,7 +173,8 @@ def write_cause_pictures(out_dir: Path, disagreements: list[Disagreement], objec
     return written
 
 
-def _object_in_hand(out_dir: Path, disagreement: Disagreement, objects: Any, gripper: Any) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, Any]]:
+def _object_in_hand(out_dir: Path, disagreement: Disagreement, objects: Any,
+                    gripper: Any) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, Any]]:
     """The disagreement's object in the hand's grasp-target frame as planned, at the close's end and at the verdict
     (where recorded): name -> (its surface points, its planned contacts); and the grasp's width and recorded poses."""
     import h5py
@@ -228,7 +229,8 @@ def draw_disagreement(out_dir: Path, disagreement: Disagreement, objects: Any, g
                 axis.scatter(contacts[:, u], contacts[:, v], marker="x", s=40, color="tab:blue", label="planned contacts at the close's end")
         axis.scatter(pads[:, u], pads[:, v], marker="s", s=40, color="black", label="pads (grasp width)")
         if motion is not None:
-            axis.annotate("", xy=(verdict[u], verdict[v]), xytext=(after[u], after[v]), arrowprops={"arrowstyle": "->", "color": "darkgreen", "lw": 1.5})
+            axis.annotate("", xy=(verdict[u], verdict[v]), xytext=(after[u], after[v]),
+                          arrowprops={"arrowstyle": "->", "color": "darkgreen", "lw": 1.5})
     for axis, u, view in zip(axes, ("x", "y, the contact normal"), ("along the contact normal (pad plane)", "along the hand's x")):
         axis.set_xlabel(f"{u} (m)")
         axis.set_ylabel("z, the approach (m)")
@@ -236,8 +238,9 @@ def draw_disagreement(out_dir: Path, disagreement: Disagreement, objects: Any, g
         axis.set_title(f"seen {view}", fontsize=8)
     axes[0].legend(fontsize=6, loc="best")
     numbers = "" if motion is None else (
-        f"; from the close's end: turn about the normal {math.degrees(motion.turn_about_normal_rad):.0f} deg, other {math.degrees(motion.turn_other_rad):.0f} deg, "
-        f"grasp-centre point {1000 * motion.slip_in_pad_plane_m:.0f} mm in the pad plane, {1000 * motion.slip_along_normal_m:.0f} mm along the normal")
+        f"; from the close's end: turn about the normal {math.degrees(motion.turn_about_normal_rad):.0f} deg, "
+        f"other {math.degrees(motion.turn_other_rad):.0f} deg, grasp-centre point {1000 * motion.slip_in_pad_plane_m:.0f} mm "
+        f"in the pad plane, {1000 * motion.slip_along_normal_m:.0f} mm along the normal")
     figure.suptitle(f"{disagreement.cause}: {disagreement.object_id} grasp {disagreement.row}, dropped by {disagreement.dropped_by} "
                     f"({disagreement.failure}){numbers}; arrow: its centre of mass", fontsize=7, wrap=True)
     figure.tight_layout()

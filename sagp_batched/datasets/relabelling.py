@@ -340,7 +340,8 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
         if "between_engines" in result:
             between = result["between_engines"]
             markdown += "\n" + agreement_markdown(between, f"Between the engines: {between['ours']} against {between['reference']} as the reference")
-            markdown += "\n" + "\n".join(causes_table_lines(result["disagreement_causes"], inputs.engines[:2], config.execution.knock_tolerance_m)) + "\n"
+            causes = causes_table_lines(result["disagreement_causes"], inputs.engines[:2], config.execution.knock_tolerance_m)
+            markdown += "\n" + "\n".join(causes) + "\n"
         write_file_atomically(out_dir / REPORT_FILE, markdown.encode("utf-8"))
     return result
 
