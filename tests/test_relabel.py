@@ -215,8 +215,10 @@ def test_two_engines_relabel_each_grasp_keep_each_label_and_measure_each_against
         calls.append(engine)
         x = poses.position.numpy()[:, 0]
         held = x > (0.0 if engine == "pybullet" else 0.01)  # MuJoCo drops the grasps just past the middle
+        # MuJoCo's drops slide straight down the pads (a slip); PyBullet's carry no record (other).
+        slid = {"object_in_hand_after_closing": (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0), "object_in_hand_at_verdict": (0.0, 0.0, -0.3, 0.0, 0.0, 0.0, 1.0)}
         return [GraspLabel("hand", held=bool(h), failure_reason=None if h else "slipped", failed_at=None if h else ("shake" if engine == "pybullet" else "lift"),
-                           protocol=protocol, engine=engine) for h in held]
+                           protocol=protocol, engine=engine, **({} if engine == "pybullet" else slid)) for h in held]
 
     monkeypatch.setattr(relabelling, "label_object_grasps", by_engine)
     out = tmp_path / "out"
@@ -238,6 +240,13 @@ def test_two_engines_relabel_each_grasp_keep_each_label_and_measure_each_against
     assert between["disagreements_by_phase"] == {"lift": int((pybullet & ~mujoco).sum())}
     report = (out / "report.md").read_text()
     assert "vs mujoco alone" in report and "Between the engines: mujoco against pybullet as the reference" in report
+    # The disagreement causes, as a dataset's report counts them: MuJoCo's drops PyBullet held are slips.
+    assert result["disagreement_causes"]["slip"] == {"pybullet": 0, "mujoco": int((pybullet & ~mujoco).sum())}
+    assert sum(sum(by_engine.values()) for by_engine in result["disagreement_causes"].values()) == int((pybullet != mujoco).sum())
+    assert f"| slip | 0 | {int((pybullet & ~mujoco).sum())} |" in report
+    with h5py.File(out / "relabel.h5", "r") as f:
+        causes = [v.decode() for v in f["grasps/qualities/mujoco/failure_cause"][()]]
+    assert [c == "slip" for c in causes] == list(~mujoco)
 
 
 def test_a_graspgen_uuid_is_found_through_the_roots_map(tmp_path):

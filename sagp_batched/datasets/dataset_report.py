@@ -2,7 +2,8 @@
 
 ``report.md``: per object, the labelled grasps, the share held, how many are distinct at 1 cm /
 20 deg, success by the planner's verdict (its calibration), the semantics' source; overall, the
-negatives' share and the hand-vs-arm agreement where it was measured. Plots: success by verdict,
+negatives' share, the hand-vs-arm agreement where it was measured and, with two engines, their
+agreement and disagreements by cause (``disagreement_causes``). Plots: success by verdict,
 per-object rates, and one picture per object of its labelled grasps on the mesh (held green,
 dropped red), drawn the way ACRONYM's grasp viewer draws its gripper markers.
 """
@@ -15,10 +16,12 @@ from typing import Any
 import numpy as np
 
 from ..config import Config
+from ..robot.description import robot_of
 from ..run_directory import write_json
 from ..statistics import count_and_rate
 from .cross_engine import LABEL_RULE, agreement_report_lines
 from .dataset_directory import read_progress, split_of, write_splits
+from .disagreement_causes import cause_counts, causes_table_lines, dataset_disagreements, write_cause_pictures
 from .verdicts import VERDICTS
 
 MANIFEST_FILE = "manifest.json"
@@ -130,11 +133,25 @@ def write_dataset_report(out_dir: Path, config: Config, objects, object_ids: lis
     write_json(out_dir / MANIFEST_FILE, manifest)
     pictures = _write_pictures(out_dir, entries)
     plots = _write_plots(out_dir, entries, summary)
-    (out_dir / "report.md").write_text(_report_markdown(out_dir, manifest, summary, entries, pictures, plots), encoding="utf-8")
+    markdown = _report_markdown(out_dir, manifest, summary, entries, pictures, plots, _causes_lines(out_dir, config, objects, entries))
+    (out_dir / "report.md").write_text(markdown, encoding="utf-8")
     return manifest
 
 
-def _report_markdown(out_dir, manifest, summary, entries, pictures, plots) -> str:
+def _causes_lines(out_dir: Path, config: Config, objects, entries: list[dict[str, Any]]) -> list[str]:
+    """The engine disagreements by cause (``disagreement_causes``) with a picture of one of each; none with one engine."""
+    engines = next((entry["engine_agreement"]["engines"] for entry in entries if entry.get("engine_agreement")), None)
+    if engines is None:
+        return []
+    knock_tolerance_m = config.execution.knock_tolerance_m
+    found = dataset_disagreements(out_dir, entries, knock_tolerance_m)
+    drawn = write_cause_pictures(out_dir, found, objects, robot_of(config).gripper)
+    pictures = {cause: path.relative_to(out_dir).as_posix() for cause, path in drawn.items()}
+    counts = cause_counts([d.dropped_by for d in found], [d.cause for d in found], engines)
+    return ["", *causes_table_lines(counts, engines, knock_tolerance_m, pictures)]
+
+
+def _report_markdown(out_dir, manifest, summary, entries, pictures, plots, causes_lines) -> str:
     by_verdict = summary["by_verdict"]
     lines = [
         "# Grasp dataset report", "",
@@ -152,7 +169,7 @@ def _report_markdown(out_dir, manifest, summary, entries, pictures, plots) -> st
         *[f"| {verdict} | {count_and_rate(*counts)} |" for verdict, counts in by_verdict.items()], "",
         "## Per object", "", *_object_rows(entries), "",
         "## Hand vs arm", "", *_agreement_lines(out_dir), "",
-        "## Engines", "", *agreement_report_lines(entries), "",
+        "## Engines", "", *agreement_report_lines(entries), *causes_lines, "",
     ]
     if manifest["skipped_objects"]:
         lines += ["## Objects that could not serve", "", *[f"- `{path}`: {why}" for path, why in manifest["skipped_objects"]], ""]

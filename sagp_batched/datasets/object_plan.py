@@ -92,6 +92,11 @@ def _motion(value: float | None) -> float:
     return math.nan if value is None else float(value)
 
 
+def _pose_row(pose: tuple[float, ...] | None) -> list[float]:
+    """A pose of 7 floats the grasp never reached is NaN."""
+    return [math.nan] * 7 if pose is None else [float(v) for v in pose]
+
+
 def _zone_levels(candidates: GraspCandidates, ratings: dict) -> tuple[list[str], dict[str, list[str]]]:
     names = candidates.primary_zone_names()
     levels = {task: [(rating.level(name) or "") if name else "" for name in names] for task, rating in ratings.items()}
@@ -146,6 +151,8 @@ def _pose_labels(pose: PosePlan, outcomes: list, gripper: GripperDescription, en
         zone=zone_names,
         zone_rating=levels,
         **dict(zip(("engine_held", "engine_held_fraction", "engine_failure"), engine_columns(simulated, engines))),
+        object_in_hand_after_closing=np.array([_pose_row(o.object_in_hand_after_closing) for o in simulated]).reshape(-1, 7),
+        object_in_hand_at_verdict=np.array([_pose_row(o.object_in_hand_at_verdict) for o in simulated]).reshape(-1, 7),
     )
     rejected = UntestedGrasps(transforms[untested].reshape(-1, 4, 4), [f"{verdicts[i]}: {outcomes[i]}" for i in untested])
     return labelled, rejected

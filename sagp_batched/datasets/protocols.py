@@ -54,6 +54,10 @@ class GraspLabel:
     close to its end, ``shaking`` relative to the hand from the shake's start to its end.
     ``shake_achieved_peak_accelerations``: what the hand reached along and about its x, y, z
     (m/s^2, rad/s^2; ``shake.achieved_shake_peaks``), None where it was not shaken.
+    ``object_in_hand_after_closing`` / ``object_in_hand_at_verdict``: the object's centre-of-mass pose
+    (position, xyzw quaternion: 7 floats) in the hand's grasp-target frame at the close's end and when
+    the label was decided (after the hold where the lift dropped it, else after the shake), None where
+    the grasp failed before the close; what says how a grasp was lost (``disagreement_causes``).
     ``simulated``: False where geometry decided the label. ``engine``: the engine that simulated it;
     a label from several engines (``cross_engine.combined_labels``) keeps each one's in ``by_engine``.
     """
@@ -67,6 +71,8 @@ class GraspLabel:
     object_motion_during_shaking_linear: float | None = None
     object_motion_during_shaking_angular: float | None = None
     shake_achieved_peak_accelerations: tuple[float, ...] | None = None
+    object_in_hand_after_closing: tuple[float, ...] | None = None
+    object_in_hand_at_verdict: tuple[float, ...] | None = None
     protocol: str = "tabletop"
     simulated: bool = True
     held_fraction: float | None = None
@@ -239,6 +245,7 @@ class LabelProtocol(abc.ABC):
         engine.step(labelling.hand_close_steps)
         after_close = engine.object_pose()
         motion["object_motion_during_closing_linear"], motion["object_motion_during_closing_angular"] = pose_change(before_close, after_close)
+        motion["object_in_hand_after_closing"] = _object_in_hand(engine)
         touching_after_close = engine.fingers_touching()
         if gravity_after_close:
             engine.set_gravity(True)
@@ -252,8 +259,10 @@ class LabelProtocol(abc.ABC):
                 highest_rise = max(highest_rise, float(engine.object_pose()[0][2] - rise_from_z))
         engine.step(labelling.hand_hold_steps)
         if not self.held(engine, config):
+            motion["object_in_hand_at_verdict"] = _object_in_hand(engine)
             return self._failed(*lift_failure(highest_rise, touching_after_close, execution), motion)
         motion.update(_shake(engine, shake_profile(labelling.shake, config.scene.time_step_s)))
+        motion["object_in_hand_at_verdict"] = _object_in_hand(engine)
         if self.held(engine, config):
             return GraspLabel(mode="hand", held=True, failure_reason=None, failed_at=None, protocol=self.name, **motion)
         return self._failed("slipped", "shake", motion)
@@ -324,6 +333,12 @@ def label_protocol(name: str) -> LabelProtocol:
     if name not in PROTOCOLS:
         raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {name!r}")
     return PROTOCOLS[name]
+
+
+def _object_in_hand(engine: HandEngine) -> tuple[float, ...]:
+    """The object's centre-of-mass pose in the hand's grasp-target frame as 7 floats (position, xyzw quaternion)."""
+    position, quat = relative_pose(engine.hand_pose(), engine.object_pose())
+    return (*position, *quat)
 
 
 def _shake(engine: HandEngine, profile: ShakeProfile) -> dict[str, Any]:

@@ -30,6 +30,7 @@ from ..world.mesh_sources import MESH_SUFFIXES
 from ..world.objects import ObjectSpec, load_object_set
 from .agreement import agreement_markdown, grasp_regions, label_agreement
 from .cross_engine import combined_labels
+from .disagreement_causes import cause_counts, causes_table_lines, label_cause
 from .engines import ENGINES
 from .grasp_geometry import object_mesh_link
 from .labelling import label_object_grasps
@@ -226,15 +227,17 @@ def label_chunk(spec: ObjectSpec, transforms_link: np.ndarray, widths: np.ndarra
     labels = combined_labels({engine: label_object_grasps(spec, poses, widths, protocol, config, engine=engine) for engine in engines})
     if len(labels) != len(transforms_link):
         raise RuntimeError(f"{len(labels)} labels for {len(transforms_link)} grasps")
-    plain = [_plain(label) for label in labels]
+    knock_tolerance_m = config.execution.knock_tolerance_m
+    plain = [_plain(label, knock_tolerance_m) for label in labels]
     if len(engines) > 1:
         for values, label in zip(plain, labels):
-            values["by_engine"] = {own.engine: _plain(own) for own in label.by_engine}
+            values["by_engine"] = {own.engine: _plain(own, knock_tolerance_m) for own in label.by_engine}
     return plain
 
 
-def _plain(label) -> dict[str, Any]:
+def _plain(label, knock_tolerance_m: float) -> dict[str, Any]:
     return {
+        "cause": label_cause(label, knock_tolerance_m),  # how a dropped simulation lost the object (``disagreement_causes``)
         "held": bool(label.held),
         "failure_reason": label.failure_reason or "",
         "failed_at": label.failed_at or ("" if label.held else "unknown"),
@@ -337,6 +340,8 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
         if "between_engines" in result:
             between = result["between_engines"]
             markdown += "\n" + agreement_markdown(between, f"Between the engines: {between['ours']} against {between['reference']} as the reference")
+            causes = causes_table_lines(result["disagreement_causes"], inputs.engines[:2], config.execution.knock_tolerance_m)
+            markdown += "\n" + "\n".join(causes) + "\n"
         write_file_atomically(out_dir / REPORT_FILE, markdown.encode("utf-8"))
     return result
 
@@ -347,5 +352,11 @@ def _engine_agreements(reference: np.ndarray, labels: list[dict[str, Any]], regi
     held = {engine: np.array([label["held"] for label in own[engine]], dtype=bool) for engine in engines}
     phases = {engine: [label["failed_at"] for label in own[engine]] for engine in engines}
     first, second = engines[:2]
+    simulated = np.array([label["simulated"] for label in labels], dtype=bool)
+    rows = np.flatnonzero(simulated & (held[first] != held[second]))
+    dropped_by = [first if not held[first][row] else second for row in rows]
+    # A chunk kept by a relabel from before causes were recorded has none: "other", the rule's no-record cause.
+    causes = [own[engine][row].get("cause") or "other" for engine, row in zip(dropped_by, rows)]
     return {"by_engine": {engine: label_agreement(reference, held[engine], phases[engine], regions) for engine in engines},
-            "between_engines": {"reference": first, "ours": second, **label_agreement(held[first], held[second], phases[second], regions)}}
+            "between_engines": {"reference": first, "ours": second, **label_agreement(held[first], held[second], phases[second], regions)},
+            "disagreement_causes": cause_counts(dropped_by, causes, (first, second))}

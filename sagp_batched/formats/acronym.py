@@ -46,6 +46,7 @@ int64 (N,) (the grasp's row in `candidates/`), `candidates/tested` int8 (C,) (-1
 |---|---|---|
 | `grasps/qualities/flex/held_fraction` | float64 (N,) | share of the grasp's simulations (its pose and its perturbed copies) that held; 0 where geometry decided |
 | `grasps/qualities/flex/object_motion_during_{closing,shaking}_{linear,angular}` | float64 (N,) | the object's motion in the hand, m and rad |
+| `grasps/qualities/flex/object_in_hand_{after_closing,at_verdict}` | float64 (N, 7) | the object's centre-of-mass pose in the hand's grasp target frame (y = closing axis; position m, xyzw quaternion) at the close's end and when the label was decided; NaN where not reached |
 | `grasps/qualities/<engine>/{object_in_gripper, held_fraction, failure_reason}` | int64, float64, string (N,) | each engine's own label; `object_in_gripper` is held in all of them |
 | `engines` | string (E,) | the engines that labelled the grasps |
 | `grasps/qualities/terms/{geom,reach}` | float64 (N,) | the planner's scores |
@@ -74,7 +75,7 @@ them (its mesh, scale and frame, so its readers read both alike), our label as `
 | `grasps/simulated` | int64 (N,) | 1 simulated, 0 decided by geometry |
 | `grasps/failure_reason`, `grasps/failed_at` | string (N,) | how and in which phase our simulation dropped the object |
 | `grasps/region` | string (N,) | the grasp's third of the object: bottom, middle, top |
-| `grasps/qualities/<engine>/{object_in_gripper, failed_at}` | int64, string (N,) | with several engines, each one's own label |
+| `grasps/qualities/<engine>/{object_in_gripper, failed_at, failure_cause}` | int64, string, string (N,) | with several engines, each one's own label; how it lost the object (`datasets.disagreement_causes`: knocked out, torsion, slip, other; "" held) |
 | `grasps/width` | float64 (N,) | contact width where the file gives it, m |
 | `object/mesh_to_link` | float64 (4, 4) | `diag(scale, scale, scale, 1)`: the file's frame is the scaled mesh's |
 | `object/link_from_file` | float64 (4, 4) | rigid, the file's frame -> our object's link frame |
@@ -187,6 +188,9 @@ def write_object_file(
         f"{flex}/object_motion_during_closing_angular": grasps.motion_closing_angular_rad.astype(np.float64),
         f"{flex}/object_motion_during_shaking_linear": grasps.motion_shaking_linear_m.astype(np.float64),
         f"{flex}/object_motion_during_shaking_angular": grasps.motion_shaking_angular_rad.astype(np.float64),
+        **{f"{flex}/{name}": np.full((len(grasps), 7), np.nan) if poses is None else poses.astype(np.float64).reshape(-1, 7)
+           for name, poses in (("object_in_hand_after_closing", grasps.object_in_hand_after_closing),
+                               ("object_in_hand_at_verdict", grasps.object_in_hand_at_verdict))},
     }
     for engine, held in grasps.engine_held.items():
         datasets[f"grasps/qualities/{engine}/object_in_gripper"] = held.astype(np.int64)
@@ -239,6 +243,7 @@ def relabel_file_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: 
         own = [label["by_engine"][engine_name] for label in labels]
         datasets[f"grasps/qualities/{engine_name}/object_in_gripper"] = np.array([label["held"] for label in own], dtype=np.int64)
         datasets[f"grasps/qualities/{engine_name}/failed_at"] = [label["failed_at"] for label in own]
+        datasets[f"grasps/qualities/{engine_name}/failure_cause"] = [label.get("cause", "") for label in own]
     if grasp_file.width_m is not None:
         datasets["grasps/width"] = grasp_file.width_m[rows]
     datasets.update({

@@ -49,6 +49,10 @@ class LabelledGrasps:
     engine_held: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     engine_held_fraction: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     engine_failure: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+    # (N, 7) the object's centre-of-mass pose in the hand's grasp-target frame (position, xyzw quaternion) at the
+    # close's end and at the verdict (``protocols.GraspLabel``), NaN where not reached; None: not recorded (all NaN).
+    object_in_hand_after_closing: np.ndarray | None = None
+    object_in_hand_at_verdict: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.held)
@@ -59,14 +63,17 @@ class LabelledGrasps:
         none = np.zeros(0)
         return cls(np.zeros((0, 4, 4)), none, np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64), [], [], np.zeros(0, dtype=bool), none, [], [],
                    none, none, none, none, none, none, [], {task: [] for task in tasks},
-                   {engine: np.zeros(0, dtype=bool) for engine in engines}, {engine: none for engine in engines}, {engine: [] for engine in engines})
+                   {engine: np.zeros(0, dtype=bool) for engine in engines}, {engine: none for engine in engines}, {engine: [] for engine in engines},
+                   np.zeros((0, 7)), np.zeros((0, 7)))
 
     @classmethod
     def concatenate(cls, parts: list["LabelledGrasps"]) -> "LabelledGrasps":
         values = {}
         for item in dataclasses.fields(cls):
             pieces = [getattr(part, item.name) for part in parts]
-            if isinstance(pieces[0] if pieces else None, dict):  # per task or engine: joined key by key
+            if any(piece is None for piece in pieces):  # an optional record some part lacks: not recorded
+                values[item.name] = None
+            elif isinstance(pieces[0] if pieces else None, dict):  # per task or engine: joined key by key
                 values[item.name] = {key: _joined([p[key] for p in pieces]) for key in pieces[0]}
             else:
                 values[item.name] = _joined(pieces)
