@@ -192,6 +192,18 @@ class LabellingConfig(_Section):
     #: calibrated arm and camera.
     perturbation_translation_m: float = setting(0.002, at_least=0)
     perturbation_rotation_deg: float = setting(2.0, at_least=0, at_most=90)
+    #: The perturbed copies are simulated only where the grasp's own simulation left a thin margin
+    #: (``labelling.thin_margin``): held, but the object slipped or turned in the fingers during the
+    #: shake by more than these, or let go in the shake. A grasp held firmly, or dropped before the
+    #: shake, is labelled by its own simulation. False: every grasp gets its copies.
+    perturb_only_thin_margins: bool = True
+    thin_margin_slip_m: float = setting(0.005, at_least=0)
+    thin_margin_rotation_deg: float = setting(5.0, at_least=0, at_most=180)
+    #: A simulation stops once the object has fallen this far from where the hand held it, out of
+    #: contact with the hand and not rising, at two checks ``early_stop_check_steps`` apart
+    #: (``protocols._Fall``): twice the shake's 2.6 cm stroke, which cannot bring it back. 0: never.
+    early_stop_distance_m: float = setting(0.05, at_least=0)
+    early_stop_check_steps: int = setting(12, at_least=1, at_most=10_000)
 
 
 @dataclass

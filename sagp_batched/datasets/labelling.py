@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from ..config import Config
+from ..config import Config, LabellingConfig
 from ..execution.pick import checked_grasp, execute_grasp
 from ..grasps import Grasp, GraspCandidates, GraspPoses, InvalidGraspError
 from ..robot.description import robot_of
@@ -189,10 +189,26 @@ def _decisive_outcomes(protocol: LabelProtocol, engine: HandEngine, placement: P
     outcomes: list[GraspLabel] = []
     for target, verdict in zip(poses, verdicts):
         outcomes.append(verdict or protocol.simulate(engine, placement, target, config))
+        if len(outcomes) == 1 and not thin_margin(outcomes[0], config.labelling):
+            break
         held = sum(outcome.held for outcome in outcomes)
         if held >= needed or len(outcomes) - held > len(poses) - needed:
             break
     return outcomes
+
+
+def thin_margin(outcome: GraspLabel, labelling: LabellingConfig) -> bool:
+    """Whether a grasp's own simulation leaves its label open to a pose error, so that its perturbed
+    copies decide it (``perturb_only_thin_margins``): held, but the object slipped more than
+    ``thin_margin_slip_m`` or turned more than ``thin_margin_rotation_deg`` relative to the hand during
+    the shake; or dropped only in the shake, after the lift had held it. Every outcome is thin where
+    the rule is off."""
+    if not labelling.perturb_only_thin_margins:
+        return True
+    if not outcome.held:
+        return outcome.failed_at == "shake"
+    return (outcome.object_motion_during_shaking_linear > labelling.thin_margin_slip_m
+            or outcome.object_motion_during_shaking_angular > np.radians(labelling.thin_margin_rotation_deg))
 
 
 def _majority(outcomes: list[GraspLabel]) -> GraspLabel:

@@ -24,6 +24,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
 import pybullet
 
 from .. import description_files
@@ -34,7 +35,6 @@ from ..world.objects import ObjectLoadError, ObjectSpec
 from ..world.scene import command_fingers, configure_physics, create_table
 from .collision_urdf import collision_only_urdf, floating_hand_urdf
 from .protocols import Pose, WorldStart
-
 
 
 class PyBulletHand:
@@ -172,6 +172,18 @@ class PyBulletHand:
             maxForce=self.config.labelling.hand_constraint_max_force_n, physicsClientId=self.client,
         )
 
+    def follow(self, positions: Sequence[Sequence[float]], quats: Sequence[Sequence[float]] | None = None) -> np.ndarray:
+        """``move`` to each of ``positions`` (T, 3), with ``quats`` (T, 4) or the hand's orientation,
+        then ``step(1)``; (T, 7) the grasp target's pose (position, xyzw quaternion) after each step."""
+        positions = np.asarray(positions, dtype=float).reshape(-1, 3).tolist()
+        quats = [None] * len(positions) if quats is None else np.asarray(quats, dtype=float).reshape(-1, 4).tolist()
+        poses = np.empty((len(positions), 7))
+        for index, (position, quat) in enumerate(zip(positions, quats)):
+            self.move(position, quat)
+            self.step(1)
+            poses[index, :3], poses[index, 3:] = self.hand_pose()
+        return poses
+
     # -- state ---------------------------------------------------------------------------------------
     def object_pose(self) -> Pose:
         """World pose of the object's centre-of-mass frame."""
@@ -191,6 +203,10 @@ class PyBulletHand:
         """Whether the hand touches the object, and the table, before anything has moved."""
         pybullet.performCollisionDetection(physicsClientId=self.client)
         return bool(self._contacts(self.target)), bool(self._contacts(self.table))
+
+    def hand_touching(self) -> bool:
+        """Whether any part of the hand touched the object in the last step (its contacts, not detected anew)."""
+        return bool(self._contacts(self.target))
 
     def table_push_n(self) -> float:
         """The normal force the hand pushes the table with (0 without a table)."""
