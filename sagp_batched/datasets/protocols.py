@@ -401,10 +401,10 @@ class _Fall:
     def seen(self) -> bool:
         if self.distance_m <= 0.0:
             return False
-        hand, body = self.engine.hand_pose(), self.engine.object_pose()
+        body = self.engine.object_pose()
         z, previous_z = float(body[0][2]), self.previous_z
         self.previous_z = z
-        away = np.linalg.norm(np.asarray(relative_pose(hand, body)[0]) - self.held_at) > self.distance_m
-        apart = away and previous_z is not None and z <= previous_z and not self.engine.hand_touching()
+        apart = (previous_z is not None and z <= previous_z and not self.engine.hand_touching()
+                 and np.linalg.norm(np.asarray(relative_pose(self.engine.hand_pose(), body)[0]) - self.held_at) > self.distance_m)
         seen, self.apart_before = apart and self.apart_before, apart
         return seen
