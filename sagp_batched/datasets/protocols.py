@@ -364,7 +364,7 @@ def _shake(engine: HandEngine, profile: ShakeProfile, fall: "_Fall", check_steps
         fell = fall.seen()
         if fell:
             break
-    followed = np.concatenate(hand_poses)
+    followed = np.concatenate(hand_poses) if hand_poses else np.empty((0, 7))  # a shake of no axis
     linear, angular = pose_change(object_start, relative_pose(engine.hand_pose(), engine.object_pose()))
     shaken = dataclasses.replace(profile, offsets=profile.offsets[:done], segments=tuple(s for s in profile.segments if s[2] <= done))
     return {
