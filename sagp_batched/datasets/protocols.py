@@ -38,6 +38,7 @@ from ..execution.held import lift_failure, object_held
 from ..execution.poses import pose_change, pose_matrix, relative_pose
 from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets, shake_profile
 from ..world.objects import ObjectSpec
+from .early_stop import FallWatch, chunk_ends, chunks
 
 Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
 
@@ -236,8 +237,8 @@ class LabelProtocol(abc.ABC):
         The object's rise during the lift (slipped or never lifted) is measured from ``rise_from_z``,
         where it rested, or from where the close left it (None). The lift and the shake are known in
         advance, so the engine follows each (``follow``) from one check to the next. Once the object
-        has fallen away from the hand (``_Fall``) the grasp is dropped whatever follows, and the
-        simulation stops there."""
+        has fallen away from the hand (``early_stop.FallWatch``) the grasp is dropped whatever
+        follows, and the simulation stops there."""
         execution, labelling = config.execution, config.labelling
         motion: dict[str, Any] = {}
         before_close = engine.object_pose()
@@ -253,9 +254,9 @@ class LabelProtocol(abc.ABC):
         up = np.array([0.0, 0.0, config.motion.lift_height_m])
         lift = np.array([grasp + up * _half_cosine(step / steps) for step in range(1, steps + 1)])
         highest_rise, rise_from_z = 0.0, (after_close[0][2] if rise_from_z is None else rise_from_z)
-        fall = _Fall(engine, labelling.early_stop_distance_m)
+        fall = FallWatch(engine, labelling.early_stop_distance_m)
         done = 0
-        for end in _chunk_ends(steps, rise_checks, labelling.early_stop_check_steps):
+        for end in chunk_ends(steps, rise_checks, labelling.early_stop_check_steps):
             engine.follow(lift[done:end])
             done = end
             rise = float(engine.object_pose()[0][2] - rise_from_z)
@@ -266,7 +267,7 @@ class LabelProtocol(abc.ABC):
             # Later checks of the rise see the falling object lower: the reason is decided once it is below the height that names it.
             if fall.seen() and (highest_rise >= execution.lifted_detect_height_m or rise < execution.lifted_detect_height_m):
                 return self._failed(*lift_failure(highest_rise, touching_after_close, execution), motion)
-        for chunk in _chunks(labelling.hand_hold_steps, labelling.early_stop_check_steps):
+        for chunk in chunks(labelling.hand_hold_steps, labelling.early_stop_check_steps):
             engine.step(chunk)
             if fall.seen():
                 return self._failed(*lift_failure(highest_rise, touching_after_close, execution), motion)
@@ -347,7 +348,7 @@ def label_protocol(name: str) -> LabelProtocol:
     return PROTOCOLS[name]
 
 
-def _shake(engine: HandEngine, profile: ShakeProfile, fall: "_Fall", check_steps: int) -> tuple[dict[str, Any], bool]:
+def _shake(engine: HandEngine, profile: ShakeProfile, fall: FallWatch, check_steps: int) -> tuple[dict[str, Any], bool]:
     """Follow ``profile`` around the hand's pose, rotations about the grasp target, until its end or
     until the object has fallen away (``fall``, checked every ``check_steps``): the object's motion
     relative to the hand over the steps followed, the peaks the hand reached on the axes it shook to
@@ -358,7 +359,7 @@ def _shake(engine: HandEngine, profile: ShakeProfile, fall: "_Fall", check_steps
     positions = np.asarray(start[0]) + turn.apply(profile.offsets[:, :3])
     quats = (turn * Rotation.from_rotvec(profile.offsets[:, 3:])).as_quat()
     hand_poses, fell, done = [], False, 0
-    for chunk in _chunks(profile.steps, check_steps):
+    for chunk in chunks(profile.steps, check_steps):
         hand_poses.append(engine.follow(positions[done : done + chunk], quats[done : done + chunk]))
         done += chunk
         fell = fall.seen()
@@ -372,39 +373,3 @@ def _shake(engine: HandEngine, profile: ShakeProfile, fall: "_Fall", check_steps
         "object_motion_during_shaking_angular": angular,
         "shake_achieved_peak_accelerations": achieved_shake_peaks(shaken, frame_offsets(start, [(row[:3], row[3:]) for row in followed])),
     }, fell
-
-
-def _chunks(steps: int, check_steps: int) -> list[int]:
-    """``steps`` cut into runs of ``check_steps`` (the last shorter): the steps between two checks."""
-    return [min(check_steps, steps - done) for done in range(0, steps, check_steps)]
-
-
-def _chunk_ends(steps: int, checkpoints: set[int], check_steps: int) -> list[int]:
-    """The steps (1-based) a motion of ``steps`` stops at to be checked: its ``checkpoints`` and every ``check_steps``-th."""
-    return sorted(checkpoints | set(range(check_steps, steps + 1, check_steps)) | {steps})
-
-
-class _Fall:
-    """Whether the object has fallen away from the hand: out of contact with every part of it, its
-    centre of mass further than ``distance_m`` from where the hand held it (in the hand's frame, as the
-    close left it) and no higher than at the check before, at two checks in a row. From there it falls
-    freely (or lies on the table): no later step of the lift or the shake, whose strokes are shorter
-    than ``distance_m``, brings it back between the fingers, so the grasp is dropped whatever follows.
-    ``distance_m`` 0: never (every simulation runs to its end)."""
-
-    def __init__(self, engine: HandEngine, distance_m: float):
-        self.engine, self.distance_m = engine, distance_m
-        self.held_at = np.asarray(relative_pose(engine.hand_pose(), engine.object_pose())[0])
-        self.previous_z: float | None = None
-        self.apart_before = False
-
-    def seen(self) -> bool:
-        if self.distance_m <= 0.0:
-            return False
-        body = self.engine.object_pose()
-        z, previous_z = float(body[0][2]), self.previous_z
-        self.previous_z = z
-        apart = (previous_z is not None and z <= previous_z and not self.engine.hand_touching()
-                 and np.linalg.norm(np.asarray(relative_pose(self.engine.hand_pose(), body)[0]) - self.held_at) > self.distance_m)
-        seen, self.apart_before = apart and self.apart_before, apart
-        return seen
