@@ -172,6 +172,8 @@ class LabellingConfig(_Section):
     hand_lift_steps: int = setting(72, at_least=1, at_most=10_000)
     #: Held still for 0.1 s after the lift, then judged before the shake starts.
     hand_hold_steps: int = setting(24, at_least=0, at_most=10_000)
+    #: PyBullet's solver stops iterating once its residual falls below this (Bullet's default).
+    pybullet_solver_residual_threshold: float = setting(1e-7, above=0)
     #: Error reduction of the fixed constraint that carries the hand (PyBullet's ``erp``, set in the
     #: hand's world): PyBullet's 0.2 lets the hand trail its target by ~4 steps, short of the
     #: shake's peaks by a tenth; 0.8 follows within a step.

@@ -77,7 +77,8 @@ class PyBulletHand:
         pybullet.resetSimulation(physicsClientId=client)
         configure_physics(client, config.scene)
         self.set_gravity(start.gravity)
-        pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
+        pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp,
+                                           solverResidualThreshold=config.labelling.pybullet_solver_residual_threshold, physicsClientId=client)
         if self.gripper.finger_motion == "linkage":
             iterations = self.gripper.pybullet_solver_iterations or config.scene.solver_iterations
             pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps, numSolverIterations=iterations, physicsClientId=client)
