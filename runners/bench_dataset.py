@@ -25,6 +25,12 @@ Objects: --objects, else a few of the embedded YCB set, else (with --objects-dir
 labels grasps whose outcome is known on paper instead (``benchmarks.analytic_grasps``): a box, a bar and a
 cylinder either side of the thresholds the contact model gives, in each engine and protocol, written to
 ``analytic_grasps.json``, ``analytic_grasps.md`` and ``provenance.json`` in --out (``--json FILE``: the JSON there too).
+    python -m runners.bench_dataset --fixed-set SET.npz --out DIR [--objects a,b] [--grasps 63] [--label-engines pybullet,mujoco]
+        [--fixed-protocol floating] [--labelling-overrides '{"early_stop_distance_m": 0}'] [--reference DIR]
+
+labels a fixed grasp set instead (``benchmarks.fixed_labels``), planned on --objects (default: eight YCB
+objects) and saved to SET.npz the first time, in each engine with [labelling] overridden, into
+``fixed_labels.json`` in --out; with --reference (an earlier run's --out) it counts the labels that changed.
 
     python -m runners.bench_dataset --engines --out DIR [--objects-dir DIR] [--objects a,b] [--grasps 60]
         [--perturbed-simulations K] [--mujoco-variants '[{}, {"substeps": 2}]']
@@ -44,6 +50,7 @@ from pathlib import Path
 
 from sagp_batched.benchmarks import engine_agreement as engines
 from sagp_batched.benchmarks.analytic_grasps import analytic_config, analytic_grasps, analytic_markdown
+from sagp_batched.benchmarks import fixed_labels
 from sagp_batched.benchmarks.dataset_speed import STAGES, DatasetCase, benchmark_dataset, projected_hours, shared_world_step_cost
 from sagp_batched.benchmarks.gripper_agreement import gripper_agreement, gripper_agreement_markdown
 from sagp_batched.benchmarks.label_fidelity import DEFAULT_OBJECTS, fidelity_markdown, label_fidelity
@@ -51,6 +58,7 @@ from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.config.run import LABEL_PROTOCOLS
 from sagp_batched.config.world import GRIPPERS
 from sagp_batched.datasets.engines import ENGINES
+from sagp_batched.datasets.protocols import label_protocol
 from sagp_batched.provenance import collect
 from sagp_batched.runtime import configure_torch
 from sagp_batched.world.mesh_settings import MeshImportSettings
@@ -66,6 +74,8 @@ ENGINES_MARKDOWN = "engine_agreement.md"
 ANALYTIC_JSON = "analytic_grasps.json"
 ANALYTIC_MARKDOWN = "analytic_grasps.md"
 GRIPPERS_JSON = "gripper_agreement.json"
+FIXED_JSON = "fixed_labels.json"
+FIXED_MARKDOWN = "fixed_labels.md"
 GRIPPERS_MARKDOWN = "gripper_agreement.md"
 
 
@@ -107,6 +117,11 @@ def build_parser() -> argparse.ArgumentParser:
     analytic = parser.add_argument_group("analytic grasps (--analytic; --out, --label-engines and --protocols as above)")
     analytic.add_argument("--analytic", action="store_true", help="label grasps whose outcome is known on paper instead of speed")
     analytic.add_argument("--gripper", default=None, help="the gripper the analytic cases are made for (default: the profile's)")
+    fixed = parser.add_argument_group("labels changed on a fixed grasp set (--fixed-set; --out, --objects, --grasps, --label-engines as above)")
+    fixed.add_argument("--fixed-set", type=Path, default=None, help="the grasp set (.npz) to label instead of speed; planned first where missing")
+    fixed.add_argument("--fixed-protocol", default="floating", help="the protocol the fixed set is labelled in")
+    fixed.add_argument("--labelling-overrides", default="{}", help="JSON table of [labelling] overrides the fixed set is labelled with")
+    fixed.add_argument("--reference", type=Path, default=None, help="an earlier --fixed-set run's --out: count the labels changed against it")
     grippers = parser.add_argument_group("gripper agreement (--grippers; --out, --objects, --grasps and --perturbed-simulations as above)")
     grippers.add_argument("--grippers", default=None, help="comma list of grippers: label the same planned grasps with each (floating) instead of speed")
     grippers.add_argument("--gripper-engine", default="mujoco", choices=ENGINES, help="the engine the grippers' labels are made in")
@@ -124,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         return _analytic_main(parser, args)
     if args.grippers is not None:
         return _grippers_main(parser, args)
+    if args.fixed_set is not None:
+        return _fixed_set_main(parser, args)
     if args.json is None:
         parser.error("--json is required (or --fidelity with --out)")
     return _speed_main(parser, args)
@@ -296,6 +313,53 @@ def _analytic_main(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         args.json.write_text(json.dumps(report, indent=2, default=str))
     return _write_results(args.out, (ANALYTIC_JSON, ANALYTIC_MARKDOWN), report, analytic_markdown(report), collect(
         analytic_config(config).to_dict(), engines=engines_asked, protocols=protocols))
+def _fixed_set_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    engine_names, unknown = names_and_unknown(args.label_engines, ENGINES)
+    if unknown or not engine_names:
+        parser.error(f"--label-engines takes one or more of {', '.join(ENGINES)}, got {args.label_engines!r}")
+    try:
+        overrides = json.loads(args.labelling_overrides)
+    except ValueError as exc:
+        parser.error(f"--labelling-overrides is not JSON: {exc}")
+    if not isinstance(overrides, dict):
+        parser.error(f"--labelling-overrides takes a JSON table, got {args.labelling_overrides!r}")
+    reference_file = None if args.reference is None else args.reference / FIXED_JSON
+    if reference_file is not None and not reference_file.is_file():
+        parser.error(f"--reference {args.reference} holds no {FIXED_JSON}")
+    inputs = _fidelity_inputs(parser, args, "--fixed-set", fixed_labels.FIXED_SET_OBJECTS)
+    if inputs is None:
+        return 2
+    config, objects, object_ids = inputs
+    try:
+        config = config.override("labelling", **overrides)
+        label_protocol(args.fixed_protocol)
+        configure_torch()
+        if not args.fixed_set.exists():
+            planned = fixed_labels.build_fixed_set(config, objects, object_ids, args.grasps, args.fixed_set)
+            print(f"planned {sum(planned.values())} grasps into {args.fixed_set}: " + ", ".join(f"{k} {v}" for k, v in planned.items()))
+        grasp_set = fixed_labels.load_fixed_set(args.fixed_set)
+        for object_id in grasp_set:
+            objects.get(object_id)
+    except (ConfigError, ValueError, ObjectLoadError, UnknownObjectError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    reference = json.loads(reference_file.read_text())["engines"] if reference_file is not None else {}
+    report: dict = {"fixed_set": str(args.fixed_set), "protocol": args.fixed_protocol, "labelling_overrides": overrides, "engines": {}}
+    lines = []
+    for engine in engine_names:
+        records, seconds = fixed_labels.label_fixed_set(config, objects, grasp_set, engine, args.fixed_protocol)
+        row = {"records": records, "cpu_s": seconds, "labels_per_cpu_s": len(records) / seconds}
+        line = f"{engine}: {len(records)} labels ({sum(r['held'] for r in records)} held) in {seconds:.1f} CPU s, {row['labels_per_cpu_s']:.2f} labels/s"
+        if engine in reference:
+            row["changed"] = fixed_labels.changed_labels(reference[engine]["records"], records)
+            row["cpu_ratio_to_reference"] = seconds / reference[engine]["cpu_s"]
+            line += (f"; against the reference: {row['changed']['held_changed']} held/dropped changed ({row['changed']['now_held']} now held, "
+                     f"{row['changed']['now_dropped']} now dropped), {row['changed']['failure_changed']} failures changed, "
+                     f"{row['cpu_ratio_to_reference']:.2f} of its CPU time")
+        report["engines"][engine] = row
+        lines.append(line)
+    return _write_results(args.out, (FIXED_JSON, FIXED_MARKDOWN), report, "\n".join(lines) + "\n", collect(
+        config.to_dict(), objects_source=objects.source, fixed_set=str(args.fixed_set), labelling_overrides=overrides))
 
 
 def _grippers_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:

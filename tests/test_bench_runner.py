@@ -206,3 +206,36 @@ def test_bench_measures_the_collision_designs_each_deciding_every_pose_as_the_re
     for row in rows:
         assert row["poses"] > 0 and row["query_eager_s"] > 0 and row["decided_disagreements"] == 0 and row["agreement_after_exact"] == 1.0
     assert "collision designs, 300 pairs" in done.stdout
+
+
+def test_the_fixed_set_is_labelled_and_its_labels_changed_counted_against_a_reference(tmp_path, capsys):
+    import numpy as np
+    import trimesh
+
+    from runners.bench_dataset import main
+    from sagp_batched.benchmarks.designed_grasps import DESIGNED_BOX_M, designed_box_grasps
+    from sagp_batched.benchmarks.fixed_labels import changed_labels
+    from sagp_batched.robot.description import load_robot
+    from sagp_batched.world.mesh_settings import MeshImportSettings
+    from sagp_batched.world.objects import load_object_set
+
+    folder = tmp_path / "objects"
+    folder.mkdir()
+    trimesh.creation.box(DESIGNED_BOX_M).export(folder / "box.obj")
+    poses = designed_box_grasps(load_object_set(folder, MeshImportSettings()).get("box"), load_robot())
+    grasp_set = tmp_path / "set.npz"
+    np.savez(grasp_set, object_ids=np.array(["box"] * 3), positions=poses.position.numpy(), rotations=poses.rotation.numpy())
+    common = ["--fixed-set", str(grasp_set), "--objects-dir", str(folder), "--label-engines", "mujoco"]
+    assert main([*common, "--out", str(tmp_path / "reference"), "--labelling-overrides", '{"perturb_only_thin_margins": false}']) == 0
+    assert main([*common, "--out", str(tmp_path / "once"), "--reference", str(tmp_path / "reference"),
+                 "--labelling-overrides", '{"thin_margin_slip_m": 0.05, "thin_margin_rotation_deg": 90}']) == 0
+    reference, once = (json.loads((tmp_path / name / "fixed_labels.json").read_text())["engines"]["mujoco"] for name in ("reference", "once"))
+    assert [r["held_fraction"] for r in reference["records"]] == [1.0, 0.0, None]  # the collision is geometry's
+    assert [r["held_fraction"] for r in once["records"]] == [None, None, None] and [r["held"] for r in once["records"]] == [True, False, False]
+    assert once["changed"] == {"grasps": 3, "simulated": 2, "held_changed": 0, "now_held": 0, "now_dropped": 0, "failure_changed": 0}
+    assert "0 held/dropped changed" in capsys.readouterr().out
+    flipped = [dict(once["records"][0], held=False, failure_reason="slipped", failed_at="shake"), *once["records"][1:]]
+    assert changed_labels(once["records"], flipped)["now_dropped"] == 1 and changed_labels(flipped, once["records"])["now_held"] == 1
+    with pytest.raises(SystemExit):
+        main([*common, "--out", str(tmp_path / "bad"), "--labelling-overrides", "[1]"])
+    assert "--labelling-overrides takes a JSON table" in capsys.readouterr().err

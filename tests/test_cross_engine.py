@@ -65,7 +65,7 @@ def test_a_robust_label_stops_once_its_majority_is_decided():
             runs.append(target)
             return _label("pybullet", held=len(runs) != 2)  # every simulation holds but the second
 
-    config = load_config("dataset")
+    config = load_config("dataset", {"labelling": {"perturb_only_thin_margins": False}})
     targets = [object()] * 5
     outcomes = labelling._decisive_outcomes(Protocol(), None, None, targets, [None] * 5, config)
     assert len(outcomes) == 4 and labelling._majority(outcomes).held_fraction == 0.75  # H, D, H, H: three of five held

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from sagp_batched.benchmarks.designed_grasps import designed_box_grasps
 from sagp_batched.config import Config, ConfigError, load_config
 from sagp_batched.datasets.engines import ENGINES, hand_engine
-from sagp_batched.datasets.labelling import FloatingPlacement, label_object_grasps
+from sagp_batched.datasets.labelling import FloatingPlacement, label_object_grasps, thin_margin
 from sagp_batched.datasets.protocols import FLOATING, HandTarget, WorldStart
 from sagp_batched.grasps import GraspPoses
 from sagp_batched.robot.description import load_robot, robot_of
@@ -27,7 +27,7 @@ def test_mujoco_labels_the_designed_grasps_held_dropped_and_a_collision_in_both_
     labels = label_object_grasps(designed_box, designed_box_grasps(designed_box, load_robot()), None, protocol, Config(), engine="mujoco")
     assert [(label.held, label.failure_reason, label.simulated) for label in labels] == [
         (True, None, True), (False, "not_lifted", True), (False, "collision", False)]
-    assert labels[0].held_fraction == 1.0 and labels[1].held_fraction == 0.0
+    assert labels[1].held_fraction is None and labels[0].held_fraction == (1.0 if thin_margin(labels[0], Config().labelling) else None)
     # The box stays in the fingers through the shake: it slides a centimetre along the closing axis, as in
     # PyBullet (each finger holds its own force, so the pair moves together), and hardly turns.
     assert labels[0].object_motion_during_shaking_linear < 0.02 and labels[0].object_motion_during_shaking_angular < np.radians(5)

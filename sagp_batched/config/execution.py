@@ -166,6 +166,8 @@ class LabellingConfig(_Section):
     hand_lift_steps: int = setting(72, at_least=1, at_most=10_000)
     #: Held still for 0.1 s after the lift, then judged before the shake starts.
     hand_hold_steps: int = setting(24, at_least=0, at_most=10_000)
+    #: PyBullet's solver stops iterating once its residual falls below this (Bullet's default).
+    pybullet_solver_residual_threshold: float = setting(1e-7, above=0)
     #: Error reduction of the fixed constraint that carries the hand (PyBullet's ``erp``, set in the
     #: hand's world): PyBullet's 0.2 lets the hand trail its target by ~4 steps, short of the
     #: shake's peaks by a tenth; 0.8 follows within a step.
@@ -186,6 +188,20 @@ class LabellingConfig(_Section):
     #: calibrated arm and camera.
     perturbation_translation_m: float = setting(0.002, at_least=0)
     perturbation_rotation_deg: float = setting(2.0, at_least=0, at_most=90)
+    #: The perturbed copies are simulated only where the grasp's own simulation left a thin margin
+    #: (``labelling.thin_margin``): held, but the object slipped or turned in the fingers during the
+    #: shake by more than these, or let go in the shake. A grasp held firmly, or dropped before the
+    #: shake, is labelled by its own simulation. False: every grasp gets its copies. On 504 planned
+    #: grasps (8 YCB objects, floating) 6 (MuJoCo) and 10 (PyBullet) labels change, grasps 1-2 of whose
+    #: copies held, at half the time; drawing the copies anew changes 12 and 14.
+    perturb_only_thin_margins: bool = True
+    thin_margin_slip_m: float = setting(0.005, at_least=0)
+    thin_margin_rotation_deg: float = setting(5.0, at_least=0, at_most=180)
+    #: A simulation stops once the object has fallen this far from where the hand held it, out of
+    #: contact with the hand and not rising, at two checks ``early_stop_check_steps`` apart
+    #: (``protocols._Fall``): twice the shake's 2.6 cm stroke, which cannot bring it back. 0: never.
+    early_stop_distance_m: float = setting(0.05, at_least=0)
+    early_stop_check_steps: int = setting(12, at_least=1, at_most=10_000)
 
 
 @dataclass

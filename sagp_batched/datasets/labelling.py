@@ -15,10 +15,13 @@ which or how many grasps are labelled with it.
 Robust labels: with ``labelling.perturbed_simulations`` K > 1 each grasp is simulated K times, at its
 pose and at K - 1 poses moved ``perturbation_translation_m`` and turned ``perturbation_rotation_deg``
 about the grasp centre in directions drawn from a seed made of the pose itself (the same grasp gets
-the same perturbations in any file and any order). The label is held where most of the K held; the
-simulations stop once the majority is decided (three alike of five), since the rest could not change
-it. ``held_fraction`` keeps the share of the simulations run, and the label's other fields are those
-of its own pose where that agreed with the majority, else of the first perturbed pose that did.
+the same perturbations in any file and any order). The copies are simulated only where the grasp's
+own simulation left a thin margin (``thin_margin``: the object slipped or turned in the fingers during
+the shake, or let go after the close had gripped it); elsewhere that simulation is the label. The label
+is held where most of the K held; the simulations stop once the majority is decided (three alike of
+five), since the rest could not change it. ``held_fraction`` keeps the share of the simulations run
+(None where the grasp's own simulation alone labelled it), and the label's other fields are those of
+its own pose where that agreed with the majority, else of the first perturbed pose that did.
 """
 from __future__ import annotations
 
@@ -30,7 +33,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from ..config import Config
+from ..config import Config, LabellingConfig
 from ..execution.pick import checked_grasp, execute_grasp
 from ..grasps import Grasp, GraspCandidates, GraspPoses, InvalidGraspError
 from ..robot.description import robot_of
@@ -168,31 +171,50 @@ def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, prot
 
 def _label(protocol: LabelProtocol, placements: Sequence[Placement], targets: Sequence[HandTarget], config: Config,
            engine_name: str) -> list[GraspLabel]:
-    """Each grasp's label: every simulation of it (its pose and its perturbations) tested by geometry, the clear ones simulated."""
-    samples = [[target] + _perturbed(target, config) for target in targets]
-    decided = _geometry_verdicts(protocol, placements, samples, config)
-    labels = []
+    """Each grasp's label: its pose tested by geometry and, where clear, simulated; its perturbed copies
+    tested and simulated only where that simulation left a thin margin (``thin_margin``), so geometry
+    tests no copy a label does not use."""
+    copies = [_perturbed(target, config) for target in targets]
+    own = [verdicts[0] for verdicts in _geometry_verdicts(protocol, placements, [[target] for target in targets], config)]
     with hand_engine(engine_name, config) as engine:
-        for placement, poses, verdicts in zip(placements, samples, decided):
-            if verdicts[0] is not None:  # the grasp itself intersects: no simulation tests it
-                labels.append(verdicts[0])
-                continue
-            labels.append(_majority(_decisive_outcomes(protocol, engine, placement, poses, verdicts, config)))
+        labels = [verdict or protocol.simulate(engine, placement, target, config) for placement, target, verdict in zip(placements, targets, own)]
+        thin = [i for i, label in enumerate(labels) if own[i] is None and copies[i] and thin_margin(label, config.labelling)]
+        copy_verdicts = _geometry_verdicts(protocol, [placements[i] for i in thin], [copies[i] for i in thin], config)
+        for i, verdicts in zip(thin, copy_verdicts):
+            poses = [targets[i], *copies[i]]
+            labels[i] = _majority(_decisive_outcomes(protocol, engine, placements[i], poses, [labels[i], *verdicts], config))
     return [dataclasses.replace(label, engine=engine_name) for label in labels]
 
 
 def _decisive_outcomes(protocol: LabelProtocol, engine: HandEngine, placement: Placement, poses: list[HandTarget],
                        verdicts: list[GraspLabel | None], config: Config) -> list[GraspLabel]:
-    """The grasp's simulations in order (its pose, then its perturbations) until their majority is
-    decided: the simulations left could not change the label, only its ``held_fraction``."""
+    """The grasp's simulations in order (its pose, then its perturbations; a verdict already made stands
+    for its simulation) until their majority is decided: the simulations left could not change the
+    label, only its ``held_fraction``; or, where its own simulation's margin is not thin, that one alone."""
     needed = len(poses) // 2 + 1  # held by a strict majority; dropped once held can no longer reach it
     outcomes: list[GraspLabel] = []
     for target, verdict in zip(poses, verdicts):
         outcomes.append(verdict or protocol.simulate(engine, placement, target, config))
+        if len(outcomes) == 1 and not thin_margin(outcomes[0], config.labelling):
+            break
         held = sum(outcome.held for outcome in outcomes)
         if held >= needed or len(outcomes) - held > len(poses) - needed:
             break
     return outcomes
+
+
+def thin_margin(outcome: GraspLabel, labelling: LabellingConfig) -> bool:
+    """Whether a grasp's own simulation leaves its label open to a pose error, so that its perturbed
+    copies decide it (``perturb_only_thin_margins``): held, but the object slipped more than
+    ``thin_margin_slip_m`` or turned more than ``thin_margin_rotation_deg`` relative to the hand during
+    the shake; or dropped in the lift or the shake, after the close had gripped it. A grasp that never
+    gripped (dropped in the close) or collided is not. Every outcome is thin where the rule is off."""
+    if not labelling.perturb_only_thin_margins:
+        return True
+    if not outcome.held:
+        return outcome.failed_at in ("lift", "shake")
+    return (outcome.object_motion_during_shaking_linear > labelling.thin_margin_slip_m
+            or outcome.object_motion_during_shaking_angular > np.radians(labelling.thin_margin_rotation_deg))
 
 
 def _majority(outcomes: list[GraspLabel]) -> GraspLabel:

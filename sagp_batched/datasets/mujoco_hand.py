@@ -101,6 +101,24 @@ class MuJoCoHand:
         self.data.mocap_pos[0] = position
         self.data.mocap_quat[0] = np.asarray(self.quat if quat is None else quat)[WXYZ_FROM_XYZW]
 
+    def follow(self, positions: np.ndarray, quats: np.ndarray | None = None) -> np.ndarray:
+        """``move`` to each of ``positions`` (T, 3), with ``quats`` (T, 4) or the hand's orientation,
+        then ``step(1)``, in one loop that only copies arrays; (T, 7) the grasp target's pose (position,
+        xyzw quaternion) after each step."""
+        model, data, body, nstep = self.world.model, self.data, self.world.grasp_target_body, self.substeps
+        positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+        targets = np.asarray(self.quat if quats is None else quats, dtype=float).reshape(-1, 4)[:, WXYZ_FROM_XYZW]
+        targets = np.broadcast_to(targets, (len(positions), 4))
+        poses = np.empty((len(positions), 7))
+        for index in range(len(positions)):
+            data.mocap_pos[0] = positions[index]
+            data.mocap_quat[0] = targets[index]
+            mujoco.mj_step(model, data, nstep=nstep)
+            poses[index, :3] = data.xpos[body]
+            poses[index, 3:] = data.xquat[body]
+        poses[:, 3:] = poses[:, 3:][:, XYZW_FROM_WXYZ]
+        return poses
+
     # -- state ---------------------------------------------------------------------------------------
     def object_pose(self) -> Pose:
         """World pose of the object's centre-of-mass frame."""
@@ -130,6 +148,10 @@ class MuJoCoHand:
         """Whether the hand touches the object, and the table, before anything has moved."""
         with_object, with_table = self._hand_contacts()
         return bool(with_object.any()), bool(with_table.any())
+
+    def hand_touching(self) -> bool:
+        """Whether any part of the hand touched the object in the last step."""
+        return bool(self._hand_contacts()[0].any())
 
     def table_push_n(self) -> float:
         """The normal force the hand pushes the table with (0 without a table)."""

@@ -23,6 +23,7 @@ close in the world (the hand holds still), during the shake in the hand's (grasp
 from __future__ import annotations
 
 import abc
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ from ..execution.held import lift_failure, object_held
 from ..execution.poses import pose_change, pose_matrix, relative_pose
 from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets, shake_profile
 from ..world.objects import ObjectSpec
+from .early_stop import FallWatch, chunk_ends, chunks
 
 Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
 
@@ -179,7 +181,9 @@ class HandEngine(Protocol):
     def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None: ...
     def hand_pose(self) -> Pose: ...
     def object_pose(self) -> Pose: ...
+    def follow(self, positions: np.ndarray, quats: np.ndarray | None = None) -> np.ndarray: ...
     def hand_in_contact(self) -> tuple[bool, bool]: ...
+    def hand_touching(self) -> bool: ...
     def table_push_n(self) -> float: ...
     def fingers_touching(self) -> bool: ...
 
@@ -237,7 +241,10 @@ class LabelProtocol(abc.ABC):
         """Once the hand is at the grasp: close, lift, hold, judge, shake, judge.
 
         The object's rise during the lift (slipped or never lifted) is measured from ``rise_from_z``,
-        where it rested, or from where the close left it (None)."""
+        where it rested, or from where the close left it (None). The lift and the shake are known in
+        advance, so the engine follows each (``follow``) from one check to the next. Once the object
+        has fallen away from the hand (``early_stop.FallWatch``) the grasp is dropped whatever
+        follows, and the simulation stops there."""
         execution, labelling = config.execution, config.labelling
         motion: dict[str, Any] = {}
         before_close = engine.object_pose()
@@ -249,21 +256,39 @@ class LabelProtocol(abc.ABC):
         touching_after_close = engine.fingers_touching()
         if gravity_after_close:
             engine.set_gravity(True)
-        checks = _checkpoints(labelling.hand_lift_steps, config.motion.lift_waypoints)
+        steps = labelling.hand_lift_steps
+        rise_checks = _checkpoints(steps, config.motion.lift_waypoints)
         up = np.array([0.0, 0.0, config.motion.lift_height_m])
+        lift = np.array([grasp + up * _half_cosine(step / steps) for step in range(1, steps + 1)])
         highest_rise, rise_from_z = 0.0, (after_close[0][2] if rise_from_z is None else rise_from_z)
-        for step in range(1, labelling.hand_lift_steps + 1):
-            engine.move(grasp + up * _half_cosine(step / labelling.hand_lift_steps))
-            engine.step(1)
-            if step in checks:
-                highest_rise = max(highest_rise, float(engine.object_pose()[0][2] - rise_from_z))
-        engine.step(labelling.hand_hold_steps)
-        if not self.held(engine, config):
+        fall = FallWatch(engine, labelling.early_stop_distance_m)
+
+        def lift_failed() -> GraspLabel:
             motion["object_in_hand_at_verdict"] = _object_in_hand(engine)
             return self._failed(*lift_failure(highest_rise, touching_after_close, execution), motion)
-        motion.update(_shake(engine, shake_profile(labelling.shake, config.scene.time_step_s)))
+
+        done = 0
+        for end in chunk_ends(steps, rise_checks, labelling.early_stop_check_steps):
+            engine.follow(lift[done:end])
+            done = end
+            rise = float(engine.object_pose()[0][2] - rise_from_z)
+            if end in rise_checks:
+                highest_rise = max(highest_rise, rise)
+            if end % labelling.early_stop_check_steps and end != steps:
+                continue
+            # Later checks of the rise see the falling object lower: the reason is decided once it is below the height that names it.
+            if fall.seen() and (highest_rise >= execution.lifted_detect_height_m or rise < execution.lifted_detect_height_m):
+                return lift_failed()
+        for chunk in chunks(labelling.hand_hold_steps, labelling.early_stop_check_steps):
+            engine.step(chunk)
+            if fall.seen():
+                return lift_failed()
+        if not self.held(engine, config):
+            return lift_failed()
+        shaken, fell = _shake(engine, shake_profile(labelling.shake, config.scene.time_step_s), fall, labelling.early_stop_check_steps)
+        motion.update(shaken)
         motion["object_in_hand_at_verdict"] = _object_in_hand(engine)
-        if self.held(engine, config):
+        if not fell and self.held(engine, config):
             return GraspLabel(mode="hand", held=True, failure_reason=None, failed_at=None, protocol=self.name, **motion)
         return self._failed("slipped", "shake", motion)
 
@@ -287,14 +312,15 @@ class Tabletop(LabelProtocol):
             return self._failed("collision", "pregrasp", {})
         engine.step(labelling.hand_settle_steps)
         # Checked as the study checks its descent: after each of its waypoints.
-        checks = _checkpoints(labelling.hand_approach_steps, config.motion.descent_waypoints)
-        for step in range(1, labelling.hand_approach_steps + 1):
-            engine.move(target.start + (target.grasp - target.start) * _half_cosine(step / labelling.hand_approach_steps))
-            engine.step(1)
-            if step in checks:
-                knocked = np.linalg.norm(np.subtract(engine.object_pose()[0], rest_com)) > execution.knock_tolerance_m
-                if knocked or engine.table_push_n() > execution.table_contact_max_force_n:
-                    return self._failed("collision", "descent", {})
+        steps = labelling.hand_approach_steps
+        approach = np.array([target.start + (target.grasp - target.start) * _half_cosine(step / steps) for step in range(1, steps + 1)])
+        done = 0
+        for end in sorted(_checkpoints(steps, config.motion.descent_waypoints)):
+            engine.follow(approach[done:end])
+            done = end
+            knocked = np.linalg.norm(np.subtract(engine.object_pose()[0], rest_com)) > execution.knock_tolerance_m
+            if knocked or engine.table_push_n() > execution.table_contact_max_force_n:
+                return self._failed("collision", "descent", {})
         return self._close_lift_shake(engine, target.grasp, config, rise_from_z=float(rest_com[2]))
 
 
@@ -341,23 +367,28 @@ def _object_in_hand(engine: HandEngine) -> tuple[float, ...]:
     return (*position, *quat)
 
 
-def _shake(engine: HandEngine, profile: ShakeProfile) -> dict[str, Any]:
-    """Follow ``profile`` around the hand's pose, rotations about the grasp target: the object's motion
-    relative to the hand over the shake and the peaks the hand reached (``achieved_shake_peaks`` of its
-    pose at every step)."""
+def _shake(engine: HandEngine, profile: ShakeProfile, fall: FallWatch, check_steps: int) -> tuple[dict[str, Any], bool]:
+    """Follow ``profile`` around the hand's pose, rotations about the grasp target, until its end or
+    until the object has fallen away (``fall``, checked every ``check_steps``): the object's motion
+    relative to the hand over the steps followed, the peaks the hand reached on the axes it shook to
+    the end (``achieved_shake_peaks`` of its pose at every step; 0 on the rest), and whether it fell."""
     start = engine.hand_pose()
     object_start = relative_pose(start, engine.object_pose())
     turn = Rotation.from_quat(start[1])
     positions = np.asarray(start[0]) + turn.apply(profile.offsets[:, :3])
     quats = (turn * Rotation.from_rotvec(profile.offsets[:, 3:])).as_quat()
-    hand_poses = []
-    for position, quat in zip(positions.tolist(), quats.tolist()):
-        engine.move(position, quat)
-        engine.step(1)
-        hand_poses.append(engine.hand_pose())
+    hand_poses, fell, done = [], False, 0
+    for chunk in chunks(profile.steps, check_steps):
+        hand_poses.append(engine.follow(positions[done : done + chunk], quats[done : done + chunk]))
+        done += chunk
+        fell = fall.seen()
+        if fell:
+            break
+    followed = np.concatenate(hand_poses) if hand_poses else np.empty((0, 7))  # a shake of no axis
     linear, angular = pose_change(object_start, relative_pose(engine.hand_pose(), engine.object_pose()))
+    shaken = dataclasses.replace(profile, offsets=profile.offsets[:done], segments=tuple(s for s in profile.segments if s[2] <= done))
     return {
         "object_motion_during_shaking_linear": linear,
         "object_motion_during_shaking_angular": angular,
-        "shake_achieved_peak_accelerations": achieved_shake_peaks(profile, frame_offsets(start, hand_poses)),
-    }
+        "shake_achieved_peak_accelerations": achieved_shake_peaks(shaken, frame_offsets(start, [(row[:3], row[3:]) for row in followed])),
+    }, fell

@@ -24,6 +24,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
 import pybullet
 
 from .. import description_files
@@ -35,7 +36,6 @@ from ..world.objects import ObjectLoadError, ObjectSpec
 from ..world.scene import command_fingers, configure_physics, create_table
 from .collision_urdf import collision_only_urdf, floating_hand_urdf
 from .protocols import Pose, WorldStart
-
 
 
 class PyBulletHand:
@@ -79,7 +79,8 @@ class PyBulletHand:
         pybullet.resetSimulation(physicsClientId=client)
         configure_physics(client, config.scene)
         self.set_gravity(start.gravity)
-        pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp, physicsClientId=client)
+        pybullet.setPhysicsEngineParameter(erp=config.labelling.hand_constraint_erp,
+                                           solverResidualThreshold=config.labelling.pybullet_solver_residual_threshold, physicsClientId=client)
         if self.gripper.finger_motion == "linkage":
             iterations = self.gripper.pybullet_solver_iterations or config.scene.solver_iterations
             pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps, numSolverIterations=iterations, physicsClientId=client)
@@ -174,6 +175,18 @@ class PyBulletHand:
             maxForce=self.config.labelling.hand_constraint_max_force_n, physicsClientId=self.client,
         )
 
+    def follow(self, positions: Sequence[Sequence[float]], quats: Sequence[Sequence[float]] | None = None) -> np.ndarray:
+        """``move`` to each of ``positions`` (T, 3), with ``quats`` (T, 4) or the hand's orientation,
+        then ``step(1)``; (T, 7) the grasp target's pose (position, xyzw quaternion) after each step."""
+        positions = np.asarray(positions, dtype=float).reshape(-1, 3).tolist()
+        quats = [None] * len(positions) if quats is None else np.asarray(quats, dtype=float).reshape(-1, 4).tolist()
+        poses = np.empty((len(positions), 7))
+        for index, (position, quat) in enumerate(zip(positions, quats)):
+            self.move(position, quat)
+            self.step(1)
+            poses[index, :3], poses[index, 3:] = self.hand_pose()
+        return poses
+
     # -- state ---------------------------------------------------------------------------------------
     def object_pose(self) -> Pose:
         """World pose of the object's centre-of-mass frame."""
@@ -193,6 +206,10 @@ class PyBulletHand:
         """Whether the hand touches the object, and the table, before anything has moved."""
         pybullet.performCollisionDetection(physicsClientId=self.client)
         return bool(self._contacts(self.target)), bool(self._contacts(self.table))
+
+    def hand_touching(self) -> bool:
+        """Whether any part of the hand touched the object in the last step (its contacts, not detected anew)."""
+        return bool(self._contacts(self.target))
 
     def table_push_n(self) -> float:
         """The normal force the hand pushes the table with (0 without a table)."""
