@@ -19,6 +19,12 @@ the same perturbations in any file and any order). The label is held where most 
 simulations stop once the majority is decided (three alike of five), since the rest could not change
 it. ``held_fraction`` keeps the share of the simulations run, and the label's other fields are those
 of its own pose where that agreed with the majority, else of the first perturbed pose that did.
+
+Divergence: a simulation the engine says diverged (``HandEngine.diverged``: a solver warning, a
+non-finite state, the object faster than physics allows) is run again with each step divided
+``labelling.divergence_step_division`` times; where it diverges again it tested nothing
+(``GraspLabel.untested``). A grasp whose own pose is untested is untested (its label would describe
+other poses); an untested perturbed copy is left out of the majority, which is over the tested ones.
 """
 from __future__ import annotations
 
@@ -185,17 +191,38 @@ def _decisive_outcomes(protocol: LabelProtocol, engine: HandEngine, placement: P
                        verdicts: list[GraspLabel | None], config: Config) -> list[GraspLabel]:
     """The grasp's simulations in order (its pose, then its perturbations) until their majority is
     decided: the simulations left could not change the label, only its ``held_fraction``."""
-    needed = len(poses) // 2 + 1  # held by a strict majority; dropped once held can no longer reach it
     outcomes: list[GraspLabel] = []
     for target, verdict in zip(poses, verdicts):
-        outcomes.append(verdict or protocol.simulate(engine, placement, target, config))
+        outcomes.append(verdict or _simulated(protocol, engine, placement, target, config))
+        if outcomes[0].untested is not None:
+            break
         held = sum(outcome.held for outcome in outcomes)
-        if held >= needed or len(outcomes) - held > len(poses) - needed:
+        dropped = sum(not outcome.held and outcome.untested is None for outcome in outcomes)
+        # Decided where the simulations left, all going the other way, could not turn the tested majority.
+        if held > dropped + len(poses) - len(outcomes) or held + len(poses) - len(outcomes) <= dropped:
             break
     return outcomes
 
 
+def _simulated(protocol: LabelProtocol, engine: HandEngine, placement: Placement, target: HandTarget, config: Config) -> GraspLabel:
+    """One simulation's outcome; one that diverged is run again at a smaller step, and untested where it diverges again."""
+    outcome = protocol.simulate(engine, placement, target, config)
+    if outcome.untested is None:
+        return outcome
+    engine.step_division = config.labelling.divergence_step_division
+    try:
+        finer = protocol.simulate(engine, placement, target, config)
+    finally:
+        engine.step_division = 1
+    if finer.untested is None:
+        return finer
+    return dataclasses.replace(finer, untested=f"{finer.untested} (also at 1/{config.labelling.divergence_step_division} of the step)")
+
+
 def _majority(outcomes: list[GraspLabel]) -> GraspLabel:
+    if outcomes[0].untested is not None:
+        return outcomes[0]
+    outcomes = [outcome for outcome in outcomes if outcome.untested is None]
     if len(outcomes) == 1:
         return outcomes[0]
     fraction = sum(outcome.held for outcome in outcomes) / len(outcomes)

@@ -9,8 +9,8 @@ What a label is: the outcome of simulating the grasp (``labelling``): held after
 shake, or dropped, with the object's motion during closing and shaking. The grasps are the planner's
 antipodal candidates across its verdicts (``verdicts.classify_grasps``): the feasible ones and those it
 rejects, so the dataset has both classes and measures the planner's calibration. A grasp whose
-simulation could not run (in ``arm`` mode: no arm solution for a grasp the planner rejected) is kept
-apart as untested, never written as a failure.
+simulation could not run (in ``arm`` mode: no arm solution for a grasp the planner rejected; in either
+mode a simulation that diverged, ``labelling``) is kept apart as untested, never written as a failure.
 """
 from __future__ import annotations
 
@@ -118,7 +118,8 @@ class ObjectLabeller:
             started = time.perf_counter()
             by_engine[engine] = label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol, engine)
             seconds[engine] = time.perf_counter() - started
-        return ChunkOutcome(chunk, combined_labels(by_engine), time.perf_counter() - clock, seconds)
+        outcomes = [f"untested: {label.engine} {label.untested}" if label.untested else label for label in combined_labels(by_engine)]
+        return ChunkOutcome(chunk, outcomes, time.perf_counter() - clock, seconds)
 
     def label(self, object_id: str, n_grasps: int) -> ObjectLabels:
         """``n_grasps`` grasps of the object planned and simulated here, one chunk a capture."""

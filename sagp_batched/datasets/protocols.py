@@ -56,6 +56,8 @@ class GraspLabel:
     (m/s^2, rad/s^2; ``shake.achieved_shake_peaks``), None where it was not shaken.
     ``simulated``: False where geometry decided the label. ``engine``: the engine that simulated it;
     a label from several engines (``cross_engine.combined_labels``) keeps each one's in ``by_engine``.
+    ``untested``: why the simulation tested nothing (it diverged, "diverged: QACC warning"), None
+    where it did; such an outcome is neither held nor dropped and never written as a label.
     """
 
     mode: str
@@ -72,6 +74,7 @@ class GraspLabel:
     held_fraction: float | None = None
     engine: str = "pybullet"
     by_engine: tuple["GraspLabel", ...] = ()
+    untested: str | None = None
 
 
 @dataclass(frozen=True)
@@ -176,6 +179,20 @@ class HandEngine(Protocol):
     def hand_in_contact(self) -> tuple[bool, bool]: ...
     def table_push_n(self) -> float: ...
     def fingers_touching(self) -> bool: ...
+    def diverged(self) -> str | None: ...
+
+    #: Each protocol step divided into this many more engine steps from the next ``build`` on (1: as configured).
+    step_division: int
+
+
+def speed_past_bound(relative_speed_m_s: float, simulated_s: float, config: Config) -> str | None:
+    """Why an object moving at ``relative_speed_m_s`` relative to the hand ``simulated_s`` into a
+    simulation has diverged, or None: faster than ``labelling.divergence_speed_m_s`` plus a free
+    fall over the whole simulation (gravity the one force the protocol lets act on a dropped object)."""
+    bound = config.labelling.divergence_speed_m_s + abs(config.scene.gravity_m_s2) * simulated_s
+    if not math.isfinite(relative_speed_m_s):
+        return "diverged: non-finite object speed"
+    return f"diverged: object speed {relative_speed_m_s:.3g} m/s" if relative_speed_m_s > bound else None
 
 
 def _half_cosine(fraction: float) -> float:
@@ -240,6 +257,8 @@ class LabelProtocol(abc.ABC):
         after_close = engine.object_pose()
         motion["object_motion_during_closing_linear"], motion["object_motion_during_closing_angular"] = pose_change(before_close, after_close)
         touching_after_close = engine.fingers_touching()
+        if (reason := engine.diverged()) is not None:
+            return self._untested(reason, "close", motion)
         if gravity_after_close:
             engine.set_gravity(True)
         checks = _checkpoints(labelling.hand_lift_steps, config.motion.lift_waypoints)
@@ -251,15 +270,23 @@ class LabelProtocol(abc.ABC):
             if step in checks:
                 highest_rise = max(highest_rise, float(engine.object_pose()[0][2] - rise_from_z))
         engine.step(labelling.hand_hold_steps)
+        if (reason := engine.diverged()) is not None:
+            return self._untested(reason, "lift", motion)
         if not self.held(engine, config):
             return self._failed(*lift_failure(highest_rise, touching_after_close, execution), motion)
         motion.update(_shake(engine, shake_profile(labelling.shake, config.scene.time_step_s)))
+        if (reason := engine.diverged()) is not None:
+            return self._untested(reason, "shake", motion)
         if self.held(engine, config):
             return GraspLabel(mode="hand", held=True, failure_reason=None, failed_at=None, protocol=self.name, **motion)
         return self._failed("slipped", "shake", motion)
 
     def _failed(self, reason: str, phase: str, motion: dict[str, Any]) -> GraspLabel:
         return GraspLabel(mode="hand", held=False, failure_reason=reason, failed_at=phase, protocol=self.name, **motion)
+
+    def _untested(self, reason: str, phase: str, motion: dict[str, Any]) -> GraspLabel:
+        """A simulation that diverged by the end of ``phase``: no outcome, whatever the state says."""
+        return GraspLabel(mode="hand", held=False, failure_reason="diverged", failed_at=phase, protocol=self.name, untested=reason, **motion)
 
 
 class Tabletop(LabelProtocol):
@@ -285,7 +312,11 @@ class Tabletop(LabelProtocol):
             if step in checks:
                 knocked = np.linalg.norm(np.subtract(engine.object_pose()[0], rest_com)) > execution.knock_tolerance_m
                 if knocked or engine.table_push_n() > execution.table_contact_max_force_n:
+                    if (reason := engine.diverged()) is not None:
+                        return self._untested(reason, "descent", {})
                     return self._failed("collision", "descent", {})
+        if (reason := engine.diverged()) is not None:
+            return self._untested(reason, "descent", {})
         return self._close_lift_shake(engine, target.grasp, config, rise_from_z=float(rest_com[2]))
 
 
