@@ -125,6 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(result.new_objects)} new objects; {summary['labelled']} labelled grasps, {summary['held']} held; "
           f"report: {out_dir / 'report.md'}", file=sys.stderr)
     print(f"{summary['untested']} untested grasps; {diverged_text(summary['diverged'], config.dataset.engines)}", file=sys.stderr)
+    for line in summary["short"].values():
+        print(f"short: {line}", file=sys.stderr)
     return 0
 
 

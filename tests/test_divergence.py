@@ -119,4 +119,22 @@ def test_a_dataset_keeps_diverged_grasps_untested_and_counts_them_per_engine(tmp
     entry = json.loads((out / "objects.jsonl").read_text().splitlines()[0])
     assert entry["diverged"] == {"pybullet": 0, "mujoco": len(reasons)} and entry["untested"] == len(reasons)
     line = f"diverged and kept untested: pybullet 0, mujoco {len(reasons)}"
-    assert line in (out / "report.md").read_text() and line in capsys.readouterr().err
+    report = (out / "report.md").read_text()
+    assert line in report and line in capsys.readouterr().err and "Every object has the 6 grasps asked planned." in report
+
+
+@pytest.mark.slow
+def test_a_run_short_of_the_count_asked_says_per_object_how_many_it_found_and_why(tmp_path, monkeypatch, capsys):
+    # Every simulation diverging spares this test the labelling: it is about the count planned.
+    _diverging(monkeypatch, mujoco_hand.MuJoCoHand, _weightless_mujoco_object)
+    folder, out = tmp_path / "meshes", tmp_path / "dataset"
+    folder.mkdir()
+    trimesh.creation.box((0.05, 0.04, 0.08)).export(folder / "box.stl")
+    argv = ["--objects-dir", str(folder), "--out", str(out), "--protocol", "floating", "--engines", "mujoco", "--workers", "1",
+            "--grasps-per-object", "3000", "--captures", "1", "--pairs", "200", "--no-progress"]
+    assert datagen.main(argv) == 0
+    entry = json.loads((out / "objects.jsonl").read_text().splitlines()[0])
+    found = entry["labelled"] + entry["untested"]
+    assert found < 3000 and entry["shortfall"].startswith(f"{found} of 3000 planned")
+    line = f"box: {entry['shortfall']} ({entry['labelled']} labelled, {entry['untested']} untested)"
+    assert f"short: {line}" in capsys.readouterr().err and f"- {line}" in (out / "report.md").read_text()

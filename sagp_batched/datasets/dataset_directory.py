@@ -69,6 +69,7 @@ def write_object(out_dir: Path, spec: ObjectSpec, labels: "ObjectLabels", mode: 
     entry = {
         "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
         "untested": len(labels.untested.reason), "diverged": diverged_by_engine(labels.untested.reason, tuple(labels.engine_seconds)),
+        "shortfall": labels.shortfall,
         "distinct_1cm_20deg": distinct, "rater": labels.rater,
         "decided_by_geometry": grasps.decided_by.count("geometry"),
         "held_octants": len({tuple(side) for side in held_sides.astype(int)}),
