@@ -84,6 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from sagp_batched.datasets.cross_engine import diverged_text
     from sagp_batched.datasets.dataset_run import dataset_object_ids, generate_dataset
 
     args = build_parser().parse_args(argv)
@@ -123,6 +124,9 @@ def main(argv: list[str] | None = None) -> int:
     summary = result.manifest["summary"]
     print(f"{len(result.new_objects)} new objects; {summary['labelled']} labelled grasps, {summary['held']} held; "
           f"report: {out_dir / 'report.md'}", file=sys.stderr)
+    print(f"{summary['untested']} untested grasps; {diverged_text(summary['diverged'], config.dataset.engines)}", file=sys.stderr)
+    for line in summary["short"].values():
+        print(f"short: {line}", file=sys.stderr)
     return 0
 
 

@@ -78,6 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     kappa = "undefined" if result["kappa"] is None else f"{result['kappa']:.3f}"
     say(f"{result['n']} grasps: agreement {100 * result['agreement']:.1f} %, kappa {kappa}; report: {out_dir / REPORT_FILE}")
+    say("untested (a simulation diverged, so not compared): " + ", ".join(f"{engine} {count}" for engine, count in result["untested"].items()))
     for engine, part in result.get("by_engine", {}).items():
         say(f"  {engine} alone: agreement {100 * part['agreement']:.1f} %, kappa " + ("undefined" if part["kappa"] is None else f"{part['kappa']:.3f}"))
     return 0

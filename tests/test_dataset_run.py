@@ -66,8 +66,10 @@ def test_a_capture_without_candidates_is_skipped_with_its_reason(labeller):
         plan = skipping.plan_object("005_tomato_soup_can", 6)
     finally:
         skipping.close()
-    assert plan.poses == [] and len(plan.skipped_poses) == 1
+    # One more capture is tried where the first gives none, and the plan says why it stopped short.
+    assert plan.poses == [] and len(plan.skipped_poses) == 2
     assert "no antipodal candidate" in plan.skipped_poses[0] and "70-70 mm" in plan.skipped_poses[0]
+    assert plan.shortfall == "0 of 6 planned: after 2 captures the surface gives no more grasps distinct at 1 cm / 20 deg from those taken"
     assert object_labels(plan, [], GRIPPER).grasps.transforms.shape[0] == 0
 
 
@@ -116,3 +118,32 @@ def test_captures_planned_a_few_at_a_time_give_the_plan_of_one_batch(labeller, p
     for one, batched in zip(alone.poses, plan.poses):
         assert one.classified.verdict_names() == batched.classified.verdict_names() and one.classified.reasons == batched.classified.reasons
         assert torch.equal(one.candidates.rotation, batched.candidates.rotation) and torch.equal(one.candidates.joint_path, batched.candidates.joint_path)
+
+
+def test_a_plan_takes_more_captures_until_the_count_asked_or_says_why_not_and_its_grasps_are_distinct(tmp_path_factory, labeller):
+    import math
+
+    from sagp_batched_kernels.pose_nms import distinct_grasp_count
+
+    config = load_config("dataset", overrides={
+        "dataset": {"captures_per_object": 1, "max_captures_per_object": 3, "protocol": "floating"}, "planner": {"n_pairs": 1000},
+        "labelling": {"hand_urdf_cache_dir": str(tmp_path_factory.mktemp("hand"))}})
+    floating = ObjectLabeller(config, labeller.objects)
+    try:
+        reachable, beyond = (floating.plan_object("005_tomato_soup_can", n) for n in (40, 2000))
+    finally:
+        floating.close()
+
+    def grasps(plan):
+        poses = [pose.candidates.transform(pose.object_from_world, "object").poses() for pose in plan.poses]
+        return torch.cat([p.position for p in poses]), torch.cat([p.rotation for p in poses])
+
+    assert reachable.shortfall is None and len(grasps(reachable)[0]) == 40
+    found = len(grasps(beyond)[0])
+    assert len(beyond.poses) == 3 and found < 2000
+    assert beyond.shortfall == f"{found} of 2000 planned in dataset.max_captures_per_object = 3 captures, each grasp distinct at 1 cm / 20 deg"
+    # Distinct at the dataset's thresholds: picks, their boundary variants and later captures' grasps alike (but
+    # for a few pairs at the threshold itself, which the planner's suppression measures in single precision).
+    for plan in (reachable, beyond):
+        position, rotation = grasps(plan)
+        assert distinct_grasp_count(position, rotation, 0.01, math.radians(20.0)) >= len(position) - len(position) // 200

@@ -320,3 +320,29 @@ def test_our_own_file_relabelled_for_real_gets_its_own_labels_back(tmp_path, mon
                          "--profile", str(profile)]) == 0
     result = json.loads((out / "agreement.json").read_text())
     assert result["agreement"] == 1.0 and result["kappa"] == 1.0, result
+
+
+def test_grasps_a_diverged_simulation_left_untested_are_kept_apart_and_compared_with_nothing(acronym_file, tmp_path, monkeypatch, capsys):
+    path, mesh_root = acronym_file
+
+    def diverging_in_mujoco(spec, poses, widths_m, protocol, config, engine="pybullet"):
+        x = poses.position.numpy()[:, 0]
+        # MuJoCo diverges on the grasps on the -x side; PyBullet labels them all.
+        return [GraspLabel("hand", held=False, failure_reason="diverged", failed_at="close", protocol=protocol, engine=engine,
+                           untested="diverged: QACC warning") if engine == "mujoco" and value < 0 else
+                GraspLabel("hand", held=True, failure_reason=None, failed_at=None, protocol=protocol, engine=engine) for value in x]
+
+    monkeypatch.setattr(relabelling, "label_object_grasps", diverging_in_mujoco)
+    out = tmp_path / "out"
+    assert _run(path, mesh_root, out, "--engine", "pybullet,mujoco") == 0
+    result = json.loads((out / "agreement.json").read_text())
+    with h5py.File(out / "relabel.h5", "r") as f:
+        rows, untested_rows = f["grasps/source_index"][()], f["untested/source_index"][()]
+        reasons = {reason.decode() for reason in f["untested/reason"][()]}
+        labels = f["grasps/qualities/flex/object_in_gripper"][()]
+        transforms = f["untested/transforms"][()]
+    assert len(untested_rows) > 0 and sorted([*rows, *untested_rows]) == list(range(N_GRASPS)), "every row labelled or kept apart"
+    assert reasons == {"mujoco diverged: QACC warning"} and labels.all() and len(labels) == len(rows)
+    assert np.allclose(transforms, _grasps_around_the_box(N_GRASPS)[untested_rows])
+    assert result["n"] == len(rows) and result["untested"] == {"pybullet": 0, "mujoco": len(untested_rows)}
+    assert f"untested (a simulation diverged, so not compared): pybullet 0, mujoco {len(untested_rows)}" in capsys.readouterr().err

@@ -141,10 +141,11 @@ def _second_capture(spec: ObjectSpec, config: Config) -> tuple[int, int, str]:
 
 
 def held_agreement(first: Sequence, second: Sequence) -> dict[str, Any]:
-    """How often two labellings of the same grasps agree on held, over the grasps both simulated."""
+    """How often two labellings of the same grasps agree on held, over the grasps both simulated and tested
+    (a diverged simulation, ``GraspLabel.untested``, is no label)."""
     from ..datasets.agreement import cohen_kappa
 
-    both = [(a.held, b.held) for a, b in zip(first, second) if a.simulated and b.simulated]
+    both = [(a.held, b.held) for a, b in zip(first, second) if a.simulated and b.simulated and not a.untested and not b.untested]
     a_held = np.array([a for a, _ in both], dtype=bool)
     b_held = np.array([b for _, b in both], dtype=bool)
     agree = int((a_held == b_held).sum())

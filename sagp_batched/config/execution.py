@@ -202,6 +202,14 @@ class LabellingConfig(_Section):
     #: (``protocols._Fall``): twice the shake's 2.6 cm stroke, which cannot bring it back. 0: never.
     early_stop_distance_m: float = setting(0.05, at_least=0)
     early_stop_check_steps: int = setting(12, at_least=1, at_most=10_000)
+    #: A simulation has diverged (``protocols.speed_past_bound``) where the object moves relative to
+    #: the hand faster than this plus what gravity adds over the simulated time: the hand's motions
+    #: (0.8 m/s approach, 1 m/s lift, the shake's peaks) and a closing finger give an object a few
+    #: m/s at most, so past 10 m/s the solver, not the protocol, is moving it.
+    divergence_speed_m_s: float = setting(10.0, above=0)
+    #: A simulation that diverged is run once more with each step divided into this many more
+    #: (MuJoCo substeps, PyBullet ``numSubSteps``); where it diverges again the grasp is untested.
+    divergence_step_division: int = setting(4, at_least=2, at_most=64)
 
 
 @dataclass

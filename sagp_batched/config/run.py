@@ -94,6 +94,11 @@ class DatasetConfig(_Section):
     # Each capture places the object at a fresh seeded position and yaw on the table (and, for an
     # object with several stable resting poses, in the next of them); its grasps share one plan.
     captures_per_object: int = setting(2, at_least=1, at_most=100)
+    # Where those captures give fewer grasps than asked (each new capture leaves out the grasps the
+    # earlier ones took, within nms_translation_m / nms_rotation_deg), more are planned, up to this many
+    # in all, until the count is reached or a capture finds under a tenth of those still missing: the
+    # object's surface gives few more distinct grasps, and the report says so.
+    max_captures_per_object: int = setting(8, at_least=1, at_most=100)
     # Grasps a worker simulates as one piece of work: one object's grasps spread over every worker
     # in pieces this size (labels do not depend on it).
     grasps_per_chunk: int = setting(50, at_least=1, at_most=100_000)

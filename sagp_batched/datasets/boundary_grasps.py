@@ -6,8 +6,9 @@ variants of picked grasps that sit near that edge: the hand withdrawn along its 
 object lies at or past the fingertips, or turned off its contacts about an axis across the closing
 axis, so the fingers meet the surface obliquely. Each variant is measured on the mesh as the planner
 would measure a candidate (where its fingers meet the surface, the width, S_geom of those contacts),
-kept only where both fingers meet the mesh and its open hand stays clear, and recorded with the
-verdict "boundary". Simulation labels a variant like any other grasp; nothing here guesses its outcome.
+kept only where both fingers meet the mesh, its open hand stays clear and it is not the same grasp
+(``dataset.nms_translation_m`` / ``nms_rotation_deg``) as a picked one or another variant, and recorded
+with the verdict "boundary". Simulation labels a variant like any other grasp; nothing here guesses its outcome.
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from sagp_batched_kernels.antipodal import antipodal_pairs
+from sagp_batched_kernels.pose_nms import pose_nms, same_grasp
 
 from ..config import Config
 from ..grasps import GraspCandidates, GraspPoses
@@ -26,16 +28,18 @@ from ..robot.description import RobotDescription, robot_of
 from .grasp_geometry import ObjectSurface, finger_contacts, open_hand_clear
 from .verdicts import VERDICTS, ClassifiedGrasps
 
-# Variants drawn per one wanted: a withdrawn hand may close on nothing and a turned one hit the mesh.
-DRAWS_PER_VARIANT = 3
+# Variants drawn per one wanted: a withdrawn hand may close on nothing, a turned one hit the mesh, and
+# either repeat a grasp (on the YCB mug three draws a variant kept half the count, six nearly all).
+DRAWS_PER_VARIANT = 6
 
 
 def add_boundary_grasps(classified: ClassifiedGrasps, count: int, surface: ObjectSurface, object_from_world: np.ndarray,
-                        robot: RobotDescription, config: Config, seed: int) -> ClassifiedGrasps:
+                        robot: RobotDescription, config: Config, seed: int, taken: GraspPoses | None = None) -> ClassifiedGrasps:
     """``classified`` followed by up to ``count`` boundary variants of its grasps (world frame), drawn
     with ``seed``: half withdrawn by ``dataset.boundary_withdrawal_m``, half turned by
     ``dataset.boundary_turn_deg`` (each a uniform range), both fingers meeting the mesh (object
-    frame ``object_from_world``), the open hand clear of it. Fewer where the draws run out."""
+    frame ``object_from_world``), the open hand clear of it, none the same grasp as one of ``classified``,
+    of ``taken`` (object frame: earlier captures' picks) or of another variant. Fewer where the draws run out."""
     if count <= 0 or not len(classified):
         return classified
     rng = np.random.default_rng(seed)
@@ -48,7 +52,8 @@ def add_boundary_grasps(classified: ClassifiedGrasps, count: int, surface: Objec
     usable = contacts.both_met & (np.nan_to_num(width) >= config.planner.min_width_m)
     usable[usable] = open_hand_clear(surface, GraspPoses(torch.as_tensor(centre[usable]), torch.as_tensor(drawn[1][usable]), "object"),
                                      robot, config.labelling.geometry_tolerance_m)
-    kept = np.flatnonzero(usable)[:count]
+    others = GraspPoses.cat([source.poses()] + ([taken] if taken is not None else []), "object")
+    kept = np.flatnonzero(_distinct(centre, drawn[1], usable, others, config))[:count]
     if not len(kept):
         return classified
     variants = _candidates(contacts.points[kept], contacts.normals[kept], drawn[1][kept], classified.candidates, config)
@@ -59,6 +64,21 @@ def add_boundary_grasps(classified: ClassifiedGrasps, count: int, surface: Objec
         torch.cat([classified.verdict, torch.full((len(kept),), VERDICTS.index("boundary"), dtype=classified.verdict.dtype)]),
         classified.reasons + reasons, classified.pool_size, classified.covering_size,
     )
+
+
+def _distinct(centre: np.ndarray, rotation: np.ndarray, usable: np.ndarray, others: GraspPoses, config: Config) -> np.ndarray:
+    """(V,) bool: the ``usable`` variants that are not the same grasp as one of ``others`` nor as an earlier
+    usable variant: a repeat adds no grasp to the dataset, only weight to one."""
+    translation_m, rotation_rad = config.dataset.nms_translation_m, math.radians(config.dataset.nms_rotation_deg)
+    rows = np.flatnonzero(usable)
+    centres, frames = torch.as_tensor(centre[rows]), torch.as_tensor(rotation[rows])
+    if len(others) and len(rows):
+        rows = rows[~same_grasp(centres, frames, others.position, others.rotation, translation_m, rotation_rad).any(dim=1).numpy()]
+    if len(rows):
+        rows = rows[np.sort(pose_nms(torch.as_tensor(centre[rows]), torch.as_tensor(rotation[rows]), translation_m, rotation_rad).numpy())]
+    distinct = np.zeros(len(usable), dtype=bool)
+    distinct[rows] = True
+    return distinct
 
 
 def _variant_frames(source: GraspCandidates, rows: np.ndarray, rng: np.random.Generator,

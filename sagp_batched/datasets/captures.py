@@ -63,20 +63,26 @@ class Capture:
     com_quat_xyzw: tuple[float, float, float, float]
 
 
-def plan_captures(captures: list[Capture], spec: ObjectSpec, config: Config, rater) -> list[PosePlan | str]:
+def taken_grasps(planned: list[PosePlan | str]) -> GraspPoses:
+    """The grasps planned captures picked, in the object's frame: a later capture leaves them out."""
+    poses = [pose.candidates.transform(pose.object_from_world, "object").poses() for pose in planned if not isinstance(pose, str)]
+    return GraspPoses.cat(poses, "object")
+
+
+def plan_captures(captures: list[Capture], spec: ObjectSpec, config: Config, rater, earlier: list[PosePlan | str] = ()) -> list[PosePlan | str]:
     """Each capture planned (``PosePlan``), or why it gave no grasp, in the order of ``captures``: their
-    verdicts in batches of ``CAPTURES_PER_BATCH``, then each one's picks, zones and ratings (``rater``) in turn."""
+    verdicts in batches of ``CAPTURES_PER_BATCH``, then each one's picks, zones and ratings (``rater``) in
+    turn, none the same grasp as one an ``earlier`` capture picked."""
     batch = []
     for first in range(0, len(captures), CAPTURES_PER_BATCH):
         group = captures[first : first + CAPTURES_PER_BATCH]
         batch += capture_verdicts([capture.cloud for capture in group], config, [labelling_seed(config, capture.pose_index) for capture in group])
     planned: list[PosePlan | str] = []
-    taken = GraspPoses.cat([], "object")  # a later capture offers the same grasps again in the object's frame
+    taken = taken_grasps(list(earlier))  # a later capture offers the same grasps again in the object's frame
     for capture, verdicts in zip(captures, batch):
         pose = _plan_capture(capture, verdicts, spec, config, rater, taken)
         planned.append(pose)
-        if not isinstance(pose, str):
-            taken = GraspPoses.cat([taken, pose.candidates.transform(pose.object_from_world, "object").poses()], "object")
+        taken = GraspPoses.cat([taken, taken_grasps([pose])], "object")
     return planned
 
 
@@ -113,7 +119,8 @@ def _classified(spec: ObjectSpec, capture: Capture, verdicts: CaptureVerdicts, c
     boundary = round(config.dataset.boundary_fraction * n_grasps)
     clear = functools.partial(_open_hand_clear_world, spec, cloud.object_from_world, config)
     classified = classify_grasps(cloud, config, seed, n_grasps - boundary, taken_object=taken, open_hand_clear=clear, verdicts=verdicts)
-    return add_boundary_grasps(classified, boundary, object_surface(spec), np.asarray(cloud.object_from_world), robot_of(config), config, seed)
+    return add_boundary_grasps(classified, boundary, object_surface(spec), np.asarray(cloud.object_from_world), robot_of(config), config, seed,
+                               taken)
 
 
 def _open_hand_clear_world(spec: ObjectSpec, object_from_world: np.ndarray, config: Config, poses_world: GraspPoses) -> np.ndarray:

@@ -25,15 +25,27 @@ LABEL_RULE = ("held in every engine of `engines` (the conservative label); grasp
 
 def combined_labels(by_engine: dict[str, list[GraspLabel]]) -> list[GraspLabel]:
     """Per grasp, the dataset's label from each engine's (lists in the same grasp order): the label of
-    the first engine that dropped the grasp, else of the first engine, with every engine's in ``by_engine``."""
+    the first engine that dropped the grasp, else of the first engine, with every engine's in ``by_engine``;
+    untested (``GraspLabel.untested``) where an engine did not test it."""
     counts = {engine: len(labels) for engine, labels in by_engine.items()}
     if len(set(counts.values())) > 1:
         raise ValueError(f"every engine labels the same grasps, got {counts}")
     combined = []
     for labels in zip(*by_engine.values()):
-        deciding = next((label for label in labels if not label.held), labels[0])
+        deciding = next((label for label in labels if label.untested), next((label for label in labels if not label.held), labels[0]))
         combined.append(dataclasses.replace(deciding, by_engine=tuple(labels)))
     return combined
+
+
+def diverged_by_engine(reasons: list[str], engines: tuple[str, ...]) -> dict[str, int]:
+    """How many of the untested grasps' ``reasons`` each engine's diverged simulation made untested (the
+    reason names the engine: "<engine> diverged: ...")."""
+    return {engine: sum(f"{engine} diverged" in reason for reason in reasons) for engine in engines}
+
+
+def diverged_text(diverged: dict[str, int], engines: tuple[str, ...] | list[str]) -> str:
+    """The untested grasps whose simulation diverged, per engine of ``engines``, as the report and the run's last lines say it."""
+    return "diverged and kept untested: " + ", ".join(f"{engine} {diverged.get(engine, 0)}" for engine in engines)
 
 
 def failure_text(label: GraspLabel) -> str:

@@ -33,7 +33,7 @@ from ..formats.graspgen import write_graspgen_file
 from ..formats.object_grasps import ObjectPhysics
 from ..robot.gripper_description import GripperDescription
 from ..world.objects import ObjectSpec, objects_root
-from .cross_engine import object_engine_agreement
+from .cross_engine import diverged_by_engine, object_engine_agreement
 
 if TYPE_CHECKING:
     import trimesh
@@ -68,7 +68,9 @@ def write_object(out_dir: Path, spec: ObjectSpec, labels: "ObjectLabels", mode: 
     held_sides = grasps.contacts[grasps.held].mean(axis=1) > labels.surface_centre
     entry = {
         "object": spec.id, "mesh": mesh_file, "labelled": len(grasps), "held": int(grasps.held.sum()),
-        "untested": len(labels.untested.reason), "distinct_1cm_20deg": distinct, "rater": labels.rater,
+        "untested": len(labels.untested.reason), "diverged": diverged_by_engine(labels.untested.reason, tuple(labels.engine_seconds)),
+        "shortfall": labels.shortfall,
+        "distinct_1cm_20deg": distinct, "rater": labels.rater,
         "decided_by_geometry": grasps.decided_by.count("geometry"),
         "held_octants": len({tuple(side) for side in held_sides.astype(int)}),
         "unanimous": int(((grasps.held_fraction == 0.0) | (grasps.held_fraction == 1.0)).sum()),

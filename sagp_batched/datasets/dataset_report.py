@@ -19,7 +19,7 @@ from ..config import Config
 from ..robot.description import robot_of
 from ..run_directory import write_json
 from ..statistics import count_and_rate
-from .cross_engine import LABEL_RULE, agreement_report_lines
+from .cross_engine import LABEL_RULE, agreement_report_lines, diverged_text
 from .dataset_directory import read_progress, split_of, write_splits
 from .disagreement_causes import cause_counts, causes_table_lines, dataset_disagreements, write_cause_pictures
 from .verdicts import VERDICTS
@@ -85,6 +85,20 @@ def _agreement_lines(out_dir: Path) -> list[str]:
     return lines
 
 
+def shortfall_text(entry: dict[str, Any]) -> str:
+    """Why an object holds fewer grasps than asked, as the report and the run's last lines say it."""
+    return f"{entry['object']}: {entry['shortfall']} ({entry['labelled']} labelled, {entry['untested']} untested)"
+
+
+def _summed(counts) -> dict[str, int]:
+    """Per-key sums of dicts of counts."""
+    total: dict[str, int] = {}
+    for count in counts:
+        for key, value in count.items():
+            total[key] = total.get(key, 0) + value
+    return total
+
+
 def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
     labelled = sum(e["labelled"] for e in entries)
     held = sum(e["held"] for e in entries)
@@ -93,6 +107,8 @@ def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:
             "negative_share": (labelled - held) / labelled if labelled else None,
             "distinct_share": distinct / labelled if labelled else None,
             "untested": sum(e["untested"] for e in entries), "by_verdict": _verdict_totals(entries),
+            "diverged": _summed(e.get("diverged", {}) for e in entries),
+            "short": {e["object"]: shortfall_text(e) for e in entries if e.get("shortfall")},
             "decided_by_geometry": sum(e["decided_by_geometry"] for e in entries),
             "unanimous_share": sum(e["unanimous"] for e in entries) / labelled if labelled else None,
             "hulls_past_bound": [e["object"] for e in entries if e["hull_fidelity"] and not e["hull_fidelity"]["ok"]],
@@ -157,8 +173,11 @@ def _report_markdown(out_dir, manifest, summary, entries, pictures, plots, cause
         "# Grasp dataset report", "",
         f"Mode: `{manifest['mode']}`, protocol `{manifest['protocol']}`; {summary['objects']} objects, {summary['labelled']} labelled grasps "
         f"({summary['held']} held, {summary['negatives']} dropped: {100 * (summary['negative_share'] or 0):.1f} % negatives), "
-        f"{100 * (summary['distinct_share'] or 0):.1f} % distinct at 1 cm / 20 deg, {summary['untested']} untested (not labels). "
+        f"{100 * (summary['distinct_share'] or 0):.1f} % distinct at 1 cm / 20 deg, {summary['untested']} untested (not labels; "
+        f"{diverged_text(summary['diverged'], manifest['engines'])}). "
         f"Median time per object: {summary['seconds_per_object'] or 0:.1f} s.", "",
+        *([f"Objects with fewer grasps than the {manifest['grasps_per_object']} asked:", "", *[f"- {line}" for line in summary["short"].values()], ""]
+          if summary["short"] else [f"Every object has the {manifest['grasps_per_object']} grasps asked planned.", ""]),
         f"Each label is the majority of {manifest['robust_labels']['simulations_per_label']} simulation(s), its pose and copies moved "
         f"{1000 * manifest['robust_labels']['perturbation_translation_m']:.0f} mm / {manifest['robust_labels']['perturbation_rotation_deg']:g} deg; "
         f"unanimous: {100 * (summary['unanimous_share'] or 0):.1f} %. Decided by geometry (the open hand in the object or the "

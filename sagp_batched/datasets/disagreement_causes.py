@@ -182,7 +182,7 @@ def _object_in_hand(out_dir: Path, disagreement: Disagreement, objects: Any,
 
     from ..execution.poses import pose_matrix
     from ..formats.frames import grasp_poses_from_acronym
-    from .protocols import com_in_link
+    from .placements import com_in_link
 
     row = disagreement.row
     with h5py.File(out_dir / "grasps" / f"{disagreement.object_id}.h5", "r") as f:

@@ -22,6 +22,12 @@ is held where most of the K held; the simulations stop once the majority is deci
 five), since the rest could not change it. ``held_fraction`` keeps the share of the simulations run
 (None where the grasp's own simulation alone labelled it), and the label's other fields are those of
 its own pose where that agreed with the majority, else of the first perturbed pose that did.
+
+Divergence: a simulation the engine says diverged (``HandEngine.diverged``: a solver warning, a
+non-finite state, the object faster than physics allows) is run again with each step divided
+``labelling.divergence_step_division`` times; where it diverges again it tested nothing
+(``GraspLabel.untested``). A grasp whose own pose is untested is untested (its label would describe
+other poses); an untested perturbed copy is left out of the majority, which is over the tested ones.
 """
 from __future__ import annotations
 
@@ -177,8 +183,9 @@ def _label(protocol: LabelProtocol, placements: Sequence[Placement], targets: Se
     copies = [_perturbed(target, config) for target in targets]
     own = [verdicts[0] for verdicts in _geometry_verdicts(protocol, placements, [[target] for target in targets], config)]
     with hand_engine(engine_name, config) as engine:
-        labels = [verdict or protocol.simulate(engine, placement, target, config) for placement, target, verdict in zip(placements, targets, own)]
-        thin = [i for i, label in enumerate(labels) if own[i] is None and copies[i] and thin_margin(label, config.labelling)]
+        labels = [verdict or _simulated(protocol, engine, placement, target, config) for placement, target, verdict in zip(placements, targets, own)]
+        # A grasp whose own pose tested nothing is untested: its copies could only describe other poses.
+        thin = [i for i, label in enumerate(labels) if own[i] is None and label.untested is None and copies[i] and thin_margin(label, config.labelling)]
         copy_verdicts = _geometry_verdicts(protocol, [placements[i] for i in thin], [copies[i] for i in thin], config)
         for i, verdicts in zip(thin, copy_verdicts):
             poses = [targets[i], *copies[i]]
@@ -191,14 +198,15 @@ def _decisive_outcomes(protocol: LabelProtocol, engine: HandEngine, placement: P
     """The grasp's simulations in order (its pose, then its perturbations; a verdict already made stands
     for its simulation) until their majority is decided: the simulations left could not change the
     label, only its ``held_fraction``; or, where its own simulation's margin is not thin, that one alone."""
-    needed = len(poses) // 2 + 1  # held by a strict majority; dropped once held can no longer reach it
     outcomes: list[GraspLabel] = []
     for target, verdict in zip(poses, verdicts):
-        outcomes.append(verdict or protocol.simulate(engine, placement, target, config))
-        if len(outcomes) == 1 and not thin_margin(outcomes[0], config.labelling):
+        outcomes.append(verdict or _simulated(protocol, engine, placement, target, config))
+        if outcomes[0].untested is not None or (len(outcomes) == 1 and not thin_margin(outcomes[0], config.labelling)):
             break
         held = sum(outcome.held for outcome in outcomes)
-        if held >= needed or len(outcomes) - held > len(poses) - needed:
+        dropped = sum(not outcome.held and outcome.untested is None for outcome in outcomes)
+        # Decided where the simulations left, all going the other way, could not turn the tested majority.
+        if held > dropped + len(poses) - len(outcomes) or held + len(poses) - len(outcomes) <= dropped:
             break
     return outcomes
 
@@ -217,7 +225,25 @@ def thin_margin(outcome: GraspLabel, labelling: LabellingConfig) -> bool:
             or outcome.object_motion_during_shaking_angular > np.radians(labelling.thin_margin_rotation_deg))
 
 
+def _simulated(protocol: LabelProtocol, engine: HandEngine, placement: Placement, target: HandTarget, config: Config) -> GraspLabel:
+    """One simulation's outcome; one that diverged is run again at a smaller step, and untested where it diverges again."""
+    outcome = protocol.simulate(engine, placement, target, config)
+    if outcome.untested is None:
+        return outcome
+    engine.step_division = config.labelling.divergence_step_division
+    try:
+        finer = protocol.simulate(engine, placement, target, config)
+    finally:
+        engine.step_division = 1
+    if finer.untested is None:
+        return finer
+    return dataclasses.replace(finer, untested=f"{finer.untested} (also at 1/{config.labelling.divergence_step_division} of the step)")
+
+
 def _majority(outcomes: list[GraspLabel]) -> GraspLabel:
+    if outcomes[0].untested is not None:
+        return outcomes[0]
+    outcomes = [outcome for outcome in outcomes if outcome.untested is None]
     if len(outcomes) == 1:
         return outcomes[0]
     fraction = sum(outcome.held for outcome in outcomes) / len(outcomes)

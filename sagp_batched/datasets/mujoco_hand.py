@@ -4,8 +4,8 @@
 Its world (``mujoco_world``) is compiled once per object and table and every simulation starts from
 ``mj_resetData``: MuJoCo steps a world deterministically from its state, and the reset clears all of it
 (the solver's warm start included), so a label depends on its own grasp alone. Each protocol step of
-``scene.time_step_s`` is ``labelling.mujoco.substeps`` MuJoCo steps, the hand's mocap target held still
-over them.
+``scene.time_step_s`` is ``labelling.mujoco.substeps`` MuJoCo steps (times ``step_division`` where a
+diverged simulation is run again), the hand's mocap target held still over them.
 """
 from __future__ import annotations
 
@@ -22,11 +22,18 @@ from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
 from .collision_urdf import floating_hand_urdf
 from .mujoco_world import HandWorld, builds_from_mjcf, compile_world
-from .protocols import Pose, WorldStart
+from .protocols import Pose, WorldStart, speed_past_bound
 
 # MuJoCo writes quaternions w first, the protocols x first.
 XYZW_FROM_WXYZ = [1, 2, 3, 0]
 WXYZ_FROM_XYZW = [3, 0, 1, 2]
+# The warnings of a step gone wrong: MuJoCo resets the state after a bad acceleration and carries on (and
+# regularises a singular inertia, drops contacts past its buffers), so only these counters (which survive
+# that reset, not ``mj_resetData``) say the outcome is the solver's.
+DIVERGENCE_WARNINGS = {mujoco.mjtWarning.mjWARN_BADQACC: "QACC", mujoco.mjtWarning.mjWARN_BADQVEL: "QVEL",
+                       mujoco.mjtWarning.mjWARN_BADQPOS: "QPOS", mujoco.mjtWarning.mjWARN_BADCTRL: "control",
+                       mujoco.mjtWarning.mjWARN_INERTIA: "singular inertia", mujoco.mjtWarning.mjWARN_CONTACTFULL: "contact buffer full",
+                       mujoco.mjtWarning.mjWARN_CNSTRFULL: "constraint buffer full"}
 
 
 class MuJoCoHand:
@@ -40,6 +47,7 @@ class MuJoCoHand:
         self.robot = robot_of(config)
         self.hand_urdf = None if builds_from_mjcf(self.robot) else floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir)
         self.substeps = config.labelling.mujoco.substeps
+        self.step_division = 1
         self._worlds: dict[tuple[str, bool], tuple[HandWorld, mujoco.MjData]] = {}
 
     def close(self) -> None:
@@ -66,6 +74,8 @@ class MuJoCoHand:
         """The object's world reset to ``start``."""
         self.world, self.data = world, data = self._world(start.spec, start.table)
         model = world.model
+        self.substeps = self.config.labelling.mujoco.substeps * self.step_division
+        model.opt.timestep = self.config.scene.time_step_s / self.substeps
         mujoco.mj_resetData(model, data)
         self.set_gravity(start.gravity)
         link = pose_matrix(*start.object_pose)
@@ -127,6 +137,19 @@ class MuJoCoHand:
         mujoco.mju_rotVecQuat(position, com_position, self.data.xquat[body])
         mujoco.mju_mulQuat(quat, self.data.xquat[body], com_quat)
         return tuple(self.data.xpos[body] + position), tuple(quat[XYZW_FROM_WXYZ])
+
+    def diverged(self) -> str | None:
+        """Why the simulation since ``build`` has diverged (a warning, a non-finite state, the object
+        faster than ``protocols.speed_past_bound`` allows relative to the hand), or None."""
+        for warning, name in DIVERGENCE_WARNINGS.items():
+            if self.data.warning[warning].number:
+                return f"diverged: {name} warning"
+        if not (np.isfinite(self.data.qpos).all() and np.isfinite(self.data.qvel).all()):
+            return "diverged: non-finite state"
+        velocities = np.empty((2, 6))
+        for row, body in enumerate((self.world.object_body, self.world.grasp_target_body)):
+            mujoco.mj_objectVelocity(self.world.model, self.data, mujoco.mjtObj.mjOBJ_BODY, body, velocities[row], 0)
+        return speed_past_bound(float(np.linalg.norm(velocities[0, 3:] - velocities[1, 3:])), self.data.time, self.config)
 
     def hand_pose(self) -> Pose:
         """World pose of the hand's grasp target."""

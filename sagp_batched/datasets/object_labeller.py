@@ -9,8 +9,8 @@ What a label is: the outcome of simulating the grasp (``labelling``): held after
 shake, or dropped, with the object's motion during closing and shaking. The grasps are the planner's
 antipodal candidates across its verdicts (``verdicts.classify_grasps``): the feasible ones and those it
 rejects, so the dataset has both classes and measures the planner's calibration. A grasp whose
-simulation could not run (in ``arm`` mode: no arm solution for a grasp the planner rejected) is kept
-apart as untested, never written as a failure.
+simulation could not run (in ``arm`` mode: no arm solution for a grasp the planner rejected; in either
+mode a simulation that diverged, ``labelling``) is kept apart as untested, never written as a failure.
 """
 from __future__ import annotations
 
@@ -50,30 +50,57 @@ class ObjectLabeller:
         self.scene.reset(spec, trial=capture_trial(self.config, pose_index), resting_pose=pose_index % max(1, len(spec.resting_poses)))
 
     def plan_object(self, object_id: str, n_grasps: int) -> ObjectPlan:
-        """Plan ``n_grasps`` grasps of the object, split over its captures."""
+        """Plan ``n_grasps`` grasps of the object, split over its captures, and over more captures where
+        those give fewer (``_plan_more``)."""
         n_poses = self.config.dataset.captures_per_object
         shares = [n_grasps // n_poses + (1 if k < n_grasps % n_poses else 0) for k in range(n_poses)]
         from .grasp_geometry import object_surface
 
         spec = self.objects.get(object_id)
         planned, times = self._plan_poses(spec, shares)
+        shortfall = self._plan_more(spec, planned, times, n_grasps)
         poses = [pose for pose in planned if not isinstance(pose, str)]
         neutral = {}
         for pose in poses:
             neutral.update({task: (r.issues[0] if r.issues else "neutral") for task, r in pose.ratings.items() if r.is_neutral})
         rater = f"{self.rater.backend}:{getattr(self.rater, 'model', '')}"
         return ObjectPlan(object_id, poses, [pose for pose in planned if isinstance(pose, str)], rater, neutral,
-                          object_surface(spec).box_centre, times)
+                          object_surface(spec).box_centre, times, shortfall)
 
-    def _plan_poses(self, spec: ObjectSpec, shares: list[int]) -> tuple[list[PosePlan | str], dict[str, float]]:
-        """Captures 0, 1, ... taking ``shares`` grasps each, planned (``captures.plan_captures``), or why each
-        gave none, in capture order; with the seconds their resets, captures and planning took."""
-        spent = dict.fromkeys(("reset", "capture", "plan"), 0.0)
-        captured: list[Capture | str] = [self._capture(spec, pose_index, share, spent) for pose_index, share in enumerate(shares)]
+    def _plan_poses(self, spec: ObjectSpec, shares: list[int], earlier: list[PosePlan | str] = (),
+                    spent: dict[str, float] | None = None) -> tuple[list[PosePlan | str], dict[str, float]]:
+        """The captures after ``earlier`` taking ``shares`` grasps each, planned (``captures.plan_captures``:
+        none the same grasp as an earlier one), or why each gave none, in capture order; with the seconds
+        their resets, captures and planning took (added to ``spent``)."""
+        spent = dict.fromkeys(("reset", "capture", "plan"), 0.0) if spent is None else spent
+        first = len(earlier)
+        captured: list[Capture | str] = [self._capture(spec, first + k, share, spent) for k, share in enumerate(shares)]
         clock = time.perf_counter()
-        planned = iter(plan_captures([c for c in captured if not isinstance(c, str)], spec, self.config, self.rater))
-        spent["plan"] = time.perf_counter() - clock
+        planned = iter(plan_captures([c for c in captured if not isinstance(c, str)], spec, self.config, self.rater, list(earlier)))
+        spent["plan"] += time.perf_counter() - clock
         return [c if isinstance(c, str) else next(planned) for c in captured], spent
+
+    def _plan_more(self, spec: ObjectSpec, planned: list[PosePlan | str], spent: dict[str, float], n_grasps: int) -> str | None:
+        """Captures added to ``planned`` one at a time, each asked for the grasps still missing, until
+        ``n_grasps`` are planned, ``dataset.max_captures_per_object`` are taken, or a capture finds under a
+        tenth of those missing (the surface gives few more grasps distinct from those taken); None where
+        the count is reached, else why not."""
+        dataset = self.config.dataset
+        found = sum(len(pose.candidates) for pose in planned if not isinstance(pose, str))
+        while found < n_grasps and len(planned) < dataset.max_captures_per_object:
+            missing = n_grasps - found
+            more, _ = self._plan_poses(spec, [missing], planned, spent)
+            planned += more
+            new = sum(len(pose.candidates) for pose in more if not isinstance(pose, str))
+            found += new
+            if new < missing / 10:
+                break
+        if found >= n_grasps:
+            return None
+        distinct = f"distinct at {100 * dataset.nms_translation_m:g} cm / {dataset.nms_rotation_deg:g} deg"
+        if len(planned) >= dataset.max_captures_per_object:
+            return f"{found} of {n_grasps} planned in dataset.max_captures_per_object = {len(planned)} captures, each grasp {distinct}"
+        return f"{found} of {n_grasps} planned: after {len(planned)} captures the surface gives no more grasps {distinct} from those taken"
 
     def _capture(self, spec: ObjectSpec, pose_index: int, n_grasps: int, spent: dict[str, float]) -> Capture | str:
         """Capture ``pose_index`` taken (the whole object's cloud in the floating protocol), or why it
@@ -118,7 +145,8 @@ class ObjectLabeller:
             started = time.perf_counter()
             by_engine[engine] = label_grasps_hand(placement, chunk.grasps, self.config, self.config.dataset.protocol, engine)
             seconds[engine] = time.perf_counter() - started
-        return ChunkOutcome(chunk, combined_labels(by_engine), time.perf_counter() - clock, seconds)
+        outcomes = [f"untested: {label.engine} {label.untested}" if label.untested else label for label in combined_labels(by_engine)]
+        return ChunkOutcome(chunk, outcomes, time.perf_counter() - clock, seconds)
 
     def label(self, object_id: str, n_grasps: int) -> ObjectLabels:
         """``n_grasps`` grasps of the object planned and simulated here, one chunk a capture."""

@@ -34,6 +34,7 @@ class ObjectLabels:
     skipped_poses: list[str] = field(default_factory=list)
     times_s: dict[str, float] = field(default_factory=dict)  # reset, capture, plan, simulate (summed over workers)
     engine_seconds: dict[str, float] = field(default_factory=dict)  # the simulate stage's share of each engine
+    shortfall: str | None = None  # why fewer grasps were planned than asked
 
 
 @dataclass
@@ -47,6 +48,7 @@ class ObjectPlan:
     neutral_tasks: dict[str, str]
     surface_centre: np.ndarray  # (3,) the centre of the object's mesh's bounding box, link frame
     times_s: dict[str, float]
+    shortfall: str | None = None  # why fewer grasps were planned than asked (``ObjectLabeller._plan_more``)
 
     def chunks(self, mode: str, grasps_per_chunk: int) -> list["SimulationChunk"]:
         """The plan's grasps in chunks of at most ``grasps_per_chunk``, each simulated on its own; in
@@ -116,7 +118,7 @@ def object_labels(plan: ObjectPlan, outcomes: list[ChunkOutcome], gripper: Gripp
     times = {**plan.times_s, "simulate": sum(o.seconds for o in outcomes)}
     engine_seconds = {engine: sum(o.engine_seconds.get(engine, 0.0) for o in outcomes) for engine in engines}
     return ObjectLabels(plan.object_id, grasps, untested, plan.rater, plan.neutral_tasks, plan.surface_centre, plan.skipped_poses,
-                        times, engine_seconds)
+                        times, engine_seconds, plan.shortfall)
 
 
 def _pose_labels(pose: PosePlan, outcomes: list, gripper: GripperDescription, engines: tuple[str, ...]) -> tuple[LabelledGrasps, UntestedGrasps]:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import functools
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, Sequence
@@ -33,14 +32,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..config import Config
-from ..description_files import read_urdf_document
 from ..execution.held import lift_failure, object_held
-from ..execution.poses import pose_change, pose_matrix, relative_pose
+from ..execution.poses import pose_change, relative_pose
 from ..execution.shake import ShakeProfile, achieved_shake_peaks, frame_offsets, shake_profile
 from ..world.objects import ObjectSpec
 from .early_stop import FallWatch, chunk_ends, chunks
+from .placements import FloatingPlacement, ObjectPlacement, Placement, Pose, com_in_link
 
-Pose = tuple[Sequence[float], Sequence[float]]  # position (3,), xyzw quaternion (4,)
+__all__ = ["FloatingPlacement", "ObjectPlacement", "Placement", "Pose", "com_in_link"]  # where the protocols put objects, re-exported
 
 
 @dataclass(frozen=True)
@@ -62,6 +61,8 @@ class GraspLabel:
     the grasp failed before the close; what says how a grasp was lost (``disagreement_causes``).
     ``simulated``: False where geometry decided the label. ``engine``: the engine that simulated it;
     a label from several engines (``cross_engine.combined_labels``) keeps each one's in ``by_engine``.
+    ``untested``: why the simulation tested nothing (it diverged, "diverged: QACC warning"), None
+    where it did; such an outcome is neither held nor dropped and never written as a label.
     """
 
     mode: str
@@ -80,66 +81,7 @@ class GraspLabel:
     held_fraction: float | None = None
     engine: str = "pybullet"
     by_engine: tuple["GraspLabel", ...] = ()
-
-
-@dataclass(frozen=True)
-class ObjectPlacement:
-    """An object resting on the study's table: its spec and the world pose of its centre-of-mass
-    frame (what ``getBasePositionAndOrientation`` reports)."""
-
-    spec: ObjectSpec
-    com_position_world: tuple[float, float, float]
-    com_quat_xyzw: tuple[float, float, float, float]
-
-    @classmethod
-    def from_scene(cls, scene) -> "ObjectPlacement":
-        """The target of a reset ``Scene`` where it settled (the scene is restored to its saved state first)."""
-        if scene.target_spec is None:
-            raise ValueError("ObjectPlacement.from_scene needs a Scene after reset")
-        scene.restore_state()
-        position, quat = scene.centre_of_mass(scene.target_id)
-        return cls(scene.target_spec, tuple(float(v) for v in position), tuple(float(v) for v in quat))
-
-    frame: ClassVar[str] = "com"  # the object's frame ``pose`` places
-
-    @property
-    def pose(self) -> Pose:
-        return self.com_position_world, self.com_quat_xyzw
-
-    def link_pose_world(self) -> np.ndarray:
-        """(4, 4) the object's link frame in the world."""
-        return pose_matrix(*self.pose) @ np.linalg.inv(com_in_link(self.spec))
-
-
-@dataclass(frozen=True)
-class FloatingPlacement:
-    """An object floating alone (the ``floating`` protocol): the world pose of its link frame.
-    Gravity pulls along the world's -z, so the pose says which way is down for the object."""
-
-    spec: ObjectSpec
-    link_position_world: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    link_quat_xyzw: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-
-    frame: ClassVar[str] = "link"  # the object's frame ``pose`` places
-
-    @property
-    def pose(self) -> Pose:
-        return self.link_position_world, self.link_quat_xyzw
-
-    def link_pose_world(self) -> np.ndarray:
-        """(4, 4) the object's link frame in the world."""
-        return pose_matrix(*self.pose)
-
-
-Placement = ObjectPlacement | FloatingPlacement
-
-
-@functools.lru_cache(maxsize=64)
-def com_in_link(spec: ObjectSpec) -> np.ndarray:
-    """(4, 4) the centre-of-mass (inertial) frame in the link frame, from the URDF's ``<inertial><origin>``."""
-    links = read_urdf_document(spec.urdf_path).links
-    inertial = links[0].inertial if links else None
-    return inertial.frame_in_link if inertial is not None else np.eye(4)
+    untested: str | None = None
 
 
 @dataclass(frozen=True)
@@ -186,6 +128,20 @@ class HandEngine(Protocol):
     def hand_touching(self) -> bool: ...
     def table_push_n(self) -> float: ...
     def fingers_touching(self) -> bool: ...
+    def diverged(self) -> str | None: ...
+
+    #: Each protocol step divided into this many more engine steps from the next ``build`` on (1: as configured).
+    step_division: int
+
+
+def speed_past_bound(relative_speed_m_s: float, simulated_s: float, config: Config) -> str | None:
+    """Why an object moving at ``relative_speed_m_s`` relative to the hand ``simulated_s`` into a
+    simulation has diverged, or None: faster than ``labelling.divergence_speed_m_s`` plus a free
+    fall over the whole simulation (gravity the one force the protocol lets act on a dropped object)."""
+    bound = config.labelling.divergence_speed_m_s + abs(config.scene.gravity_m_s2) * simulated_s
+    if not math.isfinite(relative_speed_m_s):
+        return "diverged: non-finite object speed"
+    return f"diverged: object speed {relative_speed_m_s:.3g} m/s" if relative_speed_m_s > bound else None
 
 
 def _half_cosine(fraction: float) -> float:
@@ -254,20 +210,23 @@ class LabelProtocol(abc.ABC):
         motion["object_motion_during_closing_linear"], motion["object_motion_during_closing_angular"] = pose_change(before_close, after_close)
         motion["object_in_hand_after_closing"] = _object_in_hand(engine)
         touching_after_close = engine.fingers_touching()
+        if (reason := engine.diverged()) is not None:
+            return self._untested(reason, "close", motion)
         if gravity_after_close:
             engine.set_gravity(True)
         steps = labelling.hand_lift_steps
         rise_checks = _checkpoints(steps, config.motion.lift_waypoints)
         up = np.array([0.0, 0.0, config.motion.lift_height_m])
         lift = np.array([grasp + up * _half_cosine(step / steps) for step in range(1, steps + 1)])
-        highest_rise, rise_from_z = 0.0, (after_close[0][2] if rise_from_z is None else rise_from_z)
+        highest_rise, rise_from_z, done = 0.0, (after_close[0][2] if rise_from_z is None else rise_from_z), 0
         fall = FallWatch(engine, labelling.early_stop_distance_m)
 
-        def lift_failed() -> GraspLabel:
+        def lift_failed() -> GraspLabel:  # untested where the simulation diverged
+            if (reason := engine.diverged()) is not None:
+                return self._untested(reason, "lift", motion)
             motion["object_in_hand_at_verdict"] = _object_in_hand(engine)
             return self._failed(*lift_failure(highest_rise, touching_after_close, execution), motion)
 
-        done = 0
         for end in chunk_ends(steps, rise_checks, labelling.early_stop_check_steps):
             engine.follow(lift[done:end])
             done = end
@@ -283,10 +242,12 @@ class LabelProtocol(abc.ABC):
             engine.step(chunk)
             if fall.seen():
                 return lift_failed()
-        if not self.held(engine, config):
+        if engine.diverged() is not None or not self.held(engine, config):
             return lift_failed()
         shaken, fell = _shake(engine, shake_profile(labelling.shake, config.scene.time_step_s), fall, labelling.early_stop_check_steps)
         motion.update(shaken)
+        if (reason := engine.diverged()) is not None:
+            return self._untested(reason, "shake", motion)
         motion["object_in_hand_at_verdict"] = _object_in_hand(engine)
         if not fell and self.held(engine, config):
             return GraspLabel(mode="hand", held=True, failure_reason=None, failed_at=None, protocol=self.name, **motion)
@@ -294,6 +255,10 @@ class LabelProtocol(abc.ABC):
 
     def _failed(self, reason: str, phase: str, motion: dict[str, Any]) -> GraspLabel:
         return GraspLabel(mode="hand", held=False, failure_reason=reason, failed_at=phase, protocol=self.name, **motion)
+
+    def _untested(self, reason: str, phase: str, motion: dict[str, Any]) -> GraspLabel:
+        """A simulation that diverged by the end of ``phase``: no outcome, whatever the state says."""
+        return GraspLabel(mode="hand", held=False, failure_reason="diverged", failed_at=phase, protocol=self.name, untested=reason, **motion)
 
 
 class Tabletop(LabelProtocol):
@@ -320,7 +285,11 @@ class Tabletop(LabelProtocol):
             done = end
             knocked = np.linalg.norm(np.subtract(engine.object_pose()[0], rest_com)) > execution.knock_tolerance_m
             if knocked or engine.table_push_n() > execution.table_contact_max_force_n:
+                if (reason := engine.diverged()) is not None:
+                    return self._untested(reason, "descent", {})
                 return self._failed("collision", "descent", {})
+        if (reason := engine.diverged()) is not None:
+            return self._untested(reason, "descent", {})
         return self._close_lift_shake(engine, target.grasp, config, rise_from_z=float(rest_com[2]))
 
 

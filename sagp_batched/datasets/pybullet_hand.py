@@ -21,6 +21,7 @@ after one step, and outcomes after a lift and a shake.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Sequence
 
@@ -35,7 +36,7 @@ from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
 from ..world.scene import command_fingers, configure_physics, create_table
 from .collision_urdf import collision_only_urdf, floating_hand_urdf
-from .protocols import Pose, WorldStart
+from .protocols import Pose, WorldStart, speed_past_bound
 
 
 class PyBulletHand:
@@ -54,6 +55,8 @@ class PyBulletHand:
         self.mimics = description_files.mimics(Path(self.hand_urdf)) if self.gripper.finger_motion == "linkage" else {}
         self._object_urdfs: dict[str, str] = {}
         self.table: int | None = None
+        self.step_division = 1
+        self.steps_taken = 0
 
     def _object_urdf(self, spec: ObjectSpec) -> str:
         key = str(spec.urdf_path)
@@ -83,7 +86,11 @@ class PyBulletHand:
                                            solverResidualThreshold=config.labelling.pybullet_solver_residual_threshold, physicsClientId=client)
         if self.gripper.finger_motion == "linkage":
             iterations = self.gripper.pybullet_solver_iterations or config.scene.solver_iterations
-            pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps, numSolverIterations=iterations, physicsClientId=client)
+            pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps * self.step_division,
+                                               numSolverIterations=iterations, physicsClientId=client)
+        else:  # 0: one step a step; the client keeps a division past resetSimulation
+            pybullet.setPhysicsEngineParameter(numSubSteps=self.step_division if self.step_division > 1 else 0, physicsClientId=client)
+        self.steps_taken = 0
         self.table = create_table(client, config.scene) if start.table else None
         try:
             # loadURDF places the link frame; resetBasePositionAndOrientation the centre-of-mass frame.
@@ -137,6 +144,7 @@ class PyBulletHand:
             if self.gripper.finger_motion == "linkage":
                 self._drive_linkage()
             pybullet.stepSimulation(physicsClientId=self.client)
+        self.steps_taken += max(steps, 0)
 
     def _tie_linkage(self, joints: dict[str, int]) -> None:
         """Every driven and mimic joint at the open configuration, each mimic joint geared to its leader:
@@ -191,6 +199,19 @@ class PyBulletHand:
     def object_pose(self) -> Pose:
         """World pose of the object's centre-of-mass frame."""
         return pybullet.getBasePositionAndOrientation(self.target, physicsClientId=self.client)
+
+    def diverged(self) -> str | None:
+        """Why the simulation since ``build`` has diverged (a non-finite pose or velocity of the object
+        or the hand, the object faster than ``protocols.speed_past_bound`` allows relative to the hand), or None."""
+        velocities = []
+        for body in (self.target, self.hand):
+            position, quat = pybullet.getBasePositionAndOrientation(body, physicsClientId=self.client)
+            linear, angular = pybullet.getBaseVelocity(body, physicsClientId=self.client)
+            if not all(math.isfinite(value) for value in (*position, *quat, *linear, *angular)):
+                return "diverged: non-finite state"
+            velocities.append(np.array(linear))
+        speed = float(np.linalg.norm(velocities[0] - velocities[1]))
+        return speed_past_bound(speed, self.steps_taken * self.config.scene.time_step_s, self.config)
 
     def hand_pose(self) -> Pose:
         """World pose of the hand's grasp target."""

@@ -29,7 +29,7 @@ from ..workers import Recipe, WorkerPool
 from ..world.mesh_sources import MESH_SUFFIXES
 from ..world.objects import ObjectSpec, load_object_set
 from .agreement import agreement_markdown, grasp_regions, label_agreement
-from .cross_engine import combined_labels
+from .cross_engine import combined_labels, diverged_by_engine
 from .disagreement_causes import cause_counts, causes_table_lines, label_cause
 from .engines import ENGINES
 from .grasp_geometry import object_mesh_link
@@ -244,6 +244,8 @@ def _plain(label, knock_tolerance_m: float) -> dict[str, Any]:
         # One simulation's share held is its outcome.
         "held_fraction": float(label.held if label.held_fraction is None else label.held_fraction),
         "simulated": bool(getattr(label, "simulated", True)),
+        # Why no simulation tested the grasp (it diverged), "" where one did: such a grasp is no label.
+        "untested": f"{label.engine} {label.untested}" if label.untested else "",
     }
 
 
@@ -321,17 +323,23 @@ def relabel(inputs: Inputs, config: Config, out_dir: Path, note: Any = print) ->
         link_from_file = link_from_imported_mesh(spec, inputs.grasp_file.scale)
         transforms_link = link_from_file @ inputs.grasp_file.transforms[inputs.selection]
         widths = None if inputs.grasp_file.width_m is None else inputs.grasp_file.width_m[inputs.selection]
-        labels = label_pending(spec, transforms_link, widths, inputs, config, out_dir,
-                               lambda done, total: note(f"chunk {done}/{total} labelled"))
-        regions = grasp_regions(grasp_poses_from_acronym(transforms_link, gripper).position.numpy(), object_bounds(spec))
+        every_label = label_pending(spec, transforms_link, widths, inputs, config, out_dir,
+                                    lambda done, total: note(f"chunk {done}/{total} labelled"))
+        # A grasp no simulation tested is compared with nothing and kept apart in the file.
+        tested = np.array([not label.get("untested") for label in every_label], dtype=bool)
+        labels = [label for label, kept in zip(every_label, tested) if kept]
+        untested = {"rows": inputs.selection[~tested], "reason": [label["untested"] for label in every_label if label.get("untested")]}
+        regions = grasp_regions(grasp_poses_from_acronym(transforms_link[tested], gripper).position.numpy(), object_bounds(spec))
         phases = [label["failed_at"] for label in labels]
-        result = label_agreement(inputs.grasp_file.labels[inputs.selection], np.array([label["held"] for label in labels]), phases, regions)
-        result.update(file=record["file"], protocol=inputs.protocol, engine=inputs.engine, object_id=spec.id)
+        reference = inputs.grasp_file.labels[inputs.selection][tested]
+        result = label_agreement(reference, np.array([label["held"] for label in labels], dtype=bool), phases, regions)
+        result.update(file=record["file"], protocol=inputs.protocol, engine=inputs.engine, object_id=spec.id,
+                      untested=diverged_by_engine(untested["reason"], inputs.engines))
         if len(inputs.engines) > 1:
-            result.update(_engine_agreements(inputs.grasp_file.labels[inputs.selection], labels, regions, inputs.engines))
+            result.update(_engine_agreements(reference, labels, regions, inputs.engines))
         write_file_atomically(out_dir / RELABEL_FILE, relabel_file_bytes(
-            inputs.grasp_file, inputs.selection, link_from_file, labels, regions, object_id=spec.id, mass_kg=spec.mass_kg,
-            protocol=inputs.protocol, engine=inputs.engine, gripper=gripper))
+            inputs.grasp_file, inputs.selection[tested], link_from_file, labels, regions, object_id=spec.id, mass_kg=spec.mass_kg,
+            protocol=inputs.protocol, engine=inputs.engine, gripper=gripper, untested=untested))
         write_json(out_dir / AGREEMENT_FILE, result)
         name = f"{inputs.grasp_file.path.name} ({inputs.grasp_file.format})"
         markdown = agreement_markdown(result, f"Label agreement: {name} vs ours ({inputs.protocol}, {inputs.engine})")

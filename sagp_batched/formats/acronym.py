@@ -216,14 +216,16 @@ def write_object_file(
 
 def relabel_file_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: np.ndarray, labels: list[dict[str, Any]],
                        regions: list[str], *, object_id: str, mass_kg: float, protocol: str, engine: str,
-                       gripper: GripperDescription) -> bytes:
+                       gripper: GripperDescription, untested: dict[str, Any] | None = None) -> bytes:
     """A relabelled file's rows ``rows`` as HDF5 bytes: the grasps as the file gives them (its mesh, scale and frame,
     so ACRONYM's loaders and ``grasp_file.read_grasp_file`` read them as they read the file), our label as
     ``object_in_gripper`` and the file's under ``grasps/reference/``.
 
     ``link_from_file`` (4, 4) maps the file's frame into our object's link frame; ``labels`` hold held,
     held_fraction, simulated, failure_reason, failed_at and, with several engines, each one's under "by_engine";
-    ``regions`` each grasp's region of the object.
+    ``regions`` each grasp's region of the object. ``untested``: the file's rows no simulation tested
+    ("rows", and "reason" each), written apart under ``untested/`` (their transforms, source index and
+    reason), never as labels.
     """
     transforms = grasp_file.transforms[rows]
     datasets: dict[str, Any] = {
@@ -246,6 +248,9 @@ def relabel_file_bytes(grasp_file: GraspFile, rows: np.ndarray, link_from_file: 
         datasets[f"grasps/qualities/{engine_name}/failure_cause"] = [label.get("cause", "") for label in own]
     if grasp_file.width_m is not None:
         datasets["grasps/width"] = grasp_file.width_m[rows]
+    if untested is not None:
+        datasets.update({"untested/transforms": grasp_file.transforms[untested["rows"]].reshape(-1, 4, 4),
+                         "untested/source_index": np.asarray(untested["rows"], dtype=np.int64), "untested/reason": list(untested["reason"])})
     datasets.update({
         "object/file": grasp_file.mesh_file, "object/scale": grasp_file.scale,
         "object/mesh_to_link": np.diag([grasp_file.scale] * 3 + [1.0]),  # the file's frame is the scaled mesh's
