@@ -101,15 +101,21 @@ def test_a_robust_label_is_the_majority_of_its_tested_simulations_and_untested_w
     assert both[0].untested == "diverged: QACC warning"
 
 
-@pytest.mark.slow
-def test_a_dataset_keeps_diverged_grasps_untested_and_counts_them_per_engine(tmp_path, monkeypatch, capsys):
+def _box_dataset(tmp_path, monkeypatch, engines: str, grasps: int, pairs: int):
+    """A dataset of a box in ``engines`` (one capture) where every MuJoCo simulation diverges; its folder."""
     _diverging(monkeypatch, mujoco_hand.MuJoCoHand, _weightless_mujoco_object)
     folder, out = tmp_path / "meshes", tmp_path / "dataset"
     folder.mkdir()
     trimesh.creation.box((0.05, 0.04, 0.08)).export(folder / "box.stl")
-    argv = ["--objects-dir", str(folder), "--out", str(out), "--protocol", "floating", "--engines", "pybullet,mujoco", "--workers", "1",
-            "--grasps-per-object", "6", "--captures", "1", "--pairs", "3000", "--no-progress"]
+    argv = ["--objects-dir", str(folder), "--out", str(out), "--protocol", "floating", "--engines", engines, "--workers", "1",
+            "--grasps-per-object", str(grasps), "--captures", "1", "--pairs", str(pairs), "--no-progress"]
     assert datagen.main(argv) == 0
+    return out
+
+
+@pytest.mark.slow
+def test_a_dataset_keeps_diverged_grasps_untested_and_counts_them_per_engine(tmp_path, monkeypatch, capsys):
+    out = _box_dataset(tmp_path, monkeypatch, "pybullet,mujoco", grasps=6, pairs=3000)
     with h5py.File(out / "grasps" / "box.h5", "r") as f:
         reasons = [reason.decode() for reason in f["untested/reason"][()]]
         decided_by = [d.decode() for d in f["grasps/decided_by"][()]]
@@ -126,13 +132,7 @@ def test_a_dataset_keeps_diverged_grasps_untested_and_counts_them_per_engine(tmp
 @pytest.mark.slow
 def test_a_run_short_of_the_count_asked_says_per_object_how_many_it_found_and_why(tmp_path, monkeypatch, capsys):
     # Every simulation diverging spares this test the labelling: it is about the count planned.
-    _diverging(monkeypatch, mujoco_hand.MuJoCoHand, _weightless_mujoco_object)
-    folder, out = tmp_path / "meshes", tmp_path / "dataset"
-    folder.mkdir()
-    trimesh.creation.box((0.05, 0.04, 0.08)).export(folder / "box.stl")
-    argv = ["--objects-dir", str(folder), "--out", str(out), "--protocol", "floating", "--engines", "mujoco", "--workers", "1",
-            "--grasps-per-object", "3000", "--captures", "1", "--pairs", "200", "--no-progress"]
-    assert datagen.main(argv) == 0
+    out = _box_dataset(tmp_path, monkeypatch, "mujoco", grasps=3000, pairs=200)
     entry = json.loads((out / "objects.jsonl").read_text().splitlines()[0])
     found = entry["labelled"] + entry["untested"]
     assert found < 3000 and entry["shortfall"].startswith(f"{found} of 3000 planned")

@@ -199,7 +199,7 @@ class LabellingConfig(_Section):
     thin_margin_rotation_deg: float = setting(5.0, at_least=0, at_most=180)
     #: A simulation stops once the object has fallen this far from where the hand held it, out of
     #: contact with the hand and not rising, at two checks ``early_stop_check_steps`` apart
-    #: (``protocols._Fall``): twice the shake's 2.6 cm stroke, which cannot bring it back. 0: never.
+    #: (``early_stop.FallWatch``): twice the shake's 2.6 cm stroke, which cannot bring it back. 0: never.
     early_stop_distance_m: float = setting(0.05, at_least=0)
     early_stop_check_steps: int = setting(12, at_least=1, at_most=10_000)
     #: A simulation has diverged (``protocols.speed_past_bound``) where the object moves relative to
