@@ -9,6 +9,7 @@ dropped red), drawn the way ACRONYM's grasp viewer draws its gripper markers.
 """
 from __future__ import annotations
 
+import collections
 import json
 from pathlib import Path
 from typing import Any
@@ -91,12 +92,11 @@ def shortfall_text(entry: dict[str, Any]) -> str:
 
 
 def _summed(counts) -> dict[str, int]:
-    """Per-key sums of dicts of counts."""
-    total: dict[str, int] = {}
+    """Per-key sums of dicts of counts, keys counted zero kept."""
+    total: collections.Counter = collections.Counter()
     for count in counts:
-        for key, value in count.items():
-            total[key] = total.get(key, 0) + value
-    return total
+        total.update(count)
+    return dict(total)
 
 
 def _summary(entries: list[dict[str, Any]]) -> dict[str, Any]:

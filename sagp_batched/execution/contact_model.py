@@ -55,6 +55,7 @@ face's uniform pressure), the pad's own value whatever it touches (``EnginePad``
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -144,6 +145,8 @@ class Patch:
     torsional_radius_m: float
 
 
+# The grid integration costs ~2 ms and every attempt and world asks for the same few pads and forces.
+@functools.lru_cache(maxsize=64)
 def patch(pad: RubberPad, force_n: float, surface: ContactSurface = ContactSurface()) -> Patch:
     """The patch ``pad`` presses on ``surface`` with ``force_n``: the layer's pressure ``K (delta - gap)``,
     ``delta`` such that it sums to the force, integrated on a grid over the pad's face."""
