@@ -195,6 +195,7 @@ def _add_urdf_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription
     gripper = robot.gripper
     surfaces = _add_hand(spec, hand_urdf, robot, object_surface, object_mass_kg, config)
     _add_finger_servos(spec, robot, config)
+    _couple_fingers(spec, hand_urdf, config)
     open_value = gripper.finger_joint_value(gripper.open_width_m)
     return _Hand(surfaces, gripper.grasp_target_link, gripper.finger_joints, (open_value,) * len(gripper.finger_joints),
                  gripper.pad_links, None)
@@ -273,6 +274,19 @@ def _add_finger_servos(spec: mujoco.MjSpec, robot: RobotDescription, config: Con
         actuator.gainprm = _leading(actuator.gainprm, [stiffness])
         actuator.biasprm = _leading(actuator.biasprm, [0.0, -stiffness, -damping])
         actuator.forcelimited, actuator.forcerange = mujoco.mjtLimited.mjLIMITED_TRUE, [-force, force]
+
+
+def _couple_fingers(spec: mujoco.MjSpec, hand_urdf: Path, config: Config) -> None:
+    """Every mimic joint held where its leader puts it, as stiff as the hand's weld: the Panda's one motor
+    drives both fingers through a coupling. Free, force-capped fingers let an object the shake pushes along
+    the closing axis carry both with it until one meets its limit and its pad lets go. The object's
+    balance makes each pad press the mean of the two servos' forces: each capped at the grip force."""
+    options = config.labelling.mujoco
+    for name, rule in description_files.mimics(hand_urdf).items():
+        # The follower's value as a polynomial of the leader's.
+        coupling = spec.add_equality(type=mujoco.mjtEq.mjEQ_JOINT, objtype=mujoco.mjtObj.mjOBJ_JOINT, name1=name, name2=rule.leader,
+                                     solref=options.hand_weld_solref, solimp=options.hand_weld_solimp)
+        coupling.data = _leading(coupling.data, [rule.offset, rule.multiplier])
 
 
 def _leading(parameters, values: list[float]) -> np.ndarray:

@@ -52,7 +52,7 @@ class PyBulletHand:
         self.gripper = self.robot.gripper
         self.pad = engine_pad(config.execution, self.robot)
         self.grasp_offset_m = self.gripper.grasp_depth_m
-        self.mimics = description_files.mimics(Path(self.hand_urdf)) if self.gripper.finger_motion == "linkage" else {}
+        self.mimics = description_files.mimics(Path(self.hand_urdf))
         self._object_urdfs: dict[str, str] = {}
         self.table: int | None = None
         self.step_division = 1
@@ -115,6 +115,7 @@ class PyBulletHand:
         if self.gripper.finger_motion == "slide":
             for joint in self.finger_joints:
                 pybullet.resetJointState(self.hand, joint, self.gripper.open_width_m / 2.0, physicsClientId=client)
+            self._couple_fingers(joints)
         else:
             self._tie_linkage(joints)
         self.command_fingers(self.gripper.open_width_m)
@@ -159,11 +160,24 @@ class PyBulletHand:
             pybullet.resetJointState(self.hand, follower, rule.multiplier * open_value + rule.offset, physicsClientId=client)
             # PyBullet gives every joint a velocity motor; a follower's would fight its gear.
             pybullet.setJointMotorControl2(self.hand, follower, pybullet.VELOCITY_CONTROL, force=0.0, physicsClientId=client)
-            gear = pybullet.createConstraint(self.hand, leader, self.hand, follower, pybullet.JOINT_GEAR, [1.0, 0.0, 0.0],
-                                             [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=client)
-            # The gear holds leader + ratio * follower at the target: follower = multiplier * leader + offset.
-            pybullet.changeConstraint(gear, gearRatio=-1.0 / rule.multiplier, relativePositionTarget=-rule.offset / rule.multiplier,
-                                      erp=1.0, maxForce=gear_max_torque, physicsClientId=client)
+            self._gear(leader, follower, rule, gear_max_torque)
+
+    def _couple_fingers(self, joints: dict[str, int]) -> None:
+        """Each mimic finger geared to its leader: the Panda's one motor drives both fingers through a
+        coupling. Free, force-capped fingers let an object the shake pushes along the closing axis carry
+        both with it until one meets its limit and its pad lets go. The gear is as strong as the hand's
+        carrying constraint, a mechanism rather than a motor (the driven joint's effort limit, 20 N, is
+        under the grip forces the hand takes). The object's balance makes each pad press the mean of the
+        two motors' forces: each capped at the grip force."""
+        for name, rule in self.mimics.items():
+            self._gear(joints[rule.leader], joints[name], rule, self.config.labelling.hand_constraint_max_force_n)
+
+    def _gear(self, leader: int, follower: int, rule: description_files.Mimic, max_force: float) -> None:
+        gear = pybullet.createConstraint(self.hand, leader, self.hand, follower, pybullet.JOINT_GEAR, [1.0, 0.0, 0.0],
+                                         [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=self.client)
+        # The gear holds leader + ratio * follower at the target: follower = multiplier * leader + offset.
+        pybullet.changeConstraint(gear, gearRatio=-1.0 / rule.multiplier, relativePositionTarget=-rule.offset / rule.multiplier,
+                                  erp=1.0, maxForce=max_force, physicsClientId=self.client)
 
     def _drive_linkage(self) -> None:
         """The driven joint toward its target with the torque that presses each pad with the grip force
