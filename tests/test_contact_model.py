@@ -98,19 +98,30 @@ def test_the_pads_face_is_measured_from_the_grippers_hulls():
     assert robotiq == pytest.approx((0.022, 0.0375), abs=5e-4)
 
 
-def test_analytic_cases_agree_with_paper_in_both_engines():
-    """The cases both engines answer as the paper does (the benchmark reports the rest): a bar below its
-    torsion threshold held, a cylinder on its ends below its sliding threshold held, one across its axis
-    above it dropped."""
+def _analytic_rows(chosen: tuple[str, ...], engines: tuple[str, ...]) -> list[dict]:
     import sagp_batched.benchmarks.analytic_grasps as analytic
 
     config = Config()
-    chosen = ("bar distance x0.8", "cylinder along its axis mass x0.8", "cylinder across its axis mass x1.2")
     cases = [case for case in analytic.analytic_cases(analytic.analytic_config(config)) if case.name in chosen]
-    assert len(cases) == 3
-    report = analytic.analytic_grasps(config, protocols=("floating",), note=lambda line: None, cases=cases)
-    for row in report["cases"]:
+    assert len(cases) == len(chosen)
+    return analytic.analytic_grasps(config, engines=engines, protocols=("floating",), note=lambda line: None, cases=cases)["cases"]
+
+
+def test_analytic_cases_agree_with_paper_in_both_engines():
+    """The cases both engines answer as the paper does (the benchmark reports the rest): below their
+    thresholds, a box held at its centre of mass, a bar off it, a cylinder on its ends. PyBullet holds every
+    case above its sliding threshold: its one drop there (a cylinder across its axis) came from free fingers,
+    which let the shake carry the cylinder about 15 mm to one side."""
+    for row in _analytic_rows(("box at its centre of mass mass x0.8", "bar distance x0.8", "cylinder along its axis mass x0.8"),
+                              ("pybullet", "mujoco")):
         assert row["agree"] == row["of"] == 2, row
+
+
+def test_mujoco_drops_the_analytic_cases_above_their_sliding_threshold():
+    """With its fingers coupled, so that the shake cannot carry the object to one side and off a pad."""
+    for row in _analytic_rows(("box at its centre of mass mass x1.2", "cylinder along its axis mass x1.2",
+                               "cylinder across its axis mass x1.2"), ("mujoco",)):
+        assert row["agree"] == row["of"] == 1, row
 
 
 def test_the_paper_thresholds_come_from_the_model_and_the_protocols_peaks():

@@ -6,12 +6,12 @@ what to build (``protocols.WorldStart``), moves the hand and judges the outcome 
 here, so a second engine implements the same methods and the protocols stay as they are.
 
 The hand is the gripper's subtree of its URDF (collision meshes only), carried by a fixed constraint on
-its grasp target. A "slide" gripper (the Panda) drives its prismatic fingers with the grip force; a
-"linkage" gripper (the Robotiq) has its mimic joints geared to the driven joint and the driven joint's
-torque set every step from the linkage's leverage, so each pad presses with the grip force wherever
-the fingers stop; its world steps in the gripper's ``pybullet_substeps`` with its
-``pybullet_solver_iterations``, without which the gears give under the grip and the pads tilt onto the
-finger links behind them.
+its grasp target. A "slide" gripper (the Panda) drives its prismatic fingers with the grip force, the
+mimic finger geared to its leader as the hand's one motor couples them; a "linkage" gripper (the
+Robotiq) has its mimic joints geared to the driven joint and the driven joint's torque set every step
+from the linkage's leverage, so each pad presses with the grip force wherever the fingers stop; its world
+steps in the gripper's ``pybullet_substeps`` with its ``pybullet_solver_iterations``, without which the
+gears give under the grip and the pads tilt onto the finger links behind them.
 
 Simulations do not share a world: PyBullet's solver stops on the residual of the whole world, sorts
 constraints and contact manifolds by island with an unstable quicksort (the several manifolds between a
