@@ -6,9 +6,9 @@ reused by every simulation (``mujoco_hand.MuJoCoHand`` resets it).
 The hand is the URDF's link tree on a free joint, its prismatic fingers slide joints driven toward their
 commanded opening as PyBullet's position motor drives them (``_add_finger_servos``) and coupled as the
 URDF's mimic joints say (``_couple_fingers``); a gripper with its own MJCF that the robot does not carry
-is that MJCF instead, its linkage and servo as the MJCF models them (``_add_mjcf_hand``). The hand is carried by a weld of its grasp target to a mocap body the engine moves
-(PyBullet caps its constraint at ``hand_constraint_max_force_n``; a weld has no cap, and none of these
-worlds comes near it). Contacts have
+is that MJCF instead, its linkage and servo as the MJCF models them (``_add_mjcf_hand``). The hand is
+carried by a weld of its grasp target to a mocap body the engine moves (PyBullet caps its constraint at
+``hand_constraint_max_force_n``; a weld has no cap, and none of these worlds comes near it). Contacts have
 PyBullet's friction, the product of the two surfaces' (``_product``), and its geometry: every convex hull
 a URDF gives PyBullet is wrapped in ``hull_margin_m``. How soft each contact is, and how the world is
 stepped, is ``[labelling.mujoco]``'s.
