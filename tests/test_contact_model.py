@@ -107,14 +107,14 @@ def _analytic_rows(chosen: tuple[str, ...], engines: tuple[str, ...]) -> list[di
     return analytic.analytic_grasps(config, engines=engines, protocols=("floating",), note=lambda line: None, cases=cases)["cases"]
 
 
-def test_pybullet_slides_as_an_ideal_grip_either_side_of_the_sliding_threshold_and_mujoco_grips_below_it():
-    """PyBullet keeps the box still below its threshold and lets it slide about the ideal grip's 5.2 mm past
-    it; MuJoCo keeps it below (the benchmark reports where it departs: it drops the box past the threshold)."""
+def test_both_engines_grip_a_box_below_its_sliding_threshold_and_let_it_slide_past_it():
+    """Below its threshold each engine keeps the box (nearly) still; past it each lets it slide and keeps it,
+    as an ideal grip does (PyBullet within 1.5 mm of its 5.2 mm; MuJoCo's softer friction about twice it)."""
     rows = {row["case"]: row for row in _analytic_rows(("box at its centre of mass mass x0.8", "box at its centre of mass mass x1.2"),
                                                        ("pybullet", "mujoco"))}
     below, above = rows["box at its centre of mass mass x0.8"], rows["box at its centre of mass mass x1.2"]
     assert below["outcomes"]["pybullet/floating"]["as_on_paper"] and below["outcomes"]["mujoco/floating"]["as_on_paper"], below
-    assert above["outcomes"]["pybullet/floating"]["as_on_paper"], above
+    assert above["outcomes"]["pybullet/floating"]["as_on_paper"] and above["outcomes"]["mujoco/floating"]["as_on_paper"], above
     assert above["outcomes"]["pybullet/floating"]["slip_mm"] == pytest.approx(above["paper_slide_mm"], abs=1.5)
 
 

@@ -249,7 +249,8 @@ def mujoco_pad_contact(engine: EnginePad, object_surface: tuple[float, float, fl
     natural_frequency = math.sqrt(pad.stiffness_n_m / mass_kg)
     time_constant = max(2.0 / (zeta * natural_frequency), MUJOCO_MIN_STEPS_PER_TIME_CONSTANT * timestep_s)
     stiffness_ratio = pad.stiffness_n_m * time_constant**2 * zeta**2 / mass_kg  # 1 / (d (1 - d)), >= 4
-    impedance = 0.5 * (1.0 + math.sqrt(1.0 - 4.0 / stiffness_ratio))
+    # At the uncapped time constant the ratio is 4 exactly, which rounding can put a hair below.
+    impedance = 0.5 * (1.0 + math.sqrt(max(0.0, 1.0 - 4.0 / stiffness_ratio)))
     return [friction, friction * engine.torsional_radius_m, 0.0], (time_constant, zeta), (impedance, impedance, *solimp_shape)
 
 
