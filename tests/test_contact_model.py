@@ -159,3 +159,24 @@ def test_the_paper_thresholds_come_from_the_model_and_the_protocols_peaks():
     flat_limit = 2.0 * mu * force * pad.torsional_radius_m
     assert bar.paper["torsion_limit_n_m"] == pytest.approx(flat_limit, rel=1e-6)
     assert bar.paper["threshold"] * bar.mass_kg * (9.81 + 13.0) == pytest.approx(flat_limit, rel=1e-6) and not bar.paper_held
+
+
+def test_a_light_object_pinched_hard_off_its_centre_is_held_in_both_engines(monkeypatch):
+    """A 4 g cylinder (a marker at ACRONYM's 150 kg/m^3) pinched across its axis 53 mm from its centre at 70 N:
+    the grip's friction is 5,000 times its weight. PyBullet's solver, at the sweeps a heavier object needs, threw it
+    out in the shake (154 mm); the hand's world now iterates in proportion to how light the object is."""
+    import dataclasses
+
+    import sagp_batched.benchmarks.analytic_grasps as analytic
+    from sagp_batched.datasets.pybullet_hand import solver_iterations
+
+    monkeypatch.setattr(analytic, "ANALYTIC_GRIP_FORCE_N", 70.0)
+    config = Config()
+    base = {case.name: case for case in analytic.analytic_cases(analytic.analytic_config(config))}["cylinder across its axis mass x0.8"]
+    marker = dataclasses.replace(base, name="light cylinder", dimensions_m=(0.009, 0.12), target_m=(0.053, 0.0, 0.009), mass_kg=0.004)
+    row = analytic.analytic_grasps(config, engines=("pybullet", "mujoco"), protocols=("floating",), note=lambda line: None,
+                                   cases=[marker])["cases"][0]
+    assert all(outcome["held"] for outcome in row["outcomes"].values()), row["outcomes"]
+    assert row["outcomes"]["pybullet/floating"]["slip_mm"] < 1.0, row["outcomes"]  # MuJoCo's regularised friction creeps ~4 mm
+    assert solver_iterations(config, 0.004) == 500 and solver_iterations(config, 0.5) == config.scene.solver_iterations
+    assert solver_iterations(config, 1e-6) == config.labelling.pybullet_max_solver_iterations

@@ -172,6 +172,13 @@ class LabellingConfig(_Section):
     hand_hold_steps: int = setting(24, at_least=0, at_most=10_000)
     #: PyBullet's solver stops iterating once its residual falls below this (Bullet's default).
     pybullet_solver_residual_threshold: float = setting(1e-7, above=0)
+    #: A slide hand's world iterates PyBullet's solver ``[scene] solver_iterations`` times an object of this
+    #: mass or more, and in proportion for a lighter one (up to ``pybullet_max_solver_iterations``): Gauss-Seidel
+    #: needs more sweeps the lighter the body between two pads pressing hard. At 100 sweeps PyBullet dropped 9 of
+    #: 20 grasps of a 4 g marker (ACRONYM's 150 kg/m^3) that a 70 N grip holds with 5,000 times its weight in
+    #: friction, and held every one at 20 g; 200 sweeps held them at 4 g (this rule gives 500 there).
+    pybullet_full_iterations_mass_kg: float = setting(0.02, above=0)
+    pybullet_max_solver_iterations: int = setting(1000, at_least=1)
     #: Error reduction of the fixed constraint that carries the hand (PyBullet's ``erp``, set in the
     #: hand's world): PyBullet's 0.2 lets the hand trail its target by ~4 steps, short of the
     #: shake's peaks by a tenth; 0.8 follows within a step.

@@ -39,6 +39,14 @@ from .collision_urdf import collision_only_urdf, floating_hand_urdf
 from .protocols import Pose, WorldStart, speed_past_bound
 
 
+def solver_iterations(config: Config, object_mass_kg: float) -> int:
+    """PyBullet's solver iterations for a slide hand holding an object of ``object_mass_kg``: the scene's, in
+    proportion to how much lighter the object is than ``pybullet_full_iterations_mass_kg``, capped."""
+    labelling, base = config.labelling, config.scene.solver_iterations
+    scaled = math.ceil(base * labelling.pybullet_full_iterations_mass_kg / object_mass_kg)
+    return max(base, min(scaled, labelling.pybullet_max_solver_iterations))
+
+
 class PyBulletHand:
     """A PyBullet client in which one floating hand at a time labels one grasp."""
 
@@ -89,7 +97,8 @@ class PyBulletHand:
             pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps * self.step_division,
                                                numSolverIterations=iterations, physicsClientId=client)
         else:  # 0: one step a step; the client keeps a division past resetSimulation
-            pybullet.setPhysicsEngineParameter(numSubSteps=self.step_division if self.step_division > 1 else 0, physicsClientId=client)
+            pybullet.setPhysicsEngineParameter(numSubSteps=self.step_division if self.step_division > 1 else 0,
+                                               numSolverIterations=solver_iterations(config, spec.mass_kg), physicsClientId=client)
         self.steps_taken = 0
         self.table = create_table(client, config.scene) if start.table else None
         try:
