@@ -215,8 +215,10 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
     hand.add_freejoint()
     hand.add_body(name=MJCF_GRASP_TARGET_BODY, pos=[0.0, 0.0, gripper.grasp_depth_m])
     root_in_hand = np.linalg.inv(description_files.mjcf_body_pose(gripper.mjcf_path, gripper.mujoco_value("base_body")))
-    spec.attach(description_files.read_mjcf(gripper.mjcf_path), prefix=MJCF_PREFIX,
-                frame=hand.add_frame(pos=root_in_hand[:3, 3], quat=_wxyz(root_in_hand[:3, :3])))
+    mjcf = description_files.read_mjcf(gripper.mjcf_path)
+    # The friction impedance its model was tuned with: the 2F-140's linkage lets the box on the table go at 30.
+    spec.option.impratio = mjcf.option.impratio
+    spec.attach(mjcf, prefix=MJCF_PREFIX, frame=hand.add_frame(pos=root_in_hand[:3, 3], quat=_wxyz(root_in_hand[:3, :3])))
     pad_geoms = [[MJCF_PREFIX + name for name in names] for names in gripper.mujoco_value("pad_geoms")]
     pad_surface, pad_contact = _pad_surface(config), _pad_contact_of(robot, object_surface, object_mass_kg, config)
     surfaces = {link: (names, pad_surface) for link, names in zip(gripper.pad_links, pad_geoms)}
