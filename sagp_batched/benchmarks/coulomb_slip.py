@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..config import Config
+from ..datasets.protocols import half_cosine
 from ..execution.shake import shake_profile
 
 
@@ -34,9 +35,8 @@ def hand_path(config: Config, grasp_rotation: np.ndarray) -> tuple[np.ndarray, R
     """The grasp target's planned world positions (T, 3) and orientations at every step of the lift (a half-cosine
     up ``lift_height_m`` in ``hand_lift_steps``) and the shake around the lifted pose, and the shake's first step."""
     steps, height = config.labelling.hand_lift_steps, config.motion.lift_height_m
-    fractions = np.arange(1, steps + 1) / steps
     lift = np.zeros((steps, 3))
-    lift[:, 2] = height * 0.5 * (1.0 - np.cos(math.pi * fractions))
+    lift[:, 2] = [height * half_cosine(step / steps) for step in range(1, steps + 1)]
     profile = shake_profile(config.labelling.shake, config.scene.time_step_s)
     start = Rotation.from_matrix(grasp_rotation)
     shake = lift[-1] + start.apply(profile.offsets[:, :3])
@@ -87,11 +87,11 @@ def _slide_step(position: np.ndarray, velocity: np.ndarray, needed: np.ndarray, 
     and the object is not moving relative to it; otherwise ``limit`` against the relative motion (or along
     ``needed`` as it starts), the object's relative acceleration (grip - needed) / ``inertia``. Motion that
     would reverse within the limit stops: the grip holds again."""
-    speed = float(np.linalg.norm(velocity))
-    if speed == 0.0 and float(np.linalg.norm(needed)) <= limit:
+    speed, load = float(np.linalg.norm(velocity)), float(np.linalg.norm(needed))
+    if speed == 0.0 and load <= limit:
         return position, velocity
-    direction = -velocity / speed if speed > 0.0 else needed / float(np.linalg.norm(needed))
+    direction = -velocity / speed if speed > 0.0 else needed / load
     new_velocity = velocity + (limit * direction - needed) / inertia * dt
-    if speed > 0.0 and float(np.dot(new_velocity, velocity)) <= 0.0 and float(np.linalg.norm(needed)) <= limit:
+    if speed > 0.0 and float(np.dot(new_velocity, velocity)) <= 0.0 and load <= limit:
         new_velocity = np.zeros_like(velocity)
     return position + new_velocity * dt, new_velocity

@@ -144,7 +144,7 @@ def speed_past_bound(relative_speed_m_s: float, simulated_s: float, config: Conf
     return f"diverged: object speed {relative_speed_m_s:.3g} m/s" if relative_speed_m_s > bound else None
 
 
-def _half_cosine(fraction: float) -> float:
+def half_cosine(fraction: float) -> float:
     """Progress along a straight move that starts and stops at rest."""
     return 0.5 * (1.0 - math.cos(math.pi * fraction))
 
@@ -217,7 +217,7 @@ class LabelProtocol(abc.ABC):
         steps = labelling.hand_lift_steps
         rise_checks = _checkpoints(steps, config.motion.lift_waypoints)
         up = np.array([0.0, 0.0, config.motion.lift_height_m])
-        lift = np.array([grasp + up * _half_cosine(step / steps) for step in range(1, steps + 1)])
+        lift = np.array([grasp + up * half_cosine(step / steps) for step in range(1, steps + 1)])
         highest_rise, rise_from_z, done = 0.0, (after_close[0][2] if rise_from_z is None else rise_from_z), 0
         fall = FallWatch(engine, labelling.early_stop_distance_m)
 
@@ -278,7 +278,7 @@ class Tabletop(LabelProtocol):
         engine.step(labelling.hand_settle_steps)
         # Checked as the study checks its descent: after each of its waypoints.
         steps = labelling.hand_approach_steps
-        approach = np.array([target.start + (target.grasp - target.start) * _half_cosine(step / steps) for step in range(1, steps + 1)])
+        approach = np.array([target.start + (target.grasp - target.start) * half_cosine(step / steps) for step in range(1, steps + 1)])
         done = 0
         for end in sorted(_checkpoints(steps, config.motion.descent_waypoints)):
             engine.follow(approach[done:end])
