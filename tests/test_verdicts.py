@@ -8,7 +8,7 @@ import torch
 
 from sagp_batched import Scene, capture, load_config, load_object_set, plan
 from sagp_batched.datasets.verdicts import (
-    FEASIBLE, VERDICTS, _pick, _pick_across_verdicts, _verdict_quotas, capture_verdicts, classify_grasps,
+    FEASIBLE, VERDICTS, _pick, _pick_across_verdicts, _verdict_quotas, capture_verdicts, classify_grasps, pool_for,
 )
 from sagp_batched_kernels.pose_nms import same_grasp
 
@@ -70,9 +70,9 @@ def two_captures(can_cloud):
 def test_captures_planned_as_one_batch_get_the_verdicts_and_picks_each_gets_alone(two_captures):
     config, clouds = two_captures
     seeds = [7, 8]
-    batch = capture_verdicts(clouds, config, seeds)
+    batch = capture_verdicts(clouds, config, seeds, n_grasps=30)
     for cloud, seed, verdicts in zip(clouds, seeds, batch):
-        alone = capture_verdicts([cloud], config, [seed])[0]
+        alone = capture_verdicts([cloud], config, [seed], n_grasps=30)[0]
         assert verdicts.pool_size == alone.pool_size and len(set(alone.verdict.tolist())) >= 3
         for name in ("verdict", "clearance", "joint_path", "s_reach"):
             assert torch.equal(getattr(verdicts, name), getattr(alone, name)), name
@@ -109,3 +109,13 @@ def test_a_floating_pick_tests_the_draw_until_it_has_enough_and_picks_what_testi
     assert torch.equal(lazy, _pick_across_verdicts(classes, 7, n_grasps, 1.0, {colliding: int(dataset.geometry_verdict_fraction * n_grasps)}))
     # Enough clear hands early in the draw: a block or two tested, not every pose.
     assert sum(tested) == (64 if clear_share == 0.6 else poses)
+
+
+def test_a_capture_samples_pairs_for_the_grasps_it_is_asked_for(can_cloud):
+    config, cloud = can_cloud
+    config = config.override("dataset", pairs_per_grasp=100, min_pairs=400)
+    assert [pool_for(config, n).planner.n_pairs for n in (1, 4, 10, 15, 10_000)] == [400, 400, 1000, 1500, 1500]
+    assert pool_for(config, None).planner.n_pairs == 1500
+    few, full = (capture_verdicts([cloud], config, [7], n_grasps=n)[0] for n in (4, None))
+    assert 0 < few.pool_size < full.pool_size
+    assert len(classify_grasps(cloud, config, seed=7, n_grasps=4)) == 4

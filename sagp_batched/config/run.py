@@ -91,6 +91,12 @@ class DatasetConfig(_Section):
     # Or turned by an angle in this range about an axis across the closing axis: from well inside
     # a unit friction cone (45 deg) to past it.
     boundary_turn_deg: tuple[float, float] = setting((15.0, 50.0), at_least=0, at_most=90, shape=(2,), ordered=True)
+    # A capture samples this many antipodal pairs a grasp it is asked for, at least min_pairs and at
+    # most planner.n_pairs: its covering poses (pose suppression) and every check's work grow with the
+    # pairs, and a few thousand cover an object many times over for tens of grasps (2,000 pairs gave
+    # 1,600-2,900 covering poses a YCB capture, 15 picked), while thousands of grasps need the full pool.
+    pairs_per_grasp: int = setting(100, at_least=1)
+    min_pairs: int = setting(1000, at_least=1)
     # Each capture places the object at a fresh seeded position and yaw on the table (and, for an
     # object with several stable resting poses, in the next of them); its grasps share one plan.
     captures_per_object: int = setting(2, at_least=1, at_most=100)

@@ -76,7 +76,8 @@ def plan_captures(captures: list[Capture], spec: ObjectSpec, config: Config, rat
     batch = []
     for first in range(0, len(captures), CAPTURES_PER_BATCH):
         group = captures[first : first + CAPTURES_PER_BATCH]
-        batch += capture_verdicts([capture.cloud for capture in group], config, [labelling_seed(config, capture.pose_index) for capture in group])
+        batch += capture_verdicts([capture.cloud for capture in group], config, [labelling_seed(config, capture.pose_index) for capture in group],
+                                  n_grasps=max(capture.n_grasps for capture in group))
     planned: list[PosePlan | str] = []
     taken = taken_grasps(list(earlier))  # a later capture offers the same grasps again in the object's frame
     for capture, verdicts in zip(captures, batch):

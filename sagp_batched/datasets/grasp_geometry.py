@@ -182,14 +182,18 @@ def _surface_in_hulls(points: torch.Tensor, rotation: torch.Tensor, position: to
                       tolerance_m: float) -> np.ndarray:
     """(B,) whether any surface point lies inside any hand hull by more than ``tolerance_m``, for a block of grasps."""
     local = torch.einsum("bji,pj->bpi", rotation, points) - torch.einsum("bji,bj->bi", rotation, position)[:, None]  # (B, P, 3)
-    along = local @ DOP_DIRECTIONS.T  # (B, P, 13)
     hit = torch.zeros(len(rotation), dtype=torch.bool)
     for low, high, planes in zip(hulls.dop_low, hulls.dop_high, hulls.planes):
-        near = ((along >= low - 1e-6) & (along <= high + 1e-6)).all(dim=2)  # (B, P): within the hull's k-DOP
-        grasp_index, point_index = near.nonzero(as_tuple=True)
+        # The k-DOP's first three directions are the frame's axes: the hull's box is tested on every
+        # point, its other ten directions only on the few points inside the box (a third of the work).
+        in_box = ((local >= low[:3] - 1e-6) & (local <= high[:3] + 1e-6)).all(dim=2)  # (B, P)
+        grasp_index, point_index = in_box.nonzero(as_tuple=True)
+        candidates = local[grasp_index, point_index]  # (K, 3)
+        along = candidates @ DOP_DIRECTIONS[3:].T
+        within = ((along >= low[3:] - 1e-6) & (along <= high[3:] + 1e-6)).all(dim=1)
+        grasp_index, candidates = grasp_index[within], candidates[within]
         if len(grasp_index) == 0:
             continue
-        candidates = local[grasp_index, point_index]  # (K, 3)
         depth = -(candidates @ planes[:, :3].T + planes[:, 3]).max(dim=1).values  # distance inside the hull
         hit[grasp_index[depth > tolerance_m]] = True
     return hit.numpy()

@@ -135,13 +135,25 @@ class CaptureVerdicts:
                                self.pool_size)
 
 
-def capture_verdicts(clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int], dataset: DatasetConfig | None = None) -> list[CaptureVerdicts]:
+def pool_for(config: Config, n_grasps: int | None, dataset: DatasetConfig | None = None) -> Config:
+    """``config`` with the antipodal pairs a capture asked for ``n_grasps`` grasps samples
+    (``dataset.pairs_per_grasp`` a grasp, within ``dataset.min_pairs`` and ``planner.n_pairs``); all
+    ``planner.n_pairs`` where ``n_grasps`` is None."""
+    if n_grasps is None:
+        return config
+    dataset = config.dataset if dataset is None else dataset
+    return config.override("planner", n_pairs=min(config.planner.n_pairs, max(dataset.min_pairs, dataset.pairs_per_grasp * n_grasps)))
+
+
+def capture_verdicts(clouds: Sequence[PerceivedCloud], config: Config, seeds: Sequence[int], dataset: DatasetConfig | None = None,
+                     n_grasps: int | None = None) -> list[CaptureVerdicts]:
     """Each cloud's covering poses and the planner's verdicts on them, the clouds planned as one batch:
     one sampling and screening call for all of them (``screen_candidates``) and each check run once
     over every cloud's poses, so an object's captures share the checks' calls. A pose's verdict is
     the one it gets planned alone: the suppression runs per cloud and every check decides each pose
-    on its own cloud's points."""
+    on its own cloud's points. Each cloud's pool is sized for ``n_grasps`` picks (``pool_for``)."""
     dataset = config.dataset if dataset is None else dataset
+    config = pool_for(config, n_grasps, dataset)
     n_approaches = config.planner.n_approaches
     screened = screen_candidates(list(clouds), config, list(seeds))
     per_cloud = torch.bincount(screened.object_index, minlength=len(clouds)).tolist()
@@ -182,7 +194,7 @@ def classify_grasps(
     """
     dataset = config.dataset if dataset is None else dataset
     planner = config.planner
-    verdicts = capture_verdicts([cloud], config, [seed], dataset)[0] if verdicts is None else verdicts
+    verdicts = capture_verdicts([cloud], config, [seed], dataset, n_grasps)[0] if verdicts is None else verdicts
     if taken_object is not None and len(taken_object):
         verdicts = verdicts.subset(_new_grasps(verdicts.poses, cloud, dataset, taken_object))
     screened, poses, verdict, clearance, joint_path, s_reach = (
