@@ -93,3 +93,23 @@ def test_a_variant_whose_fingers_meet_nothing_is_not_kept(can):
     grown = add_boundary_grasps(source, 6, object_surface(can), np.eye(4), robot_of(config), config, seed=3)
     kinds = {r.split()[4] for r in grown.reasons[len(source):]}
     assert "withdrawn" not in kinds
+
+
+def test_the_open_hand_test_culls_no_point_a_hand_hull_holds():
+    """A surface point hits where it lies inside a hand hull's planes by more than the tolerance: the
+    box and k-DOP culls ahead of the planes only spare work, on poses near and inside a real object."""
+    from scipy.spatial.transform import Rotation
+
+    from sagp_batched.datasets.grasp_geometry import _hand_hulls, _surface_in_hulls, floating_hand_links
+
+    robot = robot_of(load_config(None))
+    hulls = _hand_hulls(robot, floating_hand_links(robot))
+    points = object_surface(load_object_set(None).get("025_mug")).points[::4]
+    rng = np.random.default_rng(3)
+    rotation = torch.tensor(Rotation.random(96, random_state=4).as_matrix(), dtype=torch.float32)
+    position = (points[rng.integers(0, len(points), 96)] + torch.tensor(rng.normal(0.0, 0.03, (96, 3)), dtype=torch.float32)).float()
+    local = torch.einsum("bji,pj->bpi", rotation, points) - torch.einsum("bji,bj->bi", rotation, position)[:, None]
+    depth = torch.stack([-(local @ planes[:, :3].T + planes[:, 3]).max(dim=2).values for planes in hulls.planes])  # (H, B, P)
+    expected = (depth > 0.001).any(dim=2).any(dim=0).numpy()
+    assert 10 < expected.sum() < 86, "the poses straddle the object: some hit, some clear"
+    assert np.array_equal(_surface_in_hulls(points, rotation, position, hulls, 0.001), expected)
