@@ -76,6 +76,37 @@ def test_a_robust_label_stops_once_its_majority_is_decided():
     assert len(runs) == 2 and not labelling._majority(outcomes).held
 
 
+
+@pytest.mark.parametrize("colliding, held, simulations", [(3, False, 1), (2, True, 1)])
+def test_copies_whose_open_hands_mostly_collide_drop_a_firm_grasp_in_every_engine(monkeypatch, colliding, held, simulations):
+    """A grasp its own simulation holds firmly keeps that label, unless most of its perturbed copies put the
+    open hand in the object: geometry every engine shares then decides it, with no copy simulated."""
+    import contextlib
+    import dataclasses
+
+    from sagp_batched.datasets.protocols import HandTarget
+
+    config = load_config("dataset")
+    collision = GraspLabel(mode="hand", held=False, failure_reason="collision", failed_at="grasp_pose", protocol="floating", simulated=False)
+    runs = []
+
+    def geometry(protocol, placements, samples, config):
+        return [[None] + [collision if k < colliding else None for k in range(len(sample) - 1)] for sample in samples]
+
+    def simulated(protocol, engine, placement, target, config):
+        runs.append(target)
+        firm = _label("mujoco", True)  # no slip or turn in the shake
+        return dataclasses.replace(firm, object_motion_during_shaking_linear=0.0, object_motion_during_shaking_angular=0.0)
+
+    monkeypatch.setattr(labelling, "_geometry_verdicts", geometry)
+    monkeypatch.setattr(labelling, "_simulated", simulated)
+    monkeypatch.setattr(labelling, "hand_engine", lambda name, config: contextlib.nullcontext())
+    target = HandTarget(np.zeros(3), np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+    label = labelling._label(labelling.label_protocol("floating"), [None], [target], config, "mujoco")[0]
+    assert label.held is held and len(runs) == simulations
+    # Decided after the pose and the colliding copies: one held of four, or the pose's own firm label.
+    assert label.held_fraction == (0.25 if colliding > 2 else 1.0)
+
 def test_engines_are_checked_and_arm_mode_stays_pybullets():
     assert load_config("dataset", overrides={"dataset": {"engines": ["pybullet", "mujoco"]}}).dataset.engines == ("pybullet", "mujoco")
     with pytest.raises(ConfigError, match="unknown engine 'flex'"):

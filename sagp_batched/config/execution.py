@@ -208,7 +208,8 @@ class LabellingConfig(_Section):
     #: shake by more than these, or let go in the shake. A grasp held firmly, or dropped before the
     #: shake, is labelled by its own simulation. False: every grasp gets its copies. On 504 planned
     #: grasps (8 YCB objects, floating) 6 (MuJoCo) and 10 (PyBullet) labels change, grasps 1-2 of whose
-    #: copies held, at half the time; drawing the copies anew changes 12 and 14.
+    #: copies held, at half the time; drawing the copies anew changes 12 and 14. Every copy is tested by
+    #: geometry: a grasp most of whose copies put the open hand in the object is dropped in every engine.
     perturb_only_thin_margins: bool = True
     thin_margin_slip_m: float = setting(0.005, at_least=0)
     thin_margin_rotation_deg: float = setting(5.0, at_least=0, at_most=180)

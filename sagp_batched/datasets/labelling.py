@@ -177,19 +177,24 @@ def label_object_grasps(spec: ObjectSpec, poses: GraspPoses, widths_m: Any, prot
 
 def _label(protocol: LabelProtocol, placements: Sequence[Placement], targets: Sequence[HandTarget], config: Config,
            engine_name: str) -> list[GraspLabel]:
-    """Each grasp's label: its pose tested by geometry and, where clear, simulated; its perturbed copies
-    tested and simulated only where that simulation left a thin margin (``thin_margin``), so geometry
-    tests no copy a label does not use."""
+    """Each grasp's label: its pose and its perturbed copies tested by geometry, its pose simulated where
+    clear; the copies simulated only where that simulation left a thin margin (``thin_margin``). A grasp
+    most of whose copies put the open hand in the object or the table is dropped by that geometry, which
+    is every engine's alike: a pose error decides its label in every engine, not only in one whose
+    simulation happened to leave a thin margin (no copy is simulated for it: the majority is decided)."""
     copies = [_perturbed(target, config) for target in targets]
-    own = [verdicts[0] for verdicts in _geometry_verdicts(protocol, placements, [[target] for target in targets], config)]
+    geometry = _geometry_verdicts(protocol, placements, [[target, *own_copies] for target, own_copies in zip(targets, copies)], config)
+    own, copy_verdicts = [verdicts[0] for verdicts in geometry], [verdicts[1:] for verdicts in geometry]
     with hand_engine(engine_name, config) as engine:
         labels = [verdict or _simulated(protocol, engine, placement, target, config) for placement, target, verdict in zip(placements, targets, own)]
-        # A grasp whose own pose tested nothing is untested: its copies could only describe other poses.
-        thin = [i for i, label in enumerate(labels) if own[i] is None and label.untested is None and copies[i] and thin_margin(label, config.labelling)]
-        copy_verdicts = _geometry_verdicts(protocol, [placements[i] for i in thin], [copies[i] for i in thin], config)
-        for i, verdicts in zip(thin, copy_verdicts):
-            poses = [targets[i], *copies[i]]
-            labels[i] = _majority(_decisive_outcomes(protocol, engine, placements[i], poses, [labels[i], *verdicts], config))
+        for i, label in enumerate(labels):
+            # A grasp whose own pose tested nothing is untested: its copies could only describe other poses.
+            if own[i] is not None or label.untested is not None or not copies[i]:
+                continue
+            colliding = sum(verdict is not None for verdict in copy_verdicts[i])
+            if thin_margin(label, config.labelling) or colliding > (1 + len(copies[i])) / 2:
+                poses = [targets[i], *copies[i]]
+                labels[i] = _majority(_decisive_outcomes(protocol, engine, placements[i], poses, [label, *copy_verdicts[i]], config))
     return [dataclasses.replace(label, engine=engine_name) for label in labels]
 
 
@@ -197,11 +202,11 @@ def _decisive_outcomes(protocol: LabelProtocol, engine: HandEngine, placement: P
                        verdicts: list[GraspLabel | None], config: Config) -> list[GraspLabel]:
     """The grasp's simulations in order (its pose, then its perturbations; a verdict already made stands
     for its simulation) until their majority is decided: the simulations left could not change the
-    label, only its ``held_fraction``; or, where its own simulation's margin is not thin, that one alone."""
+    label, only its ``held_fraction``."""
     outcomes: list[GraspLabel] = []
     for target, verdict in zip(poses, verdicts):
         outcomes.append(verdict or _simulated(protocol, engine, placement, target, config))
-        if outcomes[0].untested is not None or (len(outcomes) == 1 and not thin_margin(outcomes[0], config.labelling)):
+        if outcomes[0].untested is not None:
             break
         held = sum(outcome.held for outcome in outcomes)
         dropped = sum(not outcome.held and outcome.untested is None for outcome in outcomes)
