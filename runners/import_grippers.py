@@ -5,7 +5,8 @@
 GRIPPER_MODELS holds robotiq_2f85/ and robotiq_2f140/, each with Menagerie's MJCF (mjcf/) and ros-industrial's
 URDF expanded from its xacro (urdf/).
 
-For each gripper: the MuJoCo Menagerie MJCF with its meshes and licence as they are; the URDF without its
+For each gripper: the MuJoCo Menagerie MJCF with its meshes and licence, its largest meshes made compact
+(``_compact_mjcf``: what MuJoCo collides and weighs kept exactly, the meshes only drawn decimated); the URDF without its
 visuals (the package simulates and checks collisions; it never renders the gripper's own meshes), its
 COLLADA collision meshes turned into OBJ convex hulls of the vertices PyBullet reads from them (PyBullet
 collides a link as the convex hull of its mesh, and ignores COLLADA's ``up_axis``, which other readers
@@ -16,7 +17,10 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
+
+import mujoco
 
 import numpy as np
 import pybullet
@@ -24,6 +28,11 @@ import trimesh
 
 from sagp_batched.description_files import read_urdf_document, write_collision_urdf
 
+# An MJCF mesh file larger than this is made compact: the Menagerie's body meshes (1-1.7 MB of STL each)
+# were most of the package's gripper data.
+COMPACT_MESH_BYTES = 300_000
+# Faces a compacted mesh is drawn with: the gripper's pictures show its outline, not its fillets.
+DRAWN_MESH_FACES = 4000
 # Package name -> (source folder, URDF file, MJCF file).
 GRIPPERS = {
     "robotiq_2f85": ("robotiq_2f85", "robotiq_2f85.urdf", "2f85.xml"),
@@ -58,9 +67,51 @@ def _pybullet_collision_meshes(urdf_path: Path) -> dict[str, np.ndarray]:
         pybullet.disconnect(client)
 
 
+def _compact_mjcf(source_mjcf: Path, mjcf: Path) -> None:
+    """The copied ``mjcf``'s meshes over ``COMPACT_MESH_BYTES`` made compact without changing its physics:
+    its collision geoms take the mesh's convex hull (MuJoCo collides a mesh as its hull), its drawn geoms a
+    decimated copy, and a body whose mass MuJoCo derived from such a mesh states that mass and inertia,
+    as ``source_mjcf`` compiles them."""
+    from sagp_batched._open3d import o3d
+
+    tree = ET.parse(mjcf, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))
+    root, assets = tree.getroot(), mjcf.parent / "assets"
+    compacted = {}
+    for asset in root.iter("asset"):
+        for mesh in list(asset.findall("mesh")):
+            path = assets / mesh.get("file")
+            if path.stat().st_size <= COMPACT_MESH_BYTES:
+                continue
+            name = mesh.get("name", path.stem)
+            trimesh.load(path, force="mesh").convex_hull.export(assets / f"{path.stem}_hull.stl")
+            hull = ET.Element("mesh", {**mesh.attrib, "name": f"{name}_hull", "file": f"{path.stem}_hull.stl"})
+            hull.tail = mesh.tail
+            asset.insert(list(asset).index(mesh) + 1, hull)
+            drawn = o3d.io.read_triangle_mesh(str(path)).simplify_quadric_decimation(DRAWN_MESH_FACES)
+            drawn.compute_triangle_normals()
+            o3d.io.write_triangle_mesh(str(path), drawn)
+            compacted[name] = f"{name}_hull"
+    model = mujoco.MjModel.from_xml_path(str(source_mjcf))
+    for body in root.iter("body"):
+        geoms = [geom for geom in body.findall("geom") if geom.get("mesh") in compacted]
+        for geom in geoms:
+            if geom.get("class") != "visual":
+                geom.set("mesh", compacted[geom.get("mesh")])
+        if geoms and body.find("inertial") is None:
+            index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body.get("name"))
+            inertial = ET.Element("inertial", {
+                "mass": repr(float(model.body_mass[index])), "pos": " ".join(repr(float(x)) for x in model.body_ipos[index]),
+                "quat": " ".join(repr(float(x)) for x in model.body_iquat[index]),
+                "diaginertia": " ".join(repr(float(x)) for x in model.body_inertia[index])})
+            inertial.tail = body.text
+            body.insert(0, inertial)
+    mjcf.write_text(ET.tostring(root, encoding="unicode").replace(" />", "/>") + "\n")
+
+
 def import_gripper(source: Path, out: Path, urdf_name: str, mjcf_name: str) -> None:
     shutil.rmtree(out, ignore_errors=True)
     shutil.copytree(source / "mjcf", out / "mjcf", ignore=shutil.ignore_patterns("*.png", "scene.xml"))
+    _compact_mjcf(source / "mjcf" / mjcf_name, out / "mjcf" / mjcf_name)
     urdf_dir = out / "urdf"
     (urdf_dir / "meshes").mkdir(parents=True)
     source_urdf = source / "urdf" / urdf_name

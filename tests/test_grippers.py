@@ -2,6 +2,8 @@
 one named, the files naming it, and bad names refused in one line."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -213,3 +215,44 @@ def test_the_open_hand_test_of_no_grasps_is_empty(designed_box):
     none = GraspPoses(torch.zeros(0, 3, dtype=torch.float64), torch.zeros(0, 3, 3, dtype=torch.float64), "object")
     object_hit, table_hit = open_hand_collisions(object_surface(designed_box), none, robot, floating_hand_links(robot), 0.001)
     assert object_hit.shape == table_hit.shape == (0,)
+
+
+SHARED_GRIPPERS_DIR = Path(__file__).resolve().parent.parent.parent / "shared" / "grippers"
+
+
+def _collision_hulls(model) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    """(volume, lower corner, upper corner) in the world of each colliding mesh geom at the model's rest pose."""
+    import mujoco
+    from scipy.spatial import ConvexHull
+
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    hulls = []
+    for geom in range(model.ngeom):
+        if model.geom_type[geom] != mujoco.mjtGeom.mjGEOM_MESH or not (model.geom_contype[geom] or model.geom_conaffinity[geom]):
+            continue
+        mesh = model.geom_dataid[geom]
+        vertices = model.mesh_vert[model.mesh_vertadr[mesh]: model.mesh_vertadr[mesh] + model.mesh_vertnum[mesh]]
+        world = vertices @ data.geom_xmat[geom].reshape(3, 3).T + data.geom_xpos[geom]
+        hulls.append((ConvexHull(world).volume, world.min(axis=0), world.max(axis=0)))
+    return hulls
+
+
+@pytest.mark.skipif(not SHARED_GRIPPERS_DIR.is_dir(), reason=f"the grippers' source models are not at {SHARED_GRIPPERS_DIR}")
+@pytest.mark.parametrize("name", [name for name in GRIPPERS if load_gripper(name).mjcf_path is not None])
+def test_a_packaged_mjcf_weighs_and_collides_as_its_source(name):
+    """The package's MJCF, its largest meshes made compact by ``runners.import_grippers``, has its source's
+    masses and inertias and collides the same hulls (to the nanometres of STL's single precision)."""
+    import mujoco
+
+    packaged = load_gripper(name).mjcf_path
+    source = mujoco.MjModel.from_xml_path(str(SHARED_GRIPPERS_DIR / name / "mjcf" / packaged.name))
+    model = mujoco.MjModel.from_xml_path(str(packaged))
+    for field in ("body_mass", "body_inertia", "body_ipos", "body_iquat"):
+        assert np.array_equal(getattr(model, field), getattr(source, field)), field
+    hulls, source_hulls = _collision_hulls(model), _collision_hulls(source)
+    assert len(hulls) == len(source_hulls) > 0
+    for (volume, low, high), (source_volume, source_low, source_high) in zip(hulls, source_hulls):
+        assert volume == pytest.approx(source_volume, rel=1e-6)
+        assert np.allclose(low, source_low, atol=1e-8) and np.allclose(high, source_high, atol=1e-8)
+    assert sum(path.stat().st_size for path in packaged.parent.rglob("*") if path.is_file()) < 1_500_000
