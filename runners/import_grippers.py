@@ -21,7 +21,6 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import mujoco
-
 import numpy as np
 import pybullet
 import trimesh
@@ -99,10 +98,8 @@ def _compact_mjcf(source_mjcf: Path, mjcf: Path) -> None:
                 geom.set("mesh", compacted[geom.get("mesh")])
         if geoms and body.find("inertial") is None:
             index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body.get("name"))
-            inertial = ET.Element("inertial", {
-                "mass": repr(float(model.body_mass[index])), "pos": " ".join(repr(float(x)) for x in model.body_ipos[index]),
-                "quat": " ".join(repr(float(x)) for x in model.body_iquat[index]),
-                "diaginertia": " ".join(repr(float(x)) for x in model.body_inertia[index])})
+            fields = {"mass": model.body_mass, "pos": model.body_ipos, "quat": model.body_iquat, "diaginertia": model.body_inertia}
+            inertial = ET.Element("inertial", {key: " ".join(repr(float(x)) for x in np.atleast_1d(values[index])) for key, values in fields.items()})
             inertial.tail = body.text
             body.insert(0, inertial)
     mjcf.write_text(ET.tostring(root, encoding="unicode").replace(" />", "/>") + "\n")

@@ -76,7 +76,6 @@ def test_a_robust_label_stops_once_its_majority_is_decided():
     assert len(runs) == 2 and not labelling._majority(outcomes).held
 
 
-
 @pytest.mark.parametrize("colliding, held, simulations", [(3, False, 1), (2, True, 1)])
 def test_copies_whose_open_hands_mostly_collide_drop_a_firm_grasp_in_every_engine(monkeypatch, colliding, held, simulations):
     """A grasp its own simulation holds firmly keeps that label, unless most of its perturbed copies put the
@@ -106,6 +105,7 @@ def test_copies_whose_open_hands_mostly_collide_drop_a_firm_grasp_in_every_engin
     assert label.held is held and len(runs) == simulations
     # Decided after the pose and the colliding copies: one held of four, or the pose's own firm label.
     assert label.held_fraction == (0.25 if colliding > 2 else 1.0)
+
 
 def test_engines_are_checked_and_arm_mode_stays_pybullets():
     assert load_config("dataset", overrides={"dataset": {"engines": ["pybullet", "mujoco"]}}).dataset.engines == ("pybullet", "mujoco")

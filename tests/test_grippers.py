@@ -2,8 +2,6 @@
 one named, the files naming it, and bad names refused in one line."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -18,6 +16,8 @@ from sagp_batched.planning import jaw_width_limit, widest_pair_m
 from sagp_batched.robot import gripper_by_file_name, load_gripper, load_robot, robot_of
 from sagp_batched.robot.gripper_description import linkage_table, pad_gap_m
 from sagp_batched.robot.hand import load_hand_geometry
+
+from ycb_paths import REPO
 
 ROBOTIQ = ("robotiq_2f85", "robotiq_2f140")
 
@@ -217,7 +217,7 @@ def test_the_open_hand_test_of_no_grasps_is_empty(designed_box):
     assert object_hit.shape == table_hit.shape == (0,)
 
 
-SHARED_GRIPPERS_DIR = Path(__file__).resolve().parent.parent.parent / "shared" / "grippers"
+SHARED_GRIPPERS_DIR = REPO.parent / "shared" / "grippers"
 
 
 def _collision_hulls(model) -> list[tuple[float, np.ndarray, np.ndarray]]:
