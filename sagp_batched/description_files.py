@@ -96,19 +96,6 @@ def link_poses(urdf_path: Path, joint_values: dict[str, float]) -> dict[str, np.
     return {name: pose.get_matrix()[0].numpy() for name, pose in tree.forward_kinematics(joints).items()}
 
 
-def _origin_matrix(origin) -> np.ndarray:
-    import pytorch_kinematics as pk
-    import torch
-
-    matrix = np.eye(4)
-    if origin is not None:
-        xyz = origin.xyz or (0.0, 0.0, 0.0)
-        rpy = origin.rpy or (0.0, 0.0, 0.0)
-        matrix[:3, :3] = pk.euler_angles_to_matrix(torch.tensor(rpy[::-1], dtype=torch.float64), "ZYX").numpy()  # fixed-axis x, y, z
-        matrix[:3, 3] = xyz
-    return matrix
-
-
 def _obj_vertices(path: Path) -> np.ndarray:
     """(V, 3) vertex positions of a Wavefront OBJ file, read directly: trimesh would merge and reorder them."""
     rows = [line.split()[1:4] for line in path.read_text().splitlines() if line.startswith("v ")]
@@ -132,24 +119,21 @@ def link_hulls(urdf_path: Path, links: tuple[str, ...]) -> dict[str, np.ndarray]
     from scipy.spatial import ConvexHull
 
     urdf_path = Path(urdf_path)
-    by_name = {link.name: link for link in read_urdf(urdf_path).links}
+    by_name = {link.name: link for link in read_urdf_document(urdf_path).links}
     hulls = {}
     for name in links:
         if name not in by_name or not by_name[name].collisions:
             raise ValueError(f"{urdf_path.name}: link '{name}' has no collision geometry")
         link_vertices = []
         for collision in by_name[name].collisions:
-            geometry = collision.geometry
-            if hasattr(geometry, "filename"):
-                mesh_path = urdf_path.parent / geometry.filename.removeprefix("package://")
-                vertices = _mesh_vertices(mesh_path) * np.asarray(geometry.scale or (1.0, 1.0, 1.0))
-            elif hasattr(geometry, "size"):
+            if collision.shape == "mesh":
+                vertices = _mesh_vertices(urdf_file_path(urdf_path, collision.filename)) * np.asarray(collision.scale)
+            elif collision.shape == "box":
                 corners = np.array(np.meshgrid([-0.5, 0.5], [-0.5, 0.5], [-0.5, 0.5], indexing="ij")).reshape(3, -1).T
-                vertices = corners * np.asarray(geometry.size, dtype=np.float64)
+                vertices = corners * np.asarray(collision.size, dtype=np.float64)
             else:
-                raise ValueError(f"{urdf_path.name}: link '{name}' collides as a {type(geometry).__name__}; only meshes and boxes are read")
-            origin = _origin_matrix(collision.origin)
-            link_vertices.append(vertices @ origin[:3, :3].T + origin[:3, 3])
+                raise ValueError(f"{urdf_path.name}: link '{name}' collides as a {collision.shape or 'nothing'}; only meshes and boxes are read")
+            link_vertices.append(vertices @ collision.origin[:3, :3].T + collision.origin[:3, 3])
         vertices = np.concatenate(link_vertices)
         hulls[name] = vertices[ConvexHull(vertices).vertices]
     return hulls
@@ -215,9 +199,10 @@ def collision_only_urdf_text(urdf_path: Path) -> str:
     return ElementTree.tostring(root, encoding="unicode")
 
 
-def subtree_urdf_text(urdf_path: Path, root_link: str, robot_name: str) -> str:
+def subtree_urdf_text(urdf_path: Path, root_link: str, robot_name: str, collision_meshes: dict[tuple[str, int], str] | None = None) -> str:
     """A URDF named ``robot_name`` of ``root_link``, the links below it and the joints between them, collision
-    geometry only, its mesh file names made absolute so it loads from anywhere."""
+    geometry only, its mesh file names made absolute so it loads from anywhere; each collision that
+    ``collision_meshes`` names by (link, its index among the link's collisions) made that mesh file, unscaled."""
     source, keep, grown = ElementTree.parse(urdf_path).getroot(), {root_link}, True
     joints = source.findall("joint")
     while grown:
@@ -226,7 +211,10 @@ def subtree_urdf_text(urdf_path: Path, root_link: str, robot_name: str) -> str:
     subtree = ElementTree.Element("robot", name=robot_name)
     for element in source:
         if element.tag == "link" and element.get("name") in keep:
-            subtree.append(_collision_only(element, _absolute(Path(urdf_path).parent)))
+            subtree.append(link := _collision_only(element, _absolute(Path(urdf_path).parent)))
+            for index, collision in enumerate(link.findall("collision")):
+                if (filename := (collision_meshes or {}).get((link.get("name"), index))) is not None:
+                    collision.find("geometry")[:] = [ElementTree.Element("mesh", filename=filename)]
         elif element.tag == "joint" and element.find("parent").get("link") in keep:
             subtree.append(element)
     return ElementTree.tostring(subtree, encoding="unicode")
@@ -291,11 +279,11 @@ class UrdfLink:
 
     @property
     def visuals(self) -> tuple[UrdfGeometry, ...]:
-        return tuple(_geometry(visual) for visual in self._link.findall("visual"))
+        return tuple(urdf_geometry(visual) for visual in self._link.findall("visual"))
 
     @property
     def collisions(self) -> tuple[UrdfGeometry, ...]:
-        return tuple(_geometry(collision) for collision in self._link.findall("collision"))
+        return tuple(urdf_geometry(collision) for collision in self._link.findall("collision"))
 
     @property
     def inertial(self) -> LinkInertial | None:
@@ -367,7 +355,8 @@ class UrdfDocument:
         return tuple(_joint(joint) for joint in self._root.findall("joint"))
 
 
-def _geometry(element: ElementTree.Element) -> UrdfGeometry:
+def urdf_geometry(element: ElementTree.Element) -> UrdfGeometry:
+    """A ``<visual>`` or ``<collision>`` element read: its shape, sizes and origin."""
     geometry = element.find("geometry")
     shape = geometry[0] if geometry is not None and len(geometry) else None
     if shape is None:

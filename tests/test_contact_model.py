@@ -107,15 +107,38 @@ def _analytic_rows(chosen: tuple[str, ...], engines: tuple[str, ...]) -> list[di
     return analytic.analytic_grasps(config, engines=engines, protocols=("floating",), note=lambda line: None, cases=cases)["cases"]
 
 
+def _assert_both_engines_move_it_as_an_ideal_grip(below_case: str, above_case: str, motion: str, paper_motion: str, still: float,
+                                                  tolerance: float) -> None:
+    """Below its threshold each engine keeps the object within ``still`` of rest; past it each keeps it and moves it
+    as far as an ideal grip within ``tolerance``: ``motion`` an outcome's slide or turn, ``paper_motion`` the paper's."""
+    rows = {row["case"]: row for row in _analytic_rows((below_case, above_case), ("pybullet", "mujoco"))}
+    below, above = rows[below_case], rows[above_case]
+    for engine in ("pybullet/floating", "mujoco/floating"):
+        assert below["outcomes"][engine]["as_on_paper"] and below["outcomes"][engine][motion] < still, (engine, below)
+        assert above["outcomes"][engine]["as_on_paper"], (engine, above)
+        assert above["outcomes"][engine][motion] == pytest.approx(above[paper_motion], abs=tolerance), (engine, above)
+
+
 def test_both_engines_grip_a_box_below_its_sliding_threshold_and_let_it_slide_past_it():
-    """Below its threshold each engine keeps the box (nearly) still; past it each lets it slide and keeps it,
-    as an ideal grip does (PyBullet within 1.5 mm of its 5.2 mm; MuJoCo's softer friction about twice it)."""
-    rows = {row["case"]: row for row in _analytic_rows(("box at its centre of mass mass x0.8", "box at its centre of mass mass x1.2"),
-                                                       ("pybullet", "mujoco"))}
-    below, above = rows["box at its centre of mass mass x0.8"], rows["box at its centre of mass mass x1.2"]
-    assert below["outcomes"]["pybullet/floating"]["as_on_paper"] and below["outcomes"]["mujoco/floating"]["as_on_paper"], below
-    assert above["outcomes"]["pybullet/floating"]["as_on_paper"] and above["outcomes"]["mujoco/floating"]["as_on_paper"], above
-    assert above["outcomes"]["pybullet/floating"]["slip_mm"] == pytest.approx(above["paper_slide_mm"], abs=1.5)
+    """As an ideal grip does (5.2 mm past it). MuJoCo's hand once shook at the protocol's rate, its target jumping
+    once a step: the box crept 1.4 mm below the threshold and 9.6 mm past it."""
+    _assert_both_engines_move_it_as_an_ideal_grip("box at its centre of mass mass x0.8", "box at its centre of mass mass x1.2",
+                                                  "slip_mm", "paper_slide_mm", still=0.5, tolerance=1.5)
+
+
+def test_both_engines_turn_a_bar_only_past_its_torsion_limit_and_as_far_as_an_ideal_grip():
+    """The pads' torsion is the model's alone: PyBullet's flat pads, their manifold's points spread over the face,
+    added their lateral friction's lever and turned the bar 0.2 deg past its limit (an ideal grip 1.5 deg); the
+    crowned pads keep both engines' points at the faces' centres."""
+    _assert_both_engines_move_it_as_an_ideal_grip("bar distance x0.8", "bar distance x1.2", "turn_deg", "paper_turn_deg",
+                                                  still=0.5, tolerance=0.6)
+
+
+def test_the_pads_crown_is_the_layer_s_compression_pressed_flat_with_the_grip_force():
+    config = Config()
+    pad = engine_pad(config.execution, robot_of(config))
+    assert pad.crown_m == pytest.approx(config.execution.gripper_force_n / pad.pad.stiffness_n_m, rel=1e-6)
+    assert 0.0002 < pad.crown_m < 0.00025  # the Panda's 70 N on its 17.4 x 17.6 mm face
 
 
 def test_an_ideal_grip_slides_and_turns_only_past_its_thresholds():
@@ -177,6 +200,6 @@ def test_a_light_object_pinched_hard_off_its_centre_is_held_in_both_engines(monk
     row = analytic.analytic_grasps(config, engines=("pybullet", "mujoco"), protocols=("floating",), note=lambda line: None,
                                    cases=[marker])["cases"][0]
     assert all(outcome["held"] for outcome in row["outcomes"].values()), row["outcomes"]
-    assert row["outcomes"]["pybullet/floating"]["slip_mm"] < 1.0, row["outcomes"]  # MuJoCo's regularised friction creeps ~4 mm
+    assert all(outcome["slip_mm"] < 1.0 for outcome in row["outcomes"].values()), row["outcomes"]
     assert solver_iterations(config, 0.004) == 500 and solver_iterations(config, 0.5) == config.scene.solver_iterations
     assert solver_iterations(config, 1e-6) == config.labelling.pybullet_max_solver_iterations

@@ -30,8 +30,9 @@ ONE_SIMULATION = {"labelling": {"perturbed_simulations": 1}}
 
 
 def _weightless_mujoco_object(hand) -> None:
-    hand.world.model.body_mass[hand.world.object_body] = 1e-9
-    hand.world.model.body_inertia[hand.world.object_body] = 1e-15
+    # An inertia under MuJoCo's smallest value (1e-15): its first step warns of a singular inertia matrix.
+    hand.world.model.body_mass[hand.world.object_body] = 1e-12
+    hand.world.model.body_inertia[hand.world.object_body] = 1e-20
 
 
 def _thrown_pybullet_object(hand) -> None:

@@ -258,6 +258,38 @@ def test_labelling_settings_load_from_a_profile_section_and_bad_ones_are_clear_e
         load_config(None, {"labelling": {"shake": {"amplitude": 1}}})
 
 
+def test_a_crowned_hand_raises_each_pad_s_face_at_its_centre_the_two_apexes_facing_each_other(tmp_path):
+    """The crown's apex is the pad hull's innermost point, ``crown`` beyond the flat face, at the centre of the
+    face's extents, and the two pads' apexes face each other across the closing axis; the face's farthest
+    vertex stays where it was, and no other link changes."""
+    from sagp_batched.datasets.collision_urdf import link_collision_hulls
+    from sagp_batched.description_files import read_urdf_document
+    from sagp_batched.robot.hand import grasp_frame_link_poses
+
+    crown, poses = 0.0005, grasp_frame_link_poses(ROBOT, ROBOT.gripper.open_width_m)
+
+    def hulls(path):
+        links = {link.name: link for link in read_urdf_document(path).links}
+        return {name: np.vstack(link_collision_hulls(link, path)) @ poses[name][:3, :3].T + poses[name][:3, 3] for name, link in links.items()
+                if link.collisions}
+
+    flat, crowned = hulls(floating_hand_urdf(ROBOT, tmp_path)), hulls(floating_hand_urdf(ROBOT, tmp_path, pad_crown_m=crown))
+    assert flat.keys() == crowned.keys()
+    apexes = []
+    for name in flat:
+        if name not in ROBOT.gripper.pad_links:
+            assert np.array_equal(np.unique(flat[name], axis=0), np.unique(crowned[name], axis=0)), name
+            continue
+        reach, crowned_reach = np.abs(flat[name][:, 1]), np.abs(crowned[name][:, 1])
+        face = flat[name][reach <= reach.min() + 0.0005]
+        apex = crowned[name][np.argmin(crowned_reach)]
+        assert crowned_reach.min() == pytest.approx(reach.min() - crown, abs=1e-6), name
+        assert apex[[0, 2]] == pytest.approx((face.min(axis=0)[[0, 2]] + face.max(axis=0)[[0, 2]]) / 2, abs=1.3e-3), name  # the grid's spacing
+        apexes.append(apex)
+    # The collision finger's face is centred 19 um off its axis, mirrored on the other finger.
+    assert len(apexes) == 2 and apexes[0][[0, 2]] == pytest.approx(apexes[1][[0, 2]], abs=5e-5)
+
+
 def test_the_floating_hand_urdf_is_the_robot_s_hand_alone_with_absolute_mesh_paths(tmp_path):
     path = floating_hand_urdf(ROBOT, tmp_path)
     assert floating_hand_urdf(ROBOT, tmp_path) == path and len(list(tmp_path.iterdir())) == 1

@@ -113,7 +113,7 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
                            steps: int = 240, spacing_m: float = 3.0) -> list[dict[str, Any]]:
     """Milliseconds per PyBullet step, in total and per pair, for worlds of 1..N floating hands each
     closed on its own copy of the object (resting on its own table), the pairs ``spacing_m`` apart."""
-    from ..datasets.collision_urdf import floating_hand_urdf
+    from ..datasets.collision_urdf import labelling_hand_urdf
     from ..datasets.labelling import ObjectPlacement
     from ..robot.description import robot_of
     from ..world.scene import Scene, command_fingers, configure_physics, create_table
@@ -123,7 +123,7 @@ def shared_world_step_cost(config: Config, objects: ObjectSet, object_id: str, p
         placement = ObjectPlacement.from_scene(scene)
         top_z = pybullet.getAABB(scene.target_id, physicsClientId=scene.client)[1][2]
     robot = robot_of(config)
-    hand_urdf = str(floating_hand_urdf(robot, config.labelling.hand_urdf_cache_dir))
+    hand_urdf = str(labelling_hand_urdf(config))
     grasp_offset_m = robot.gripper.grasp_depth_m
     down = (1.0, 0.0, 0.0, 0.0)  # the hand's approach axis pointing at the table
     rows = []

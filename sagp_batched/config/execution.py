@@ -95,10 +95,9 @@ class MuJoCoConfig(_Section):
 
     #: MuJoCo steps per 240 Hz protocol step (0.69 ms each). A soft constraint's time constant is at least
     #: two steps, and the pads' (2 / (zeta omega) = 0.63 ms for the Panda's k on a finger's mass) is then
-    #: held at 1.39 ms: at 4 steps (2.08 ms) their friction let an object carrying 80 % of the sliding limit
-    #: slide 2.5 mm and dropped every case past it that an ideal grip keeps (analytic cases 2/8 against 6/8
-    #: here; engine agreement on the YCB set 89.5 % against 92.0 %; 8 steps answer as 6, at 0.75 the speed).
-    #: On fewer steps the close knocks a free object out of the fingers more often.
+    #: held at 1.39 ms: at 4 steps (2.08 ms) the analytic cases still answer as on paper but slide 6.4-10.7 mm
+    #: past their thresholds (an ideal grip 5.2 mm, here 4.9-5.0), and the close knocks a free object out
+    #: of the fingers more often (engine agreement on the YCB set 93.4 % against 95.0 %).
     substeps: int = setting(6, at_least=1, at_most=100)
     #: Semi-implicit Euler integrates the finger servo's damping as a force within its clamp; the
     #: implicit integrators add it to the finger's mass, which then strikes a free object (implicitfast: 85 %).
@@ -109,10 +108,8 @@ class MuJoCoConfig(_Section):
     cone: str = setting("elliptic", choices=("elliptic", "pyramidal"))
     #: Friction a hundred times stiffer than the normal force: a pad's rubber grips without creeping, and
     #: MuJoCo's regularised friction creeps in proportion to 1 / impratio. At 10 a bar 20 % inside its
-    #: torsion threshold turned 1.9 deg in the shake (0.4 deg here; an ideal grip, none) and objects near
-    #: their sliding limit fell in the shake where PyBullet held them (engine agreement 92.0 % on the YCB
-    #: set, 95.8 % on the 20-mesh folder, against 93.2 % and 97.6 % here). A hand from a gripper's own MJCF
-    #: keeps the impratio its model was tuned with (the Robotiqs': 10).
+    #: torsion threshold turned 1.6 deg in the shake, at 1 19 deg (0.2 deg here; an ideal grip, none). A
+    #: hand from a gripper's own MJCF keeps the impratio its model was tuned with (the Robotiqs': 10).
     impratio: float = setting(100.0, at_least=1)
     #: The solver's cap, far above the iterations these worlds take.
     iterations: int = setting(50, at_least=1, at_most=10_000)

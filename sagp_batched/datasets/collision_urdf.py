@@ -1,28 +1,63 @@
-"""URDFs for worlds that simulate and never render: a robot's hand alone, and an object without its
-visual meshes, each with absolute mesh paths and written once per content into a cache folder; and what
-an engine that builds its world itself reads of a URDF link (collision hulls, inertia, contact friction)."""
+"""URDFs for worlds that simulate and never render: a robot's hand alone (its pads crowned), and an object
+without its visual meshes, each with absolute mesh paths and written once per content into a cache folder;
+and what an engine that builds its world itself reads of a URDF link (collision hulls, inertia, contact friction).
+
+Crowned pads. The contact model (``execution.contact_model``) gives a pad pressed flat a uniform pressure, its
+resultant at the face's centre, and puts all the resistance to turning about the normal in the torsional
+friction. A rigid flat face against a flat or straight surface has no such point: PyBullet keeps up to four
+manifold points spread over the face, whose lateral friction adds a lever of its own (a bar 20 % past its
+torsion limit turned 0.2 deg in the shake, an ideal grip 1.5 deg), and MuJoCo keeps one point a pair at
+whichever corner its collider finds, mirrored on the other pad, so the normal forces make a couple about the
+approach axis that the pads' friction must also carry. The labelling hand's pads are therefore crowned
+(``crowned_hull``): the face raised into a shallow paraboloid whose apex, the deepest point, where both
+engines' contacts gather, is the face's centre. Its height is the rubber layer's compression under the grip
+force pressed flat (``EnginePad.crown_m``): a real pad crowned that much would flatten and touch with its whole
+face, so the crown moves where the contact sits, not what the pad touches (0.23 mm at the Panda's 70 N, inside
+the open hand's 1 mm geometry tolerance).
+"""
 from __future__ import annotations
 
 import hashlib
 import os
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull, Delaunay
 
 from .. import description_files
-from ..description_files import UrdfLink, urdf_file_path
-from ..robot.description import RobotDescription
+from ..description_files import UrdfGeometry, UrdfLink, urdf_file_path
+from ..execution.contact_model import PAD_FACE_DEPTH_M, engine_pad
+from ..robot.description import RobotDescription, robot_of
+from ..robot.hand import grasp_frame_link_poses
+from ..world.mesh_files import _read_obj_parts, obj_text
 
-def floating_hand_urdf(robot: RobotDescription, cache_dir: str | Path) -> Path:
+if TYPE_CHECKING:
+    from ..config import Config
+
+# Points a side of the grid a crown is sampled on.
+CROWN_GRID_POINTS = 15
+
+def labelling_hand_urdf(config: Config) -> Path:
+    """The hand the engines label with: the configured gripper's ``floating_hand_urdf``, its pads crowned as the
+    contact model says (``EnginePad.crown_m``), cached in ``labelling.hand_urdf_cache_dir``."""
+    robot = robot_of(config)
+    return floating_hand_urdf(robot, config.labelling.hand_urdf_cache_dir, engine_pad(config.execution, robot).crown_m)
+
+
+def floating_hand_urdf(robot: RobotDescription, cache_dir: str | Path, pad_crown_m: float = 0.0) -> Path:
     """A URDF of ``robot``'s gripper alone: its base link and every link below it (fingers on their joints,
     the grasp target), collision geometry only, mesh paths made absolute so it loads from anywhere; taken
-    from the robot's URDF where the robot carries the gripper, else from the gripper's own. Written once
-    per content into ``cache_dir`` (named by its hash)."""
+    from the robot's URDF where the robot carries the gripper, else from the gripper's own; its pads crowned
+    ``pad_crown_m`` high where that is positive (``crowned_pad_meshes``). Written once per content into
+    ``cache_dir`` (named by its hash)."""
     gripper = robot.gripper
     source, name = (robot.urdf_path, robot.name) if robot.gripper_mounted else (gripper.urdf_path, gripper.name)
-    text = description_files.subtree_urdf_text(source, gripper.base_link, f"{name}_floating_hand")
-    return _cached_urdf(text, cache_dir, f"{name}_hand")
+    crowned = crowned_pad_meshes(robot, source, pad_crown_m, cache_dir) if pad_crown_m > 0.0 else None
+    text = description_files.subtree_urdf_text(source, gripper.base_link, f"{name}_floating_hand", crowned)
+    return _cached_file(text, cache_dir, f"{name}_hand", ".urdf")
 
 
 def collision_only_urdf(urdf_path: str | Path, cache_dir: str | Path) -> Path:
@@ -32,41 +67,86 @@ def collision_only_urdf(urdf_path: str | Path, cache_dir: str | Path) -> Path:
     far larger than its convex hulls) for a simulation that never renders."""
     urdf_path = Path(urdf_path)
     text = description_files.collision_only_urdf_text(urdf_path)
-    return _cached_urdf(text, cache_dir, description_files.read_urdf_document(urdf_path).name or urdf_path.stem)
+    return _cached_file(text, cache_dir, description_files.read_urdf_document(urdf_path).name or urdf_path.stem, ".urdf")
 
 
-def _cached_urdf(text: str, cache_dir: str | Path, stem: str) -> Path:
+def _cached_file(text: str, cache_dir: str | Path, stem: str, suffix: str) -> Path:
     folder = Path(cache_dir).expanduser()
-    path = folder / f"{stem}_{hashlib.sha256(text.encode()).hexdigest()[:16]}.urdf"
+    path = folder / f"{stem}_{hashlib.sha256(text.encode()).hexdigest()[:16]}{suffix}"
     if not path.is_file():
         folder.mkdir(parents=True, exist_ok=True)
         # Written beside its final name and moved there whole: concurrent labellers never read half a file.
-        handle, partial = tempfile.mkstemp(dir=folder, suffix=".urdf.partial")
+        handle, partial = tempfile.mkstemp(dir=folder, suffix=f"{suffix}.partial")
         with os.fdopen(handle, "w") as stream:
             stream.write(text)
         os.replace(partial, path)
     return path
 
 
+# -- crowned pads -----------------------------------------------------------------------------------------
+def crowned_pad_meshes(robot: RobotDescription, urdf_path: Path, crown_m: float, cache_dir: str | Path) -> dict[tuple[str, int], str]:
+    """Per pad link of the gripper in the URDF at ``urdf_path``, (link, index of its collision that reaches
+    nearest the closing plane, y = 0 of the grasp frame with the hand open) -> an OBJ of that collision's hulls
+    written into ``cache_dir``, its hull nearest the plane crowned ``crown_m`` high (``crowned_hull``)."""
+    poses, links, meshes = grasp_frame_link_poses(robot, robot.gripper.open_width_m), description_files.read_urdf_document(urdf_path).links, {}
+    for link in (link for link in links if link.name in robot.gripper.pad_links):
+        placed = []
+        for index, geometry in enumerate(link.collisions):
+            placement = poses[link.name] @ geometry.origin
+            hulls = geometry_hulls(geometry, urdf_path, link.name)
+            in_grasp = [hull @ placement[:3, :3].T + placement[:3, 3] for hull in hulls]
+            placed.append((min(np.abs(hull[:, 1]).min() for hull in in_grasp), index, placement, hulls, in_grasp))
+        _, index, placement, hulls, in_grasp = min(placed, key=lambda entry: entry[0])
+        nearest = int(np.argmin([np.abs(hull[:, 1]).min() for hull in in_grasp]))
+        # The grasp frame's x (across the finger), y turned toward the closing plane, and z, in the geometry's frame.
+        face_frame = np.diag([1.0, -np.sign(in_grasp[nearest][:, 1].mean()), 1.0]) @ placement[:3, :3]
+        hulls[nearest] = crowned_hull(hulls[nearest], face_frame, crown_m)
+        parts = [trimesh.convex.convex_hull(hull) for hull in hulls]
+        meshes[(link.name, index)] = str(_cached_file(obj_text(parts, with_normals=False), cache_dir, "crowned_pad", ".obj"))
+    return meshes
+
+
+def crowned_hull(vertices: np.ndarray, face_frame: np.ndarray, crown_m: float) -> np.ndarray:
+    """(V', 3) the vertices of the convex hull of ``vertices`` (a pad's hull) and a paraboloid cap on its face;
+    ``face_frame`` (3, 3): its rows the face's width direction, its inward normal (toward the object) and its length
+    direction, unit vectors in the vertices' frame. The cap is ``crown_m`` high at the centre of the face's
+    extents (the rectangle the contact model presses, ``contact_model.pad_face_m``) and level with the face at
+    the face's vertex farthest from it. The extents' centre, not the outline's centroid: a hull's face may be cut
+    unevenly (the Panda's collision finger's is a pentagon, its centroid 2.5 mm to one side, mirrored on the other
+    finger), and the two pads' points must face each other."""
+    local = vertices @ face_frame.T  # (width, depth, length)
+    deepest = local[:, 1].max()
+    outline = local[local[:, 1] >= deepest - PAD_FACE_DEPTH_M][:, [0, 2]]
+    outline = outline[ConvexHull(outline).vertices]
+    low, high = outline.min(axis=0), outline.max(axis=0)
+    centre = (low + high) / 2.0
+    reach = np.linalg.norm(outline - centre, axis=1).max()
+    grid = np.stack(np.meshgrid(*(np.linspace(low[i], high[i], CROWN_GRID_POINTS) for i in range(2))), axis=-1).reshape(-1, 2)
+    grid = grid[Delaunay(outline).find_simplex(grid, tol=1e-12) >= 0]
+    height = crown_m * (1.0 - np.sum((grid - centre) ** 2, axis=1) / reach**2)
+    cap = np.column_stack([grid[:, 0], deepest + height, grid[:, 1]]) @ face_frame
+    points = np.vstack([vertices, cap])
+    return points[ConvexHull(points).vertices]
+
+
 # -- what an engine reads of a link ------------------------------------------------------------------------
 def link_collision_hulls(link: UrdfLink, urdf_path: Path) -> list[np.ndarray]:
-    """(V, 3) vertices of each convex hull the link (of the URDF at ``urdf_path``) collides as, in the link frame, as
-    PyBullet builds them: one hull per ``o`` part of an OBJ mesh (a decomposition's hulls), one of any other mesh
-    file, a box's corners; the ``<origin>`` and mesh ``scale`` applied. Other primitives raise ``ValueError``."""
-    import trimesh
+    """(V, 3) vertices of each convex hull the link (of the URDF at ``urdf_path``) collides as, in the link frame
+    (``geometry_hulls`` of each collision placed at its ``<origin>``)."""
+    return [hull @ collision.origin[:3, :3].T + collision.origin[:3, 3]
+            for collision in link.collisions for hull in geometry_hulls(collision, urdf_path, link.name)]
 
-    from ..world.mesh_files import _read_obj_parts
 
-    hulls = []
-    for collision in link.collisions:
-        if collision.shape == "mesh":
-            path = urdf_file_path(urdf_path, collision.filename)
-            parts = _read_obj_parts(path) if path.suffix.lower() == ".obj" else [trimesh.load(path, force="mesh").convex_hull]
-            vertices = [np.asarray(part.vertices) * np.array(collision.scale) for part in parts]
-        elif collision.shape == "box":
-            corners = np.array(np.meshgrid([-0.5, 0.5], [-0.5, 0.5], [-0.5, 0.5], indexing="ij")).reshape(3, -1).T
-            vertices = [corners * np.array(collision.size)]
-        else:
-            raise ValueError(f"link '{link.name}' collides as a {collision.shape or 'nothing'}; only meshes and boxes are read")
-        hulls.extend(part @ collision.origin[:3, :3].T + collision.origin[:3, 3] for part in vertices)
-    return hulls
+def geometry_hulls(geometry: UrdfGeometry, urdf_path: Path, link_name: str) -> list[np.ndarray]:
+    """(V, 3) vertices of each convex hull a link's collision ``geometry`` (of the URDF at ``urdf_path``, link
+    ``link_name``) is, in its own frame, as PyBullet builds them: one hull per ``o`` part of an OBJ mesh (a
+    decomposition's hulls), one of any other mesh file, a box's corners; the mesh ``scale`` applied. Other
+    primitives raise ``ValueError``."""
+    if geometry.shape == "mesh":
+        path = urdf_file_path(urdf_path, geometry.filename)
+        parts = _read_obj_parts(path) if path.suffix.lower() == ".obj" else [trimesh.load(path, force="mesh").convex_hull]
+        return [np.asarray(part.vertices) * np.array(geometry.scale) for part in parts]
+    if geometry.shape == "box":
+        corners = np.array(np.meshgrid([-0.5, 0.5], [-0.5, 0.5], [-0.5, 0.5], indexing="ij")).reshape(3, -1).T
+        return [corners * np.array(geometry.size)]
+    raise ValueError(f"link '{link_name}' collides as a {geometry.shape or 'nothing'}; only meshes and boxes are read")

@@ -20,7 +20,7 @@ from ..config import Config
 from ..execution.poses import pose_matrix
 from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
-from .collision_urdf import floating_hand_urdf
+from .collision_urdf import labelling_hand_urdf
 from .mujoco_world import HandWorld, builds_from_mjcf, compile_world
 from .protocols import Pose, WorldStart, speed_past_bound
 
@@ -45,7 +45,7 @@ class MuJoCoHand:
     def __init__(self, config: Config):
         self.config = config
         self.robot = robot_of(config)
-        self.hand_urdf = None if builds_from_mjcf(self.robot) else floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir)
+        self.hand_urdf = None if builds_from_mjcf(self.robot) else labelling_hand_urdf(config)
         self.substeps = config.labelling.mujoco.substeps
         self.step_division = 1
         self._worlds: dict[tuple[str, bool], tuple[HandWorld, mujoco.MjData]] = {}
@@ -89,6 +89,7 @@ class MuJoCoHand:
         self.command_fingers(self.robot.gripper.open_width_m)
         self.quat = np.asarray(start.hand_quat, dtype=float)
         self.move(start.hand_position)
+        data.mocap_pos[0], data.mocap_quat[0] = self.target_position, self.target_quat
         mujoco.mj_forward(model, data)
 
     def _set_free_joint(self, address: int, pose: np.ndarray) -> None:
@@ -103,31 +104,50 @@ class MuJoCoHand:
         self.data.ctrl[:] = self.world.finger_ctrl(self.robot.gripper.finger_joint_value(width_m))
 
     def step(self, steps: int) -> None:
+        """``steps`` protocol steps, the first carrying the hand's target to where ``move`` last sent it."""
         if steps > 0:
-            mujoco.mj_step(self.world.model, self.data, nstep=steps * self.substeps)
+            self._glide(self.target_position, self.target_quat)
+            mujoco.mj_step(self.world.model, self.data, nstep=(steps - 1) * self.substeps)
 
     def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None:
         """Send the hand's grasp target toward a pose; the weld pulls it there over the next steps."""
-        self.data.mocap_pos[0] = position
-        self.data.mocap_quat[0] = np.asarray(self.quat if quat is None else quat)[WXYZ_FROM_XYZW]
+        self.target_position = np.asarray(position, dtype=float)
+        self.target_quat = np.asarray(self.quat if quat is None else quat, dtype=float)[WXYZ_FROM_XYZW]
 
     def follow(self, positions: np.ndarray, quats: np.ndarray | None = None) -> np.ndarray:
-        """``move`` to each of ``positions`` (T, 3), with ``quats`` (T, 4) or the hand's orientation,
-        then ``step(1)``, in one loop that only copies arrays; (T, 7) the grasp target's pose (position,
-        xyzw quaternion) after each step."""
-        model, data, body, nstep = self.world.model, self.data, self.world.grasp_target_body, self.substeps
+        """``move`` to each of ``positions`` (T, 3), with ``quats`` (T, 4) or the hand's orientation, then
+        ``step(1)``; (T, 7) the grasp target's pose (position, xyzw quaternion) after each step."""
+        body = self.world.grasp_target_body
         positions = np.asarray(positions, dtype=float).reshape(-1, 3)
         targets = np.asarray(self.quat if quats is None else quats, dtype=float).reshape(-1, 4)[:, WXYZ_FROM_XYZW]
         targets = np.broadcast_to(targets, (len(positions), 4))
         poses = np.empty((len(positions), 7))
         for index in range(len(positions)):
-            data.mocap_pos[0] = positions[index]
-            data.mocap_quat[0] = targets[index]
-            mujoco.mj_step(model, data, nstep=nstep)
-            poses[index, :3] = data.xpos[body]
-            poses[index, 3:] = data.xquat[body]
+            self._glide(positions[index], targets[index])
+            poses[index, :3] = self.data.xpos[body]
+            poses[index, 3:] = self.data.xquat[body]
+        self.target_position, self.target_quat = positions[-1], targets[-1]
         poses[:, 3:] = poses[:, 3:][:, XYZW_FROM_WXYZ]
         return poses
+
+    def _glide(self, position: np.ndarray, quat: np.ndarray) -> None:
+        """One protocol step in which the weld's target moves on a straight line to ``position`` and ``quat``
+        (wxyz), a substep at a time. A target that jumps once a step has the weld pull the hand there within
+        the step and stop it: a saw-tooth at the protocol's rate whose peaks (57 m/s^2 in a 0.5 m/s lift)
+        passed the pads' friction, so a held object crept down the fingers (1.4 mm where an ideal grip keeps
+        it still, twice an ideal grip's slide past the sliding threshold)."""
+        model, data, substeps = self.world.model, self.data, self.substeps
+        start_position, start_quat = data.mocap_pos[0].copy(), data.mocap_quat[0].copy()
+        if np.array_equal(start_position, position) and np.array_equal(start_quat, quat):
+            mujoco.mj_step(model, data, nstep=substeps)
+            return
+        if np.dot(start_quat, quat) < 0.0:  # the same rotation, on the near side of the quaternion sphere
+            start_quat = -start_quat
+        for fraction in np.arange(1, substeps + 1) / substeps:
+            data.mocap_pos[0] = start_position + fraction * (position - start_position)
+            between = start_quat + fraction * (quat - start_quat)
+            data.mocap_quat[0] = between / np.linalg.norm(between)
+            mujoco.mj_step(model, data)
 
     # -- state ---------------------------------------------------------------------------------------
     def object_pose(self) -> Pose:

@@ -1,5 +1,5 @@
 """The MuJoCo world of hand-mode labels, built from the same URDFs the PyBullet engine loads: the robot's
-floating hand (``collision_urdf.floating_hand_urdf``), one object (its URDF's collision hulls, inertia and
+floating hand (``collision_urdf.labelling_hand_urdf``), one object (its URDF's collision hulls, inertia and
 friction) and, for the ``tabletop`` protocol, the study's table. Compiled once per object and table and
 reused by every simulation (``mujoco_hand.MuJoCoHand`` resets it).
 
@@ -327,7 +327,7 @@ def _add_table(spec: mujoco.MjSpec, hand_surfaces: dict[str, tuple[list[str], tu
 
 def compile_world(hand_urdf: Path | None, robot: RobotDescription, object_urdf: Path, table: bool, config: Config) -> HandWorld:
     """The world of one object, with the study's table where ``table``, compiled. ``object_urdf``: the
-    object's URDF (its first link is the object); the hand's from ``floating_hand_urdf``, None where the
+    object's URDF (its first link is the object); the hand's from ``labelling_hand_urdf``, None where the
     hand is the gripper's MJCF (``builds_from_mjcf``)."""
     options = config.labelling.mujoco
     spec = mujoco.MjSpec()

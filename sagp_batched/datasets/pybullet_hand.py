@@ -35,7 +35,7 @@ from ..execution.pick import fingers_touching, push_n, set_finger_friction
 from ..robot.description import robot_of
 from ..world.objects import ObjectLoadError, ObjectSpec
 from ..world.scene import command_fingers, configure_physics, create_table
-from .collision_urdf import collision_only_urdf, floating_hand_urdf
+from .collision_urdf import collision_only_urdf, labelling_hand_urdf
 from .protocols import Pose, WorldStart, speed_past_bound
 
 
@@ -56,7 +56,7 @@ class PyBulletHand:
         self.config = config
         self.client = pybullet.connect(pybullet.DIRECT)
         self.robot = robot_of(config)
-        self.hand_urdf = str(floating_hand_urdf(self.robot, config.labelling.hand_urdf_cache_dir))
+        self.hand_urdf = str(labelling_hand_urdf(config))
         self.gripper = self.robot.gripper
         self.pad = engine_pad(config.execution, self.robot)
         self.grasp_offset_m = self.gripper.grasp_depth_m

@@ -27,7 +27,9 @@ stated damping ratio zeta on the two bodies' reduced mass m: ``c = 2 zeta sqrt(k
 
 Engines. Neither engine shapes a patch: both turn a contact into a few points with a normal force each,
 so the torsional limit they are given is the model's for the pad pressed flat on a face it covers (the
-face's uniform pressure), the pad's own value whatever it touches (``EnginePad``):
+face's uniform pressure), the pad's own value whatever it touches (``EnginePad``), and the points are kept
+where that pressure's resultant acts, the face's centre, by crowning each pad's simulated hull as high as
+the layer compresses pressed flat at the grip force (``datasets.collision_urdf.crowned_hull``):
 
 * PyBullet (``pybullet_pad_dynamics``) combines a pad's and an object's friction per contact point as
   ``lateral = f_pad f_obj``, ``spinning = s_pad f_obj + s_obj f_pad``, ``rolling = r_pad f_obj + r_obj f_pad``
@@ -36,8 +38,7 @@ face's uniform pressure), the pad's own value whatever it touches (``EnginePad``
   all. The pad's spinning friction is solved from that sum so the contact's is the model's (the object's own,
   0.001 m in the YCB URDFs, cancelled); its rolling friction is zero, and the object's own rolling friction
   times the pad's factor (0.0015 m for YCB) stays, as PyBullet takes no negative friction to cancel it. Its spring and damper are ``contactStiffness`` and
-  ``contactDamping`` (Bullet's ERP and CFM from k and c each step). A manifold's spread points add the
-  lateral friction's own torque, which the bar cases of ``benchmarks.analytic_grasps`` measure.
+  ``contactDamping`` (Bullet's ERP and CFM from k and c each step).
 * MuJoCo (``mujoco_pad_contact``) takes the pad geom's friction as the contact's (it has the higher
   ``priority`` and carries the product with the object's): sliding mu, torsional mu times the torsional
   radius, rolling 0 (``condim`` 4). ``solref`` is mass-normalised: MuJoCo asks a contact for the reference
@@ -199,17 +200,20 @@ def pad_torsional_limit_n_m(pad: RubberPad, force_n: float, friction: float, sur
 @dataclass(frozen=True)
 class EnginePad:
     """What both engines take from the model: the pad's friction factor (the object's multiplies it), the
-    torsional radius of its face pressed flat at the grip force, rolling none, and its spring and damping ratio."""
+    torsional radius of its face pressed flat at the grip force, rolling none, its spring and damping ratio, and
+    the crown of its simulated hull: the layer's compression pressed flat at the grip force."""
 
     pad: RubberPad
     friction_factor: float
     torsional_radius_m: float
+    crown_m: float
 
     @classmethod
     def of(cls, pad: RubberPad, grip_force_n: float, friction_factor: float) -> "EnginePad":
         if not friction_factor >= 0:
             raise ContactModelError(f"a pad's friction factor must be >= 0, got {friction_factor}")
-        return cls(pad, friction_factor, patch(pad, grip_force_n).torsional_radius_m)
+        flat = patch(pad, grip_force_n)
+        return cls(pad, friction_factor, flat.torsional_radius_m, flat.compression_m)
 
 
 def reduced_mass_kg(first_kg: float, second_kg: float) -> float:

@@ -61,8 +61,8 @@ class HandGeometry:
         return self.dop_low + along.clamp(max=0.0), self.dop_high + along.clamp(min=0.0)
 
 
-def hulls_in_grasp_frame(robot: RobotDescription, links: tuple[str, ...], width_m: float) -> list[torch.Tensor]:
-    """The collision hulls of ``links`` (float32 (V, 3) each), in the grasp frame with the fingers at the opening
+def grasp_frame_link_poses(robot: RobotDescription, width_m: float) -> dict[str, np.ndarray]:
+    """(4, 4) pose of every link of the gripper's URDF in the grasp frame with the fingers at the opening
     ``width_m``: from the robot's URDF where the gripper is the one it carries (the wrist beside it), else from
     the gripper's own, its linkage's mimic joints following the driven one."""
     gripper = robot.gripper
@@ -74,11 +74,16 @@ def hulls_in_grasp_frame(robot: RobotDescription, links: tuple[str, ...], width_
     else:
         grasp_pose = poses[gripper.base_link] @ np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, gripper.grasp_depth_m], [0, 0, 0, 1]])
     grasp_from_base = np.linalg.inv(grasp_pose)
-    hulls = []
-    for name, vertices in description_files.link_hulls(urdf_path, links).items():
-        transform = grasp_from_base @ poses[name]
-        hulls.append(torch.tensor(vertices @ transform[:3, :3].T + transform[:3, 3], dtype=torch.float32))
-    return hulls
+    return {name: grasp_from_base @ pose for name, pose in poses.items()}
+
+
+def hulls_in_grasp_frame(robot: RobotDescription, links: tuple[str, ...], width_m: float) -> list[torch.Tensor]:
+    """The collision hulls of ``links`` (float32 (V, 3) each), in the grasp frame with the fingers at the opening
+    ``width_m`` (``grasp_frame_link_poses``)."""
+    urdf_path = robot.urdf_path if robot.gripper_mounted else robot.gripper.urdf_path
+    poses = grasp_frame_link_poses(robot, width_m)
+    return [torch.tensor(vertices @ poses[name][:3, :3].T + poses[name][:3, 3], dtype=torch.float32)
+            for name, vertices in description_files.link_hulls(urdf_path, links).items()]
 
 
 @functools.lru_cache(maxsize=8)

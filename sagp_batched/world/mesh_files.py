@@ -14,6 +14,11 @@ ROLLING_FRICTION = 0.001
 
 def write_obj_parts(path: Path, parts: list[trimesh.Trimesh], with_normals: bool) -> None:
     """Wavefront OBJ, one ``o`` per part (PyBullet makes each part of a collision OBJ a convex hull of its own)."""
+    path.write_text(obj_text(parts, with_normals))
+
+
+def obj_text(parts: list[trimesh.Trimesh], with_normals: bool) -> str:
+    """The Wavefront OBJ ``write_obj_parts`` writes."""
     lines, offset = [], 1
     for number, part in enumerate(parts):
         lines.append(f"o part_{number}")
@@ -24,7 +29,7 @@ def write_obj_parts(path: Path, parts: list[trimesh.Trimesh], with_normals: bool
         else:
             lines.extend(f"f {a} {b} {c}" for a, b, c in part.faces + offset)
         offset += len(part.vertices)
-    path.write_text("\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
 
 
 def _read_obj_parts(path: Path) -> list[trimesh.Trimesh]:
