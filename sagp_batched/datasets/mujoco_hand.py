@@ -132,8 +132,8 @@ class MuJoCoHand:
         A target that jumps once a step has the weld pull the hand there within the step and stop it: a
         saw-tooth at the protocol's rate whose peaks (57 m/s^2 in a 0.5 m/s lift) passed the pads' friction, so
         a held object crept down the fingers (1.4 mm where an ideal grip keeps it still, twice an ideal grip's
-        slide past the sliding threshold). The path is laid out before the loop, which only copies rows: the
-        substeps' Python is a third of MuJoCo's time otherwise."""
+        slide past the sliding threshold). The path is laid out before the loop, which only copies rows (a hand
+        in free space: 5.9 us a substep, 9.9 with the path computed in the loop)."""
         model, data, substeps, body = self.world.model, self.data, self.substeps, self.world.grasp_target_body
         previous_positions = np.vstack([data.mocap_pos[:1], positions[:-1]])
         previous_quats = np.vstack([data.mocap_quat[:1], quats[:-1]])
