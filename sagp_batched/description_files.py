@@ -96,6 +96,11 @@ def link_poses(urdf_path: Path, joint_values: dict[str, float]) -> dict[str, np.
     return {name: pose.get_matrix()[0].numpy() for name, pose in tree.forward_kinematics(joints).items()}
 
 
+def box_corners(size: tuple[float, ...]) -> np.ndarray:
+    """(8, 3) the corners of a URDF ``<box>`` of ``size`` about its centre."""
+    return np.array(np.meshgrid([-0.5, 0.5], [-0.5, 0.5], [-0.5, 0.5], indexing="ij")).reshape(3, -1).T * np.asarray(size, dtype=np.float64)
+
+
 def _obj_vertices(path: Path) -> np.ndarray:
     """(V, 3) vertex positions of a Wavefront OBJ file, read directly: trimesh would merge and reorder them."""
     rows = [line.split()[1:4] for line in path.read_text().splitlines() if line.startswith("v ")]
@@ -129,8 +134,7 @@ def link_hulls(urdf_path: Path, links: tuple[str, ...]) -> dict[str, np.ndarray]
             if collision.shape == "mesh":
                 vertices = _mesh_vertices(urdf_file_path(urdf_path, collision.filename)) * np.asarray(collision.scale)
             elif collision.shape == "box":
-                corners = np.array(np.meshgrid([-0.5, 0.5], [-0.5, 0.5], [-0.5, 0.5], indexing="ij")).reshape(3, -1).T
-                vertices = corners * np.asarray(collision.size, dtype=np.float64)
+                vertices = box_corners(collision.size)
             else:
                 raise ValueError(f"{urdf_path.name}: link '{name}' collides as a {collision.shape or 'nothing'}; only meshes and boxes are read")
             link_vertices.append(vertices @ collision.origin[:3, :3].T + collision.origin[:3, 3])

@@ -17,6 +17,7 @@ the open hand's 1 mm geometry tolerance).
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import tempfile
@@ -89,22 +90,31 @@ def crowned_pad_meshes(robot: RobotDescription, urdf_path: Path, crown_m: float,
     """Per pad link of the gripper in the URDF at ``urdf_path``, (link, index of its collision that reaches
     nearest the closing plane, y = 0 of the grasp frame with the hand open) -> an OBJ of that collision's hulls
     written into ``cache_dir``, its hull nearest the plane crowned ``crown_m`` high (``crowned_hull``)."""
-    poses, links, meshes = grasp_frame_link_poses(robot, robot.gripper.open_width_m), description_files.read_urdf_document(urdf_path).links, {}
-    for link in (link for link in links if link.name in robot.gripper.pad_links):
-        placed = []
+    return {key: str(_cached_file(text, cache_dir, "crowned_pad", ".obj")) for key, text in _crowned_pad_objs(robot, Path(urdf_path), crown_m)}
+
+
+# Every engine a labelling run builds asks for the same hand: its crowned hulls are computed once a process.
+@functools.lru_cache(maxsize=8)
+def _crowned_pad_objs(robot: RobotDescription, urdf_path: Path, crown_m: float) -> tuple[tuple[tuple[str, int], str], ...]:
+    """``crowned_pad_meshes``' OBJ texts, keyed alike."""
+    poses, objs = grasp_frame_link_poses(robot, robot.gripper.open_width_m), []
+    for link in description_files.read_urdf_document(urdf_path).links:
+        if link.name not in robot.gripper.pad_links:
+            continue
+        nearest = None  # (reach to the closing plane, collision index, hull index, collision placement, its hulls, the hull placed)
         for index, geometry in enumerate(link.collisions):
-            placement = poses[link.name] @ geometry.origin
-            hulls = geometry_hulls(geometry, urdf_path, link.name)
-            in_grasp = [hull @ placement[:3, :3].T + placement[:3, 3] for hull in hulls]
-            placed.append((min(np.abs(hull[:, 1]).min() for hull in in_grasp), index, placement, hulls, in_grasp))
-        _, index, placement, hulls, in_grasp = min(placed, key=lambda entry: entry[0])
-        nearest = int(np.argmin([np.abs(hull[:, 1]).min() for hull in in_grasp]))
+            placement, hulls = poses[link.name] @ geometry.origin, geometry_hulls(geometry, urdf_path, link.name)
+            for part, hull in enumerate(hulls):
+                placed = hull @ placement[:3, :3].T + placement[:3, 3]
+                reach = np.abs(placed[:, 1]).min()
+                if nearest is None or reach < nearest[0]:
+                    nearest = (reach, index, part, placement, hulls, placed)
+        _, index, part, placement, hulls, in_grasp = nearest
         # The grasp frame's x (across the finger), y turned toward the closing plane, and z, in the geometry's frame.
-        face_frame = np.diag([1.0, -np.sign(in_grasp[nearest][:, 1].mean()), 1.0]) @ placement[:3, :3]
-        hulls[nearest] = crowned_hull(hulls[nearest], face_frame, crown_m)
-        parts = [trimesh.convex.convex_hull(hull) for hull in hulls]
-        meshes[(link.name, index)] = str(_cached_file(obj_text(parts, with_normals=False), cache_dir, "crowned_pad", ".obj"))
-    return meshes
+        face_frame = np.diag([1.0, -np.sign(in_grasp[:, 1].mean()), 1.0]) @ placement[:3, :3]
+        hulls[part] = crowned_hull(hulls[part], face_frame, crown_m)
+        objs.append(((link.name, index), obj_text([trimesh.convex.convex_hull(hull) for hull in hulls], with_normals=False)))
+    return tuple(objs)
 
 
 def crowned_hull(vertices: np.ndarray, face_frame: np.ndarray, crown_m: float) -> np.ndarray:
@@ -148,6 +158,5 @@ def geometry_hulls(geometry: UrdfGeometry, urdf_path: Path, link_name: str) -> l
         parts = _read_obj_parts(path) if path.suffix.lower() == ".obj" else [trimesh.load(path, force="mesh").convex_hull]
         return [np.asarray(part.vertices) * np.array(geometry.scale) for part in parts]
     if geometry.shape == "box":
-        corners = np.array(np.meshgrid([-0.5, 0.5], [-0.5, 0.5], [-0.5, 0.5], indexing="ij")).reshape(3, -1).T
-        return [corners * np.array(geometry.size)]
+        return [description_files.box_corners(geometry.size)]
     raise ValueError(f"link '{link_name}' collides as a {geometry.shape or 'nothing'}; only meshes and boxes are read")

@@ -105,9 +105,14 @@ class MuJoCoHand:
 
     def step(self, steps: int) -> None:
         """``steps`` protocol steps, the first carrying the hand's target to where ``move`` last sent it."""
-        if steps > 0:
+        if steps <= 0:
+            return
+        data, first = self.data, 0
+        # A target that moved glides there in the first step; a still one (the close, the hold) needs no substep of Python.
+        if not (np.array_equal(data.mocap_pos[0], self.target_position) and np.array_equal(data.mocap_quat[0], self.target_quat)):
             self._glide(self.target_position[None], self.target_quat[None])
-            mujoco.mj_step(self.world.model, self.data, nstep=(steps - 1) * self.substeps)
+            first = 1
+        mujoco.mj_step(self.world.model, data, nstep=(steps - first) * self.substeps)
 
     def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None:
         """Send the hand's grasp target toward a pose; the weld pulls it there over the next steps."""
