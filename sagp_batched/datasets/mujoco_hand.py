@@ -91,6 +91,8 @@ class MuJoCoHand:
         self.move(start.hand_position)
         data.mocap_pos[0], data.mocap_quat[0] = self.target_position, self.target_quat
         mujoco.mj_forward(model, data)
+        if world.grip_force_caps is not None:
+            world.cap_grip_force(data)  # the world's last simulation left its own
 
     def _set_free_joint(self, address: int, pose: np.ndarray) -> None:
         self.data.qpos[address : address + 3] = pose[:3, 3]
@@ -107,12 +109,18 @@ class MuJoCoHand:
         """``steps`` protocol steps, the first carrying the hand's target to where ``move`` last sent it."""
         if steps <= 0:
             return
-        data, first = self.data, 0
+        world, data, first = self.world, self.data, 0
         # A target that moved glides there in the first step; a still one (the close, the hold) needs no substep of Python.
         if not (np.array_equal(data.mocap_pos[0], self.target_position) and np.array_equal(data.mocap_quat[0], self.target_quat)):
             self._glide(self.target_position[None], self.target_quat[None])
             first = 1
-        mujoco.mj_step(self.world.model, data, nstep=(steps - first) * self.substeps)
+        if world.grip_force_caps is None:
+            mujoco.mj_step(world.model, data, nstep=(steps - first) * self.substeps)
+            return
+        # A linkage's grip force is set again each step for where its fingers stand (1.6 us a step).
+        for _ in range(steps - first):
+            world.cap_grip_force(data)
+            mujoco.mj_step(world.model, data, nstep=self.substeps)
 
     def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None:
         """Send the hand's grasp target toward a pose; the weld pulls it there over the next steps."""
@@ -151,7 +159,10 @@ class MuJoCoHand:
         # Each step ends on its target to the last digit, where the next begins.
         path_positions[:, -1], path_quats[:, -1] = positions, quats
         poses = np.empty((len(positions), 7))
+        caps_grip_force = self.world.grip_force_caps is not None
         for index in range(len(positions)):
+            if caps_grip_force:
+                self.world.cap_grip_force(data)
             for position, quat in zip(path_positions[index], path_quats[index]):
                 data.mocap_pos[0], data.mocap_quat[0] = position, quat
                 mujoco.mj_step(model, data)

@@ -63,12 +63,21 @@ class HandWorld:
     # (driven joint values, controls): the fingers' actuator control for ``GripperDescription.finger_joint_value``,
     # interpolated; None where the control is that value
     finger_ctrl_table: tuple[np.ndarray, np.ndarray] | None
+    # (actuator, its lengths, its force cap there): a linkage's servo whose cap presses each pad with the grip
+    # force at whatever opening its fingers stand; None where the cap is one constant
+    grip_force_caps: tuple[int, np.ndarray, np.ndarray] | None
 
     def finger_ctrl(self, joint_value: float) -> float:
         """The fingers' actuator control that drives them to ``joint_value`` of the gripper's driven joints."""
         if self.finger_ctrl_table is None:
             return joint_value
         return float(np.interp(joint_value, *self.finger_ctrl_table))
+
+    def cap_grip_force(self, data: mujoco.MjData) -> None:
+        """The linkage servo's force cap for where its fingers stand in ``data`` (after a forward pass)."""
+        actuator, lengths, caps = self.grip_force_caps
+        cap = float(np.interp(data.actuator_length[actuator], lengths, caps))
+        self.model.actuator_forcerange[actuator] = (-cap, cap)
 
 
 def _wxyz(rotation: np.ndarray) -> np.ndarray:
@@ -183,6 +192,7 @@ class _Hand:
     finger_open_qpos: tuple[float, ...]
     pad_bodies: tuple[str, ...]
     finger_ctrl_table: tuple[np.ndarray, np.ndarray] | None
+    grip_force_caps: tuple[str, np.ndarray, np.ndarray] | None  # HandWorld's, the actuator by name
 
 
 def builds_from_mjcf(robot: RobotDescription) -> bool:
@@ -198,7 +208,7 @@ def _add_urdf_hand(spec: mujoco.MjSpec, hand_urdf: Path, robot: RobotDescription
     _couple_fingers(spec, hand_urdf, config)
     open_value = gripper.finger_joint_value(gripper.open_width_m)
     return _Hand(surfaces, gripper.grasp_target_link, gripper.finger_joints, (open_value,) * len(gripper.finger_joints),
-                 gripper.pad_links, None)
+                 gripper.pad_links, None, None)
 
 
 def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface: tuple[float, float, float], object_mass_kg: float,
@@ -206,7 +216,7 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
     """The gripper's MJCF below a free-floating hand body in the URDF base link's frame (the MJCF's body
     ``[mujoco] base_body``), its linkage as the MJCF models it: the joints, the equality constraints that
     close the four-bars, the tendon and the servo on it. The servo's force is capped so that each pad
-    presses with the grip force (``tendon_force_per_pad_n``), and its set point is the tendon length that
+    presses with the grip force (``pad_force_per_tendon_force``, by the tendon's length), and its set point is the tendon length that
     gives the URDF's opening at the driven joint's value (``driver_at_finger_joint``). The grasp target
     is a body ``grasp_depth_m`` along the hand's z. The collision geoms touch the object, and the table,
     as the URDF hand's do, the pads with the contact model's friction and the MJCF's own softness."""
@@ -243,15 +253,17 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
     if not pads <= found:
         raise ValueError(f"{gripper.mjcf_path.name}: no colliding geom {', '.join(sorted(pads - found))} ([mujoco] pad_geoms)")
     actuator = spec.actuator(MJCF_PREFIX + gripper.mujoco_value("actuator"))
-    tendon_force = execution.gripper_force_n * gripper.mujoco_value("tendon_force_per_pad_n")
-    actuator.forcerange = [-tendon_force, tendon_force]
+    lengths, per_tendon_newton, spring_n = np.asarray(gripper.mujoco_value("pad_force_per_tendon_force"), dtype=np.float64)
+    order = np.argsort(lengths)
+    caps = np.maximum(execution.gripper_force_n - spring_n[order], 0.0) / per_tendon_newton[order]
     # An affine position servo rests where gain * ctrl = -bias[1] * length: the control per unit of the tendon's length.
     ctrl_per_length = -actuator.biasprm[1] / actuator.gainprm[0]
     joint_values, tendon_lengths = np.asarray(gripper.mujoco_value("driver_at_finger_joint"), dtype=np.float64)
     joints = [joint for joint in hand.find_all(mujoco.mjtObj.mjOBJ_JOINT) if joint.type != mujoco.mjtJoint.mjJNT_FREE]
     # The MJCF's joints are at their reference values with the gripper open.
     return _Hand(surfaces, MJCF_GRASP_TARGET_BODY, tuple(joint.name for joint in joints), tuple(float(joint.ref) for joint in joints),
-                 tuple(spec.geom(names[0]).parent.name for names in pad_geoms), (joint_values, tendon_lengths * ctrl_per_length))
+                 tuple(spec.geom(names[0]).parent.name for names in pad_geoms), (joint_values, tendon_lengths * ctrl_per_length),
+                 (actuator.name, lengths[order], caps))
 
 
 def _add_finger_servos(spec: mujoco.MjSpec, robot: RobotDescription, config: Config) -> None:
@@ -380,6 +392,8 @@ def _located(model: mujoco.MjModel, robot: RobotDescription, parts: _Hand, inert
         finger_qpos=tuple(int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]) for j in parts.finger_joints),
         finger_open_qpos=parts.finger_open_qpos, finger_bodies=tuple(body(name) for name in parts.pad_bodies), grasp_target_body=target,
         hand_body_mask=hand_bodies, finger_ctrl_table=parts.finger_ctrl_table,
+        grip_force_caps=None if parts.grip_force_caps is None else
+        (mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, parts.grip_force_caps[0]), *parts.grip_force_caps[1:]),
         table_geom=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, TABLE_GEOM),
         com_in_link=(frame[:3, 3].copy(), _wxyz(frame[:3, :3])), hand_in_target=hand_in_target,
     )
