@@ -1,6 +1,6 @@
 """The MuJoCo engine simulates the Robotiq grippers from their Menagerie MJCF: a commanded opening gives that gap
-between the pads, the pads press on a box fixed in the world with the grip force wherever the fingers stand, and the designed box is held
-across its width and dropped with the fingers beside it, in both protocols."""
+between the pads, the pads press on a box fixed in the world with the grip force wherever the fingers stand,
+and the designed box is held across its width and dropped with the fingers beside it, in both protocols."""
 from __future__ import annotations
 
 import numpy as np

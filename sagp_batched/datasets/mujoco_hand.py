@@ -91,8 +91,6 @@ class MuJoCoHand:
         self.move(start.hand_position)
         data.mocap_pos[0], data.mocap_quat[0] = self.target_position, self.target_quat
         mujoco.mj_forward(model, data)
-        if world.grip_force_caps is not None:
-            world.cap_grip_force(data)  # the world's last simulation left its own
 
     def _set_free_joint(self, address: int, pose: np.ndarray) -> None:
         self.data.qpos[address : address + 3] = pose[:3, 3]

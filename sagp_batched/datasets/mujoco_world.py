@@ -215,8 +215,8 @@ def _add_mjcf_hand(spec: mujoco.MjSpec, robot: RobotDescription, object_surface:
                    config: Config) -> _Hand:
     """The gripper's MJCF below a free-floating hand body in the URDF base link's frame (the MJCF's body
     ``[mujoco] base_body``), its linkage as the MJCF models it: the joints, the equality constraints that
-    close the four-bars, the tendon and the servo on it. The servo's force is capped so that each pad
-    presses with the grip force (``pad_force_per_tendon_force``, by the tendon's length), and its set point is the tendon length that
+    close the four-bars, the tendon and the servo on it. Its force cap is set each step (``HandWorld.cap_grip_force``)
+    so each pad presses the grip force where the fingers stand, and its set point is the tendon length that
     gives the URDF's opening at the driven joint's value (``driver_at_finger_joint``). The grasp target
     is a body ``grasp_depth_m`` along the hand's z. The collision geoms touch the object, and the table,
     as the URDF hand's do, the pads with the contact model's friction and the MJCF's own softness."""
