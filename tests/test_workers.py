@@ -3,8 +3,10 @@ from a process that reports after it; a unit whose process dies gets the caller'
 stops the run with ``BrokenProcessPool``; an unknown backend is one error line."""
 from __future__ import annotations
 
+import atexit
 import concurrent.futures
 import os
+from pathlib import Path
 
 import pytest
 
@@ -55,6 +57,32 @@ def test_a_unit_whose_process_died_gets_the_callers_result_or_stops_the_run():
     assert results == {-1: "died: BrokenProcessPool"}
     with pytest.raises(concurrent.futures.process.BrokenProcessPool), _pool(2) as pool:
         list(pool.as_finished([-1]))
+
+
+class _Printer:
+    """Prints each unit without a newline (held in the process's output buffer); its making registers an
+    exit handler that would leave ``marker`` behind if the interpreter tore itself down."""
+
+    objects_dir = None
+
+    def __init__(self, marker: str):
+        atexit.register(Path(marker).write_text, "torn down")
+
+    def run(self, unit: int) -> int:
+        print(f"[unit {unit}]", end="")
+        return unit
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_worker_process_ends_with_its_output_flushed_and_without_the_interpreters_teardown(tmp_path, capfd):
+    marker = tmp_path / "teardown"
+    with WorkerPool("local", 2, here=lambda: _Printer(str(marker)), in_process=Recipe(_Printer, (str(marker),))) as pool:
+        assert sorted(result for _, result, _ in pool.as_finished(range(4))) == [0, 1, 2, 3]
+    printed = capfd.readouterr().out
+    assert all(f"[unit {unit}]" in printed for unit in range(4)), printed
+    assert not marker.exists()
 
 
 def test_an_unknown_backend_is_one_error_line():

@@ -32,7 +32,7 @@ from ..formats.frames import grasp_poses_from_acronym, mesh_reference
 from ..formats.graspgen import write_graspgen_file
 from ..formats.object_grasps import ObjectPhysics
 from ..robot.gripper_description import GripperDescription
-from ..world.objects import ObjectSpec, objects_root
+from ..world.objects import METADATA_FILE, ObjectSpec, objects_root
 from .cross_engine import diverged_by_engine, object_engine_agreement
 
 if TYPE_CHECKING:
@@ -102,12 +102,8 @@ def object_physics(spec: ObjectSpec) -> ObjectPhysics:
     metadata (the solid's volume and full inertia, the density that made its mass), else the
     URDF's mass, COM, inertia and friction with the volume of its collision hulls (the solid
     PyBullet collides) and density = mass / volume."""
-    from ..world.mesh_import import METADATA_FILE
-
     metadata_path = Path(spec.urdf_path).with_name(METADATA_FILE)
     if metadata_path.is_file():
-        import json
-
         metadata = json.loads(metadata_path.read_text())
         return ObjectPhysics(float(metadata["mass_kg"]), float(metadata["density_kg_m3"]), float(metadata["friction"]),
                              tuple(metadata["com_m"]), tuple(tuple(row) for row in metadata["inertia_kg_m2"]),

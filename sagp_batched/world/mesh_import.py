@@ -54,13 +54,12 @@ from .mesh_physics import _resting_poses, _repaired, _solid_of
 from .mesh_settings import NOT_IN_CACHE_KEY, MeshImportSettings
 from .mesh_sources import _discover, _Source, _source_mesh, _Unusable
 from .objects import CACHE_DIR_ENV  # noqa: F401 (callers name the variable through this module)
-from .objects import INDEX_METADATA_KEYS, ObjectImport, ObjectSet, ObjectSetError, ObjectSpec, RestingPose
+from .objects import INDEX_METADATA_KEYS, METADATA_FILE, ObjectImport, ObjectSet, ObjectSetError, ObjectSpec, RestingPose
 
 log = logging.getLogger(__name__)
 
 # Bumped whenever the generated files change for the same inputs, so older cache entries are not reused.
 IMPORT_FORMAT = 3
-METADATA_FILE = "metadata.json"
 # The keys an ``objects.json`` entry of an imported folder may hold.
 OVERRIDE_KEYS = frozenset({"name", "category", "asymmetric", "scale", "density_kg_m3", "mass_kg", "friction"})
 DEFAULT_CATEGORY = "object"

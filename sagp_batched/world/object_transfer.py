@@ -29,11 +29,10 @@ import pybullet_data
 
 from ..description_files import UrdfSyntaxError, read_urdf_document, urdf_file_path
 from ..run_directory import path_inside
-from .objects import ObjectLoadError, ObjectSet, ObjectSpec, objects_root, sagp_cache_root
+from .objects import METADATA_FILE, ObjectLoadError, ObjectSet, ObjectSpec, objects_root, sagp_cache_root
 
 TRANSFER_DIR = "transfer"
 INDEX_FILE = "objects.json"
-METADATA_FILE = "metadata.json"
 # MTL statements whose last field names a texture file (options come before it).
 _MTL_TEXTURE_STATEMENTS = ("map_", "bump", "disp", "decal", "refl", "norm")
 

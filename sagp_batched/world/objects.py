@@ -39,6 +39,8 @@ PYBULLET_DATA_SET = "pybullet_data"
 EMBEDDED_YCB_SOURCE = "embedded compact YCB"
 # Top-level keys of ``objects.json`` that describe the directory, not an object (the compact copy's provenance).
 INDEX_METADATA_KEYS = frozenset({"compact"})
+# Beside an imported object's URDF: its import record (the solid's mass, density, volume, inertia; its source).
+METADATA_FILE = "metadata.json"
 
 # The published study's asymmetric objects: those with a functional region geometry alone does not reveal.
 # The flag of an ``objects.json`` entry without an ``asymmetric`` key (the YCB sets' entries have none).
