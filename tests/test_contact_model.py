@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from sagp_batched.config import Config
@@ -141,10 +142,11 @@ def test_the_pads_crown_is_the_layer_s_compression_pressed_flat_with_the_grip_fo
     assert 0.0002 < pad.crown_m < 0.00025  # the Panda's 70 N on its 17.4 x 17.6 mm face
 
 
-def test_an_ideal_grip_slides_and_turns_only_past_its_thresholds():
+@pytest.mark.parametrize("gripper", ["franka_panda", "robotiq_2f85"])
+def test_an_ideal_grip_slides_and_turns_only_past_its_thresholds(gripper):
     import sagp_batched.benchmarks.analytic_grasps as analytic
 
-    cases = analytic.analytic_cases(analytic.analytic_config(Config()))
+    cases = analytic.analytic_cases(analytic.analytic_config(Config().override("planner", gripper=gripper)))
     for case in cases:
         motion = case.paper_motion.slide_m if case.measure == "slide" else case.paper_motion.turn_rad
         if case.paper_held:
@@ -153,6 +155,31 @@ def test_an_ideal_grip_slides_and_turns_only_past_its_thresholds():
             assert (0.003 < motion < 0.01) if case.measure == "slide" else (0.01 < motion < 0.05), (case.name, motion)
         counterpart = case.counterpart_motion.slide_m if case.measure == "slide" else case.counterpart_motion.turn_rad
         assert (counterpart > 0.0) == case.paper_held, case.name
+
+
+def test_a_linkage_grips_harder_the_more_the_object_pulls_its_pads_along_their_path():
+    """Fingers that slide press with the grip force whatever the load; a linkage's pads move away from the palm as they
+    close (the more the wider it stands), so holding an object up raises their normal force, and the box's sliding
+    threshold rises by 1 / (1 - mu k)."""
+    import sagp_batched.benchmarks.analytic_grasps as analytic
+    from sagp_batched.benchmarks.coulomb_slip import PinchGrip
+
+    panda = robot_of(Config()).gripper
+    assert [panda.pad_path_slope(width) for width in (0.01, 0.04, 0.079)] == [0.0, 0.0, 0.0]
+    robotiq_config = Config().override("planner", gripper="robotiq_2f85")
+    robotiq = robot_of(robotiq_config).gripper
+    slopes = [robotiq.pad_path_slope(fraction * robotiq.open_width_m) for fraction in (0.2, 0.5, 0.85)]
+    assert 0.0 < slopes[0] < slopes[1] < slopes[2] < 1.0
+    grip = PinchGrip(20.0, 0.45, 0.6)
+    up, down, across = np.array([0.0, -1.0]), np.array([0.0, 1.0]), np.array([1.0, 0.0])
+    assert grip.sliding_limit_n(up) == pytest.approx(18.0 / (1.0 - 0.27)) and grip.sliding_limit_n(down) == pytest.approx(18.0 / 1.27)
+    assert grip.sliding_limit_n(across) == grip.sliding_limit_n(np.zeros(2)) == pytest.approx(18.0)
+    config = analytic.analytic_config(robotiq_config)
+    box = {case.name: case for case in analytic.analytic_cases(config)}["box at its centre of mass mass x0.8"]
+    mu = engine_pad(config.execution, robot_of(config)).friction_factor * analytic.OBJECT_FRICTION
+    force, slope = config.execution.gripper_force_n, box.paper["pad_path_slope"]
+    assert slope == pytest.approx(robotiq.pad_path_slope(box.dimensions_m[1]), rel=1e-9) and 0.5 < slope < 0.7
+    assert box.paper["threshold"] == pytest.approx(2.0 * mu * force / ((9.81 + 13.0) * (1.0 - mu * slope)), rel=1e-6)
 
 
 def test_an_engine_answers_as_on_paper_by_the_nearer_paper_motion():

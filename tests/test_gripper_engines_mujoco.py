@@ -134,6 +134,34 @@ def test_the_pads_press_a_fixed_box_with_the_grip_force_across_the_stroke(engine
     assert not _warnings(engine)
 
 
+@pytest.mark.parametrize("fraction", [0.35, 0.85])
+def test_a_pull_along_the_approach_changes_the_pads_force_as_the_linkages_kinematics_say(engine, boxes_across, fraction):
+    """A linkage swings its pads on arcs: closing, they also move away from the palm, by the slope the URDF's kinematics
+    give (``pad_path_slope``). By virtual work, with the servo's force capped, a pull P on the box along the approach
+    (away from the palm, shared by the two pads' friction) adds slope x P / 2 to each pad's normal force, and a push
+    toward the palm takes as much away. The MJCF is Menagerie's model of the linkage, not the URDF: measured 0.27-0.72
+    N/N where the URDF's kinematics say 0.17-0.66 (the 2F-85 at 35 % of its opening the farthest)."""
+    width = round(fraction * engine.robot.gripper.open_width_m, 4)
+    pull_n, forces = 30.0, {}
+    for pull in (pull_n, -pull_n):
+        _build(engine, boxes_across[width], [0.0, 0.0, boxes_across[width].extents_m[2] / 2])
+        model, data, world = engine.world.model, engine.data, engine.world
+        engine.command_fingers(0.0)
+        pressed = []
+        for step in range(480):
+            world.cap_grip_force(data)
+            # The hand is top-down: the approach is the world's -z. The pull starts once the fingers have closed.
+            data.xfrc_applied[world.object_body, 2] = -pull if step >= 120 else 0.0
+            for _ in range(engine.substeps):
+                mujoco.mj_step(model, data)
+            if step >= 240:
+                pressed.append(_pad_normal_forces_n(engine))
+        forces[pull] = np.mean(pressed, axis=0)
+        assert not _warnings(engine)
+    measured_slope = (forces[pull_n] - forces[-pull_n]) / pull_n
+    assert measured_slope == pytest.approx([engine.robot.gripper.pad_path_slope(width)] * 2, abs=0.13)
+
+
 def _designed_grasps(gripper, box) -> GraspPoses:
     """Top-down across the box's 5 cm side: at its centre, held; with both fingers beside its end, dropped. The
     grasp target 2 cm below the top, or higher where the open fingers would reach into the table (their

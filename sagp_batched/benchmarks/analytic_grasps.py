@@ -6,17 +6,20 @@ in the floating protocol gravity pulls along the same -z): the grasp's z (approa
 closing axis) and x horizontal. Gravity g and the protocol's peaks act on the object in separate windows: the
 lift (``lift_peak_m_s2``, up), the shake along the grasp's x, y and z (``[labelling.shake]``, one axis at a time)
 and about them. Two pads each press with the grip force F and friction mu = the pad's factor times the
-object's. A case holds on paper iff, in every window,
+object's; a linkage's pads, which move along the approach as they close, press with N = F / (1 + mu k d_z)
+where the grip's force on the object points along d (k the pads' path slope at the object's width:
+``coulomb_slip.PinchGrip``, from the gripper's kinematics; N = F for fingers that slide). A case holds on paper
+iff, in every window (``window_loads``),
 
-* sliding: the force the pads' friction must carry in their plane is within ``2 mu F``: ``m (g + a_z)`` along
-  the vertical (the largest of the lift's and the shake's z peaks), ``m sqrt(g^2 + a_x^2)`` along x, ``m (g +
-  alpha r)`` while turning about the grasp target (r the centre of mass's distance from it); along the
-  closing axis both pads keep pressing with F (their drives are force-limited, so the object lags the hand
-  rather than loading one pad), which leaves the limit as it is;
+* sliding: the force the pads' friction must carry in their plane is within ``2 mu N``: ``m (g + a_z)`` along
+  the vertical (the largest of the lift's and the shake's z peaks; ``m (a_z - g)`` the other way), ``m sqrt(g^2 +
+  a_x^2)`` along x and down, ``m (g + alpha d)`` while turning about the grasp target (d the centre of mass's
+  distance from it along x); along the closing axis both pads keep pressing (their drives are force-limited,
+  so the object lags the hand rather than loading one pad), which leaves the limit as it is;
 * torsion: the torque about the closing axis (the pads' normal) is within the two pads' torsional limits
-  (``contact_model.pad_torsional_limit_n_m`` for the surface the pads press on): ``m (g + a_z) d`` for a centre
-  of mass d from the pads along x, ``m (g d + a_x h)`` in the x window (h its height above them), ``m g d +
-  (I + m r^2) alpha`` while turning about the closing axis.
+  (mu N times the torsional radius of the surface the pads press on at the grip force, ``contact_model.patch``:
+  exact on a flat face, whose pressure stays uniform): ``m (g + a_z) d``, ``m (g d + a_x h)`` in the x window
+  (h its height above them), ``m g d + (I + m r^2) alpha`` while turning about the closing axis (r = |(d, h)|).
 
 Past a threshold an ideal grip does not let go: it lets the object slide (or turn) while the load exceeds
 its limit, near the peak, and grips it again as the load falls (``coulomb_slip``: 5.2 mm of slide for a
@@ -49,12 +52,12 @@ from sagp_batched_kernels.grasp_frames import grasp_rotations
 from ..config import Config
 from ..config.run import LABEL_PROTOCOLS
 from ..datasets.engines import ENGINES
-from ..execution.contact_model import ContactSurface, RubberPad, engine_pad, pad_torsional_limit_n_m
+from ..execution.contact_model import ContactSurface, RubberPad, engine_pad, patch
 from ..grasps import GraspPoses
 from ..robot.description import RobotDescription, robot_of
 from ..robot.hand import load_hand_geometry
 from ..world.mesh_settings import MeshImportSettings
-from .coulomb_slip import PaperMotion, coulomb_motion
+from .coulomb_slip import PaperMotion, PinchGrip, coulomb_motion
 from .designed_grasps import FINGERTIP_TABLE_CLEARANCE_M
 
 # Each case at its threshold times (1 - MARGIN) and (1 + MARGIN).
@@ -67,6 +70,8 @@ BAR_SLIDING_SHARE = 0.15
 # objects this much narrower than the opening; a resting face this much wider than the object is tall.
 PAD_COVER_M, OPENING_SPARE_M, RESTING_SPARE_M = 0.002, 0.012, 0.006
 BAR_LENGTH_M, BOX_LENGTH_M = 0.30, 0.10
+# A bar is made longer where the pads past its torsion threshold would reach within this of its end.
+BAR_END_SPARE_M = 0.01
 DOWN = np.array([0.0, 0.0, -1.0])
 # A light grip, so the masses at the thresholds are those of hand-sized objects of common densities (the box
 # 0.4 kg in 110 cm^3 with the Panda); the gripper's least force where that is more.
@@ -113,21 +118,37 @@ def lift_peak_m_s2(config: Config) -> float:
     return (math.pi / duration) ** 2 * config.motion.lift_height_m / 2.0
 
 
-def worst_loads(config: Config, mass_kg: float, inertia_kg_m2: float, offset_x_m: float, height_m: float) -> tuple[float, float]:
-    """(sliding force N, torque N m about the closing axis): the worst over the lift's and the shake's windows
-    of an object of ``mass_kg`` and moment of inertia ``inertia_kg_m2`` about its centre of mass (about the
-    closing axis), its centre of mass ``offset_x_m`` from the pads along the grasp's x and ``height_m`` above them."""
+def window_loads(config: Config, mass_kg: float, inertia_kg_m2: float, offset_x_m: float, height_m: float) -> list[tuple[np.ndarray, float]]:
+    """Per window of the lift and the shake, the worst loads on the pads of an object of ``mass_kg`` and moment of
+    inertia ``inertia_kg_m2`` about its centre of mass (about the closing axis), its centre of mass ``offset_x_m``
+    from the pads along the grasp's x and ``height_m`` above them: the force the grip must give the object in the
+    pads' plane (grasp x, grasp z: the approach, down here, so holding it up is negative) and the torque about the
+    closing axis."""
     shake = config.labelling.shake
     if shake.linear_with_angular:
         raise ValueError("the analytic cases take the shake one axis at a time ([labelling.shake] linear_with_angular = false)")
     g = abs(config.scene.gravity_m_s2)
     (a_x, _, a_z), (_, alpha_y, _) = shake.linear_peak_acceleration_m_s2, shake.angular_peak_acceleration_rad_s2
     vertical = g + max(a_z, lift_peak_m_s2(config))
-    lever = math.hypot(offset_x_m, height_m)
-    sliding = mass_kg * max(vertical, math.hypot(g, a_x), g + alpha_y * lever)
-    torque = max(mass_kg * vertical * abs(offset_x_m), mass_kg * (g * abs(offset_x_m) + a_x * abs(height_m)),
-                 mass_kg * g * abs(offset_x_m) + (inertia_kg_m2 + mass_kg * lever**2) * alpha_y)
-    return sliding, torque
+    d, h = abs(offset_x_m), abs(height_m)
+    turning = (inertia_kg_m2 + mass_kg * (d**2 + h**2)) * alpha_y
+    return [(np.array([0.0, -mass_kg * vertical]), mass_kg * vertical * d),
+            (np.array([0.0, mass_kg * (a_z - g)]), mass_kg * abs(a_z - g) * d),
+            (np.array([mass_kg * a_x, -mass_kg * g]), mass_kg * (g * d + a_x * h)),
+            (np.array([mass_kg * alpha_y * h, -mass_kg * (g + alpha_y * d)]), mass_kg * g * d + turning)]
+
+
+def carried(grip: PinchGrip, torsional_radius_m: float, windows: list[tuple[np.ndarray, float]]) -> dict[str, float]:
+    """The window that loads the pads' sliding friction most against its limit, and the one that loads their torsion
+    most: {sliding_n, sliding_limit_n, torque_n_m, torsion_limit_n_m}."""
+    sliding, torsion = [], []
+    for force, torque in windows:
+        load = float(np.linalg.norm(force))
+        direction = force / load if load > 0.0 else np.zeros(2)
+        sliding.append((load, grip.sliding_limit_n(direction)))
+        torsion.append((torque, 2.0 * grip.friction * grip.normal_force_n(direction) * torsional_radius_m))
+    (load, limit), (torque, torsion_limit) = (max(pairs, key=lambda pair: pair[0] / pair[1]) for pairs in (sliding, torsion))
+    return {"sliding_n": load, "sliding_limit_n": limit, "torque_n_m": torque, "torsion_limit_n_m": torsion_limit}
 
 
 def _pad_geometry(robot: RobotDescription) -> tuple[float, float]:
@@ -148,29 +169,36 @@ def analytic_cases(config: Config) -> list[Case]:
     pad_top, fingertip = _pad_geometry(robot)
     target_height = fingertip + FINGERTIP_TABLE_CLEARANCE_M  # the fingertips clear the table below
     opening = robot.gripper.open_width_m
-    sliding_limit = 2.0 * mu * force
     cases: list[Case] = []
-    grip = (pad, force, mu)
+
+    def grip_across(width_m: float) -> PinchGrip:
+        """The pads' grip on an object ``width_m`` wide along the closing axis, where they stand."""
+        return PinchGrip(force, mu, robot.gripper.pad_path_slope(width_m))
 
     # The box and the bar: tall enough that the pad's face is on their side, resting on a face wider than tall.
     height = 2.0 * max(target_height, pad_top + PAD_COVER_M)
     width = min(height + RESTING_SPARE_M, opening - OPENING_SPARE_M)
     box = (BOX_LENGTH_M, width, height)
     box_inertia = (box[0] ** 2 + box[2] ** 2) / 12.0  # per kg, about the closing axis (y)
-    box_mass = _mass_threshold(config, sliding_limit, box_inertia)
-    cases += _either_side(config, grip, "box at its centre of mass", "box", box, (0.0, 0.0, height / 2), (0.0, 1.0, 0.0),
-                          ContactSurface(), box_mass, "mass", lambda m: (m, *worst_loads(config, m, m * box_inertia, 0.0, 0.0)),
-                          box_inertia)
+    flat = ContactSurface()
+    cases += _either_side(config, pad, grip_across(width), "box at its centre of mass", "box", box, (0.0, 0.0, height / 2), (0.0, 1.0, 0.0),
+                          flat, "mass", lambda m: (m, window_loads(config, m, m * box_inertia, 0.0, 0.0)), box_inertia)
 
-    bar = (BAR_LENGTH_M, width, height)
-    bar_inertia = (bar[0] ** 2 + bar[2] ** 2) / 12.0
-    vertical = abs(config.scene.gravity_m_s2) + max(config.labelling.shake.linear_peak_acceleration_m_s2[2], lift_peak_m_s2(config))
-    bar_mass = BAR_SLIDING_SHARE * sliding_limit / vertical
-    torsion_limit = 2.0 * pad_torsional_limit_n_m(pad, force, mu, ContactSurface())
-    bar_distance = _distance_threshold(config, bar_mass, bar_mass * bar_inertia, torsion_limit)
-    cases += _either_side(config, grip, "bar", "box", bar, (0.0, 0.0, height / 2), (0.0, 1.0, 0.0), ContactSurface(), bar_distance,
-                          "distance", lambda d: (bar_mass, *worst_loads(config, bar_mass, bar_mass * bar_inertia, d, 0.0)),
-                          bar_inertia)
+    # The bar's mass slides at BAR_SLIDING_SHARE of the limit in the vertical window, the worst for sliding.
+    vertical_force, _ = window_loads(config, 1.0, 0.0, 0.0, 0.0)[0]
+    vertical = float(np.linalg.norm(vertical_force))
+    bar_mass = BAR_SLIDING_SHARE * grip_across(width).sliding_limit_n(vertical_force / vertical) / vertical
+    length = BAR_LENGTH_M
+    while True:  # long enough that the pads stay on it past the threshold (a longer one turns harder in the shake: nearer)
+        bar = (length, width, height)
+        bar_inertia = (bar[0] ** 2 + bar[2] ** 2) / 12.0
+        bar_cases = _either_side(config, pad, grip_across(width), "bar", "box", bar, (0.0, 0.0, height / 2), (0.0, 1.0, 0.0), flat,
+                                 "distance", lambda d: (bar_mass, window_loads(config, bar_mass, bar_mass * bar_inertia, d, 0.0)), bar_inertia)
+        reach = max(case.target_m[0] for case in bar_cases) + pad.face_m[0] / 2.0
+        if reach <= length / 2.0:
+            break
+        length = 2.0 * (reach + BAR_END_SPARE_M)
+    cases += bar_cases
 
     # The cylinders lie along x; across: pinched on their curved side at the axis' height, their axis along the
     # pad's width; along: pinched on their flat ends, which are narrower than the pad's face where it is small.
@@ -178,63 +206,60 @@ def analytic_cases(config: Config) -> list[Case]:
     across = (radius, 4.0 * radius + 0.02)
     across_inertia = (3.0 * radius**2 + across[1] ** 2) / 12.0
     curved = ContactSurface(curvature_radius_m=radius, cylinder_axis="width")
-    cases += _either_side(config, grip, "cylinder across its axis", "cylinder", across, (0.0, 0.0, radius), (0.0, 1.0, 0.0),
-                          curved, _mass_threshold(config, sliding_limit, across_inertia), "mass",
-                          lambda m: (m, *worst_loads(config, m, m * across_inertia, 0.0, 0.0)), across_inertia)
+    cases += _either_side(config, pad, grip_across(2.0 * radius), "cylinder across its axis", "cylinder", across, (0.0, 0.0, radius),
+                          (0.0, 1.0, 0.0), curved, "mass", lambda m: (m, window_loads(config, m, m * across_inertia, 0.0, 0.0)), across_inertia)
     along = (radius, min(opening - OPENING_SPARE_M, 2.0 * radius + 2.0 * RESTING_SPARE_M + 0.01))
     ends = ContactSurface(face_radius_m=radius)
     along_inertia = radius**2 / 2.0  # about its own axis, which is the closing axis
-    cases += _either_side(config, grip, "cylinder along its axis", "cylinder", along, (0.0, 0.0, radius), (1.0, 0.0, 0.0),
-                          ends, _mass_threshold(config, sliding_limit, along_inertia), "mass",
-                          lambda m: (m, *worst_loads(config, m, m * along_inertia, 0.0, 0.0)), along_inertia)
+    cases += _either_side(config, pad, grip_across(along[1]), "cylinder along its axis", "cylinder", along, (0.0, 0.0, radius),
+                          (1.0, 0.0, 0.0), ends, "mass", lambda m: (m, window_loads(config, m, m * along_inertia, 0.0, 0.0)), along_inertia)
     return cases
 
 
-def _either_side(config: Config, grip: tuple[RubberPad, float, float], name: str, shape: str, dimensions: tuple[float, ...],
-                 target: tuple[float, float, float], closing: tuple[float, float, float], surface: ContactSurface, threshold: float,
-                 vary: str, loads, inertia_per_kg: float) -> list[Case]:
-    """The case either side of ``threshold`` (of the mass or the distance ``vary``) for the pads ``grip`` (the
-    pad, the grip force, mu); ``loads(value)`` the mass, the sliding force and the torque it then asks of the
-    pads; ``inertia_per_kg`` the object's moment of inertia about the closing axis per kg of its mass."""
-    pad, force, mu = grip
-    sliding_limit = 2.0 * mu * force
+def _either_side(config: Config, pad: RubberPad, grip: PinchGrip, name: str, shape: str, dimensions: tuple[float, ...],
+                 target: tuple[float, float, float], closing: tuple[float, float, float], surface: ContactSurface, vary: str, loads,
+                 inertia_per_kg: float) -> list[Case]:
+    """The case either side of the threshold of the mass or the distance (``vary``) for ``pad`` gripping with
+    ``grip``; ``loads(value)`` the mass and its ``window_loads``; ``inertia_per_kg`` the object's moment of inertia
+    about the closing axis per kg of its mass."""
+    torsional_radius = patch(pad, grip.force_n, surface).torsional_radius_m
+
+    def carried_at(value: float) -> dict[str, float]:
+        return carried(grip, torsional_radius, loads(value)[1])
+
+    measure = "sliding_n" if vary == "mass" else "torque_n_m"
+    limit = "sliding_limit_n" if vary == "mass" else "torsion_limit_n_m"
+    threshold = _threshold(lambda value: carried_at(value)[measure] / carried_at(value)[limit],
+                           dimensions[0] / 2.0 if vary == "distance" else None, f"{name}'s {vary}")
     cases, sides = [], []
-    torsion_limit = 2.0 * pad_torsional_limit_n_m(pad, force, mu, surface)
     rotation = grasp_rotations(torch.tensor(closing, dtype=torch.float64), torch.tensor(DOWN)).numpy()
     for factor in (1.0 - MARGIN, 1.0 + MARGIN):
         value = threshold * factor
-        mass, sliding, torque = loads(value)
+        mass, _ = loads(value)
         at = target if vary == "mass" else (value, target[1], target[2])
-        motion = coulomb_motion(config, rotation, mass, mass * inertia_per_kg, at[0], sliding_limit, torsion_limit)
-        sides.append((factor, value, mass, sliding, torque, at, motion))
-    for (factor, value, mass, sliding, torque, at, motion), other in zip(sides, reversed(sides)):
-        held = sliding <= sliding_limit and torque <= torsion_limit
-        paper = {vary: value, "threshold": threshold, "sliding_n": sliding, "sliding_limit_n": sliding_limit, "torque_n_m": torque,
-                 "torsion_limit_n_m": torsion_limit, "patch_radius_m": _patch_radius(pad, force, surface)}
+        motion = coulomb_motion(config, rotation, mass, mass * inertia_per_kg, at[0], grip, torsional_radius)
+        sides.append((factor, value, mass, carried_at(value), at, motion))
+    for (factor, value, mass, paper, at, motion), other in zip(sides, reversed(sides)):
+        held = paper["sliding_n"] <= paper["sliding_limit_n"] and paper["torque_n_m"] <= paper["torsion_limit_n_m"]
+        paper = {vary: value, "threshold": threshold, **paper, "pad_path_slope": grip.path_slope,
+                 "patch_radius_m": patch(pad, grip.force_n, surface).radius_m}
         cases.append(Case(f"{name} {vary} x{factor:.1f}", shape, dimensions, mass, at, closing, surface, held, motion,
                           "slide" if vary == "mass" else "turn", other[-1], paper))
     return cases
 
 
-def _patch_radius(pad: RubberPad, force: float, surface: ContactSurface) -> float:
-    from ..execution.contact_model import patch
-
-    return patch(pad, force, surface).radius_m
-
-
-def _mass_threshold(config: Config, sliding_limit: float, inertia_per_kg: float) -> float:
-    """The mass at which the worst sliding force reaches ``sliding_limit`` (loads grow with the mass)."""
-    return sliding_limit / worst_loads(config, 1.0, inertia_per_kg, 0.0, 0.0)[0]
-
-
-def _distance_threshold(config: Config, mass: float, inertia: float, torsion_limit: float) -> float:
-    """The centre-of-mass distance at which the worst torque reaches ``torsion_limit``, by bisection."""
-    low, high = 0.0, BAR_LENGTH_M / 2.0
-    if worst_loads(config, mass, inertia, 0.0, 0.0)[1] >= torsion_limit or worst_loads(config, mass, inertia, high, 0.0)[1] <= torsion_limit:
-        raise ValueError(f"the bar's torsion threshold is not within its half length: limit {torsion_limit:.4f} N m")
+def _threshold(ratio, upper: float | None, what: str) -> float:
+    """Where ``ratio(value)``, a load over its limit that grows with the value, reaches 1: in closed form for a mass
+    (loads and, through a linkage, limits grow in proportion to it: ``upper`` None), else by bisection on
+    (0, ``upper``)."""
+    if upper is None:
+        return 1.0 / ratio(1.0)
+    low, high = 0.0, upper
+    if ratio(low) >= 1.0 or ratio(high) <= 1.0:
+        raise ValueError(f"the {what} threshold is not within (0, {upper:g})")
     for _ in range(60):
         middle = 0.5 * (low + high)
-        low, high = (middle, high) if worst_loads(config, mass, inertia, middle, 0.0)[1] < torsion_limit else (low, middle)
+        low, high = (middle, high) if ratio(middle) < 1.0 else (low, middle)
     return 0.5 * (low + high)
 
 
@@ -324,12 +349,14 @@ def analytic_markdown(report: dict[str, Any]) -> str:
              "nearer the ideal grip's motion for this case than for its counterpart across the threshold. The paper's answers: "
              "whether the grip carries the worst load, and the motion an ideal Coulomb grip allows over the shake. Each "
              "engine's cell: the object's slide and turn in the hand over the shake, or where it was dropped.", "",
-             "| case | mass (kg) | load / limit (sliding, torsion) | grip carries the peak | paper motion | " + " | ".join(keys) + " |",
-             "|---|---:|---|---|---|" + "---|" * len(keys)]
+             "| case | mass (kg) | load / limit (sliding, torsion) | pad path slope | grip carries the peak | paper motion | "
+             + " | ".join(keys) + " |",
+             "|---|---:|---|---:|---|---|" + "---|" * len(keys)]
     for row in report["cases"]:
         paper = row["paper"]
         loads = f"{paper['sliding_n']:.2f}/{paper['sliding_limit_n']:.2f} N, {paper['torque_n_m']:.4f}/{paper['torsion_limit_n_m']:.4f} N m"
         cells = [_engine_motion(o) + ("" if o["as_on_paper"] else " **x**") for o in row["outcomes"].values()]
-        lines.append(f"| {row['case']} | {row['mass_kg']:.3f} | {loads} | {'yes' if row['paper_held'] else 'no'} | {_paper_motion(row)} | "
+        lines.append(f"| {row['case']} | {row['mass_kg']:.3f} | {loads} | {paper['pad_path_slope']:.2f} | "
+                     f"{'yes' if row['paper_held'] else 'no'} | {_paper_motion(row)} | "
                      + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -22,6 +22,9 @@ from .. import description_files
 FINGER_MOTIONS = ("slide", "linkage")
 # Driven-joint values the linkage's opening is tabulated at, between the joint's limits.
 LINKAGE_SAMPLES = 161
+# A pad's path is followed this far (rad) either side of a driven joint's value; its face is the hull's vertices this near (m)
+# the closing plane's nearest.
+PAD_PATH_STEP_RAD, PAD_FACE_SPREAD_M = 1e-4, 5e-4
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,16 @@ class GripperDescription:
         values, closing_rates = linkage_closing_rates(self)
         return float(np.interp(joint_value, values, closing_rates))
 
+    def pad_path_slope(self, width_m: float) -> float:
+        """How far each pad moves along the approach, away from the palm, per metre it moves toward the
+        closing plane as the fingers close through the opening ``width_m``: 0 for fingers that slide, more
+        the wider a linkage stands (it swings its pads on arcs). By virtual work, with the drive's force
+        fixed, a force the object puts on a pad along its path adds this times itself to the pad's normal
+        force (``benchmarks.coulomb_slip.PinchGrip``)."""
+        if self.finger_motion == "slide":
+            return 0.0
+        return _pad_path_slope(self, self.finger_joint_value(width_m))
+
     def mujoco_value(self, key: str):
         return dict(self.mujoco)[key]
 
@@ -111,6 +124,32 @@ def linkage_closing_rates(gripper: GripperDescription) -> tuple[np.ndarray, np.n
     """(driven joint values, |d gap / d value| there, m per radian): how fast the pads close along the stroke."""
     values, gaps = linkage_table(gripper)
     return values, np.abs(np.gradient(gaps, values))
+
+
+def _pad_path_slope(gripper: GripperDescription, joint_value: float) -> float:
+    """``GripperDescription.pad_path_slope`` of a linkage at its driven joint's ``joint_value``: the centre of each
+    pad's face (its hull's vertices within ``PAD_FACE_SPREAD_M`` of the closing plane's nearest), a point fixed in
+    the pad, followed by the URDF's kinematics over ``PAD_PATH_STEP_RAD`` either side (within the joint's limits),
+    in the base link's frame (z the approach, y the closing axis); the mean of the pads."""
+    hulls = description_files.link_hulls(gripper.urdf_path, gripper.pad_links)
+    lower, upper = description_files.joint_limits(gripper.urdf_path, gripper.finger_joints[0])
+
+    def pad_frames(value: float) -> dict[str, np.ndarray]:
+        poses = description_files.link_poses(gripper.urdf_path, {joint: value for joint in gripper.finger_joints})
+        base = np.linalg.inv(poses[gripper.base_link])
+        return {link: base @ poses[link] for link in gripper.pad_links}
+
+    at = pad_frames(joint_value)
+    first, second = (pad_frames(min(max(joint_value + step, lower), upper)) for step in (-PAD_PATH_STEP_RAD, PAD_PATH_STEP_RAD))
+    slopes = []
+    for link in gripper.pad_links:
+        placed = hulls[link] @ at[link][:3, :3].T + at[link][:3, 3]
+        inward = np.abs(placed[:, 1])
+        face_centre = hulls[link][inward <= inward.min() + PAD_FACE_SPREAD_M].mean(axis=0)
+        start, end = (frames[link][:3, :3] @ face_centre + frames[link][:3, 3] for frames in (first, second))
+        moved_in = np.sign(start[1]) * (start[1] - end[1])
+        slopes.append((end[2] - start[2]) / moved_in)
+    return float(np.mean(slopes))
 
 
 def pad_gap_m(gripper: GripperDescription, joint_value: float) -> float:
