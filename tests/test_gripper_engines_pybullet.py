@@ -119,3 +119,20 @@ def test_a_grasp_across_the_box_is_held_and_one_beside_its_end_dropped(gripper, 
     poses = _designed_grasps(designed_box, load_gripper(gripper), table=protocol == "tabletop")
     labels = label_object_grasps(designed_box, poses, None, protocol, config, engine="pybullet")
     assert [(label.held, label.simulated) for label in labels] == [(True, True), (False, True)], [label.failure_reason for label in labels]
+
+
+def test_a_cylinder_pinched_below_its_sliding_limit_stays_put_through_the_lift_and_past_it_slides_as_an_ideal_grip():
+    """The 2F-85's world steps in 8 substeps; PyBullet's own substepping met the hand's carrying constraint's target once
+    a protocol step, and the hand jerked there within the first substeps: this cylinder, pinched across its axis at 0.8
+    of its sliding threshold, crept 21 mm down the pads in the lift and fell. The engine steps each substep itself, the
+    target on a straight line through them."""
+    import sagp_batched.benchmarks.analytic_grasps as analytic
+
+    config = Config().override("planner", gripper="robotiq_2f85")
+    chosen = ("cylinder across its axis mass x0.8", "cylinder across its axis mass x1.2")
+    cases = [case for case in analytic.analytic_cases(analytic.analytic_config(config)) if case.name in chosen]
+    rows = analytic.analytic_grasps(config, engines=("pybullet",), protocols=("floating",), note=lambda line: None, cases=cases)["cases"]
+    below, past = ({row["case"]: row for row in rows}[name] for name in chosen)
+    assert below["outcomes"]["pybullet/floating"]["as_on_paper"] and below["outcomes"]["pybullet/floating"]["slip_mm"] < 1.0, below
+    assert past["outcomes"]["pybullet/floating"]["as_on_paper"], past
+    assert past["outcomes"]["pybullet/floating"]["slip_mm"] == pytest.approx(past["paper_slide_mm"], abs=1.5), past

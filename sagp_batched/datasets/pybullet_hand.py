@@ -13,6 +13,12 @@ from the linkage's leverage, so each pad presses with the grip force wherever th
 steps in the gripper's ``pybullet_substeps`` with its ``pybullet_solver_iterations``, without which the
 gears give under the grip and the pads tilt onto the finger links behind them.
 
+Substeps are stepped here, one ``stepSimulation`` each, not by PyBullet's ``numSubSteps``: the hand's
+carrying constraint would then meet a target that jumps once a protocol step and pull the hand there within
+its first substeps, a saw-tooth at the protocol's rate whose peaks passed the pads' friction (a cylinder
+pinched by the 2F-85 at 0.4 of its sliding limit crept 21 mm down the pads in the lift and fell). The
+target moves on a straight line through a step's substeps instead, as MuJoCo's weld target does.
+
 Simulations do not share a world: PyBullet's solver stops on the residual of the whole world, sorts
 constraints and contact manifolds by island with an unstable quicksort (the several manifolds between a
 finger and a decomposed object tie, so their order depends on the other pairs' bodies), and drops stale
@@ -64,6 +70,7 @@ class PyBulletHand:
         self._object_urdfs: dict[str, str] = {}
         self.table: int | None = None
         self.step_division = 1
+        self.substeps = 1
         self.steps_taken = 0
 
     def _object_urdf(self, spec: ObjectSpec) -> str:
@@ -94,11 +101,12 @@ class PyBulletHand:
                                            solverResidualThreshold=config.labelling.pybullet_solver_residual_threshold, physicsClientId=client)
         if self.gripper.finger_motion == "linkage":
             iterations = self.gripper.pybullet_solver_iterations or config.scene.solver_iterations
-            pybullet.setPhysicsEngineParameter(numSubSteps=self.gripper.pybullet_substeps * self.step_division,
-                                               numSolverIterations=iterations, physicsClientId=client)
-        else:  # 0: one step a step; the client keeps a division past resetSimulation
-            pybullet.setPhysicsEngineParameter(numSubSteps=self.step_division if self.step_division > 1 else 0,
-                                               numSolverIterations=solver_iterations(config, spec.mass_kg), physicsClientId=client)
+            self.substeps = self.gripper.pybullet_substeps * self.step_division
+        else:
+            iterations, self.substeps = solver_iterations(config, spec.mass_kg), self.step_division
+        # numSubSteps 0: one stepSimulation a substep (``step``); the client keeps settings past resetSimulation.
+        pybullet.setPhysicsEngineParameter(fixedTimeStep=config.scene.time_step_s / self.substeps, numSubSteps=0,
+                                           numSolverIterations=iterations, physicsClientId=client)
         self.steps_taken = 0
         self.table = create_table(client, config.scene) if start.table else None
         try:
@@ -136,7 +144,8 @@ class PyBulletHand:
             physicsClientId=client,
         )
         self.quat = tuple(quat)
-        self.move(hand_position)
+        self.hand_goal = self.hand_goal_before = (tuple(map(float, hand_position)), self.quat)
+        self._place_target(*self.hand_goal)
 
     # -- motion --------------------------------------------------------------------------------------
     def set_gravity(self, on: bool) -> None:
@@ -150,10 +159,22 @@ class PyBulletHand:
             self._drive_linkage()
 
     def step(self, steps: int) -> None:
+        """``steps`` protocol steps, the first carrying the hand's target to where ``move`` last sent it on a
+        straight line through its substeps (its orientation by slerp); a linkage's drive set every substep."""
+        linkage = self.gripper.finger_motion == "linkage"
         for _ in range(steps):
-            if self.gripper.finger_motion == "linkage":
-                self._drive_linkage()
-            pybullet.stepSimulation(physicsClientId=self.client)
+            (start, start_quat), (end, end_quat) = self.hand_goal_before, self.hand_goal
+            for substep in range(1, self.substeps + 1):
+                if substep == self.substeps and self.hand_goal != self.hand_goal_before:
+                    self._place_target(end, end_quat)  # each step ends on its target to the last digit
+                elif self.hand_goal != self.hand_goal_before:
+                    fraction = substep / self.substeps
+                    self._place_target([a + (b - a) * fraction for a, b in zip(start, end)],
+                                       pybullet.getQuaternionSlerp(start_quat, end_quat, fraction))
+                if linkage:
+                    self._drive_linkage()
+                pybullet.stepSimulation(physicsClientId=self.client)
+            self.hand_goal_before = self.hand_goal
         self.steps_taken += max(steps, 0)
 
     def _tie_linkage(self, joints: dict[str, int]) -> None:
@@ -200,9 +221,12 @@ class PyBulletHand:
                                            forces=[torque] * len(self.finger_joints), physicsClientId=client)
 
     def move(self, position: Sequence[float], quat: Sequence[float] | None = None) -> None:
-        """Send the hand's grasp target toward a pose; it follows over the next steps."""
+        """Send the hand's grasp target toward a pose: the next step carries the constraint's target there."""
+        self.hand_goal = (tuple(map(float, position)), tuple(map(float, quat or self.quat)))
+
+    def _place_target(self, position: Sequence[float], quat: Sequence[float]) -> None:
         pybullet.changeConstraint(
-            self.constraint, jointChildPivot=list(position), jointChildFrameOrientation=list(quat or self.quat),
+            self.constraint, jointChildPivot=list(position), jointChildFrameOrientation=list(quat),
             maxForce=self.config.labelling.hand_constraint_max_force_n, physicsClientId=self.client,
         )
 
