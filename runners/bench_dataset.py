@@ -2,7 +2,7 @@
 
     python -m runners.bench_dataset --json OUT.json [--objects-dir DIR] [--object 025_mug[,...]]
         [--hand-grasps 400] [--label-engines pybullet,mujoco] [--protocols tabletop,floating] [--arm-grasps 60]
-        [--workers 1,2] [--repeats 3] [--pairs N] [--shared-world-pairs 1,4,16]
+        [--workers 1,2] [--repeats 3] [--pairs N] [--shared-world-pairs 1,4,16] [--gripper NAME]
 
 Every case is the real dataset run of the objects into a fresh directory (one plan per capture, the
 grasps spread over the workers): hand mode in each engine and protocol, arm mode in PyBullet; medians
@@ -60,6 +60,7 @@ from sagp_batched.config.world import GRIPPERS
 from sagp_batched.datasets.engines import ENGINES
 from sagp_batched.datasets.protocols import label_protocol
 from sagp_batched.provenance import collect
+from sagp_batched.robot.description import robot_of
 from sagp_batched.runtime import configure_torch
 from sagp_batched.world.mesh_settings import MeshImportSettings
 from sagp_batched.world.objects import ObjectLoadError, ObjectSetError, UnknownObjectError, load_object_set
@@ -105,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--shared-world-pairs", default="1,4,16", help="hand-object pairs per world for the step-cost measure ('' skips)")
     parser.add_argument("--project-objects", type=int, default=1000)
     parser.add_argument("--project-grasps", type=int, default=2000)
+    parser.add_argument("--gripper", default=None, help="the gripper the speed cases and the analytic cases are made for (default: the profile's)")
     fidelity = parser.add_argument_group("label fidelity (--fidelity)")
     fidelity.add_argument("--fidelity", action="store_true", help="measure label fidelity instead of speed")
     fidelity.add_argument("--out", type=Path, help="folder the fidelity results are written to")
@@ -116,7 +118,6 @@ def build_parser() -> argparse.ArgumentParser:
     agreement.add_argument("--mujoco-variants", default="[{}]", help="JSON list of [labelling.mujoco] override tables, one a variant")
     analytic = parser.add_argument_group("analytic grasps (--analytic; --out, --label-engines and --protocols as above)")
     analytic.add_argument("--analytic", action="store_true", help="label grasps whose outcome is known on paper instead of speed")
-    analytic.add_argument("--gripper", default=None, help="the gripper the analytic cases are made for (default: the profile's)")
     fixed = parser.add_argument_group("labels changed on a fixed grasp set (--fixed-set; --out, --objects, --grasps, --label-engines as above)")
     fixed.add_argument("--fixed-set", type=Path, default=None, help="the grasp set (.npz) to label instead of speed; planned first where missing")
     fixed.add_argument("--fixed-protocol", default="floating", help="the protocol the fixed set is labelled in")
@@ -156,8 +157,14 @@ def _speed_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
              if args.hand_grasps > 0]
     cases += [DatasetCase("arm", args.arm_grasps)] if args.arm_grasps > 0 else []
     object_ids = [part.strip() for part in args.object.split(",") if part.strip()]
+    if args.gripper is not None and args.gripper not in GRIPPERS:
+        print(f"error: --gripper takes one of {', '.join(GRIPPERS)}, got {args.gripper!r}", file=sys.stderr)
+        return 2
+    planner = {key: value for key, value in (("n_pairs", args.pairs), ("gripper", args.gripper)) if value is not None}
     try:
-        config = load_config(args.profile, overrides={"planner": {"n_pairs": args.pairs}} if args.pairs is not None else None)
+        config = load_config(args.profile, overrides={"planner": planner} if planner else None)
+        if pair_counts and robot_of(config).gripper.finger_motion != "slide":
+            raise ConfigError(f"--shared-world-pairs closes a slide gripper's fingers, not {config.planner.gripper}'s linkage: pass ''")
         for case in cases:  # an unknown engine or protocol is refused before any work
             dataclasses.replace(config.dataset, engines=(case.engine,), protocol=case.protocol)
         objects = load_object_set(args.objects_dir)

@@ -79,9 +79,23 @@ def test_dataset_bench_writes_rates_breakdown_projection_and_shared_world_cost(t
     assert report["provenance"]["git"] and report["provenance"]["config"]["dataset"]["mode"] == "hand"
 
 
+def test_dataset_bench_labels_with_the_gripper_named(tmp_path):
+    out = tmp_path / "dataset_bench.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "runners.bench_dataset", "--json", str(out), "--object", "005_tomato_soup_can", "--hand-grasps", "2",
+         "--label-engines", "pybullet", "--protocols", "floating", "--arm-grasps", "0", "--workers", "1", "--repeats", "1",
+         "--pairs", "1000", "--shared-world-pairs", "", "--gripper", "robotiq_2f85"],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads(out.read_text())
+    assert report["provenance"]["config"]["planner"]["gripper"] == "robotiq_2f85" and report["cases"][0]["labelled"] > 0
+
+
 @pytest.mark.parametrize("flags, named", [(["--object", "no_such"], "no_such"), (["--label-engines", "pybullet,flex"], "flex"),
-                                          (["--protocols", "upside_down"], "upside_down")])
-def test_dataset_bench_refuses_an_unknown_object_engine_or_protocol_in_one_line(tmp_path, flags, named):
+                                          (["--protocols", "upside_down"], "upside_down"), (["--gripper", "no_hand"], "no_hand"),
+                                          (["--gripper", "robotiq_2f85", "--shared-world-pairs", "1"], "shared-world-pairs")])
+def test_dataset_bench_refuses_an_unknown_object_engine_protocol_or_gripper_in_one_line(tmp_path, flags, named):
     done = subprocess.run([sys.executable, "-m", "runners.bench_dataset", "--json", str(tmp_path / "x.json"), *flags],
                           cwd=REPO, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith("error:") and named in done.stderr
