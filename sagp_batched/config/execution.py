@@ -221,7 +221,7 @@ class LabellingConfig(_Section):
     #: m/s at most, so past 10 m/s the solver, not the protocol, is moving it.
     divergence_speed_m_s: float = setting(10.0, above=0)
     #: A simulation that diverged is run once more with each step divided into this many more
-    #: (MuJoCo substeps, PyBullet ``numSubSteps``); where it diverges again the grasp is untested.
+    #: (each engine's substeps, the hand's target moved through them); where it diverges again the grasp is untested.
     divergence_step_division: int = setting(4, at_least=2, at_most=64)
 
 
