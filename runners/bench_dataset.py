@@ -132,6 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.gripper is not None and args.gripper not in GRIPPERS:
+        print(f"error: --gripper takes one of {', '.join(GRIPPERS)}, got {args.gripper!r}", file=sys.stderr)
+        return 2
     if args.fidelity:
         return _fidelity_main(parser, args)
     if args.engines:
@@ -157,9 +160,6 @@ def _speed_main(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
              if args.hand_grasps > 0]
     cases += [DatasetCase("arm", args.arm_grasps)] if args.arm_grasps > 0 else []
     object_ids = [part.strip() for part in args.object.split(",") if part.strip()]
-    if args.gripper is not None and args.gripper not in GRIPPERS:
-        print(f"error: --gripper takes one of {', '.join(GRIPPERS)}, got {args.gripper!r}", file=sys.stderr)
-        return 2
     planner = {key: value for key, value in (("n_pairs", args.pairs), ("gripper", args.gripper)) if value is not None}
     try:
         config = load_config(args.profile, overrides={"planner": planner} if planner else None)
@@ -306,8 +306,6 @@ def _analytic_main(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(f"--label-engines takes a comma list of {', '.join(ENGINES)}, got {args.label_engines!r}")
     if unknown_protocols or not protocols:
         parser.error(f"--protocols takes a comma list of {', '.join(LABEL_PROTOCOLS)}, got {args.protocols!r}")
-    if args.gripper is not None and args.gripper not in GRIPPERS:
-        parser.error(f"--gripper takes one of {', '.join(GRIPPERS)}, got {args.gripper!r}")
     try:
         config = load_config(args.profile, overrides={"planner": {"gripper": args.gripper}} if args.gripper else None)
     except ConfigError as exc:

@@ -145,15 +145,12 @@ def test_a_pull_along_the_approach_changes_the_pads_force_as_the_linkages_kinema
     pull_n, forces = 30.0, {}
     for pull in (pull_n, -pull_n):
         _build(engine, boxes_across[width], [0.0, 0.0, boxes_across[width].extents_m[2] / 2])
-        model, data, world = engine.world.model, engine.data, engine.world
         engine.command_fingers(0.0)
         pressed = []
         for step in range(480):
-            world.cap_grip_force(data)
             # The hand is top-down: the approach is the world's -z. The pull starts once the fingers have closed.
-            data.xfrc_applied[world.object_body, 2] = -pull if step >= 120 else 0.0
-            for _ in range(engine.substeps):
-                mujoco.mj_step(model, data)
+            engine.data.xfrc_applied[engine.world.object_body, 2] = -pull if step >= 120 else 0.0
+            engine.step(1)
             if step >= 240:
                 pressed.append(_pad_normal_forces_n(engine))
         forces[pull] = np.mean(pressed, axis=0)

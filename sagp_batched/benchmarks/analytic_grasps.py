@@ -52,7 +52,7 @@ from sagp_batched_kernels.grasp_frames import grasp_rotations
 from ..config import Config
 from ..config.run import LABEL_PROTOCOLS
 from ..datasets.engines import ENGINES
-from ..execution.contact_model import ContactSurface, RubberPad, engine_pad, patch
+from ..execution.contact_model import PAD_FACE_DEPTH_M, ContactSurface, RubberPad, engine_pad, patch
 from ..grasps import GraspPoses
 from ..robot.description import RobotDescription, robot_of
 from ..robot.hand import load_hand_geometry
@@ -156,7 +156,7 @@ def _pad_geometry(robot: RobotDescription) -> tuple[float, float]:
     hand, pads = load_hand_geometry(robot), robot.gripper.pad_links
     vertices = np.asarray(hand.vertices(pads[:1]))
     inward = np.abs(vertices[:, 1])
-    face = vertices[inward <= inward.min() + 0.0005]
+    face = vertices[inward <= inward.min() + PAD_FACE_DEPTH_M]
     return float(-face[:, 2].min()), float(np.asarray(hand.vertices(pads))[:, 2].max())
 
 
@@ -222,27 +222,29 @@ def _either_side(config: Config, pad: RubberPad, grip: PinchGrip, name: str, sha
     """The case either side of the threshold of the mass or the distance (``vary``) for ``pad`` gripping with
     ``grip``; ``loads(value)`` the mass and its ``window_loads``; ``inertia_per_kg`` the object's moment of inertia
     about the closing axis per kg of its mass."""
-    torsional_radius = patch(pad, grip.force_n, surface).torsional_radius_m
+    pressed = patch(pad, grip.force_n, surface)
 
     def carried_at(value: float) -> dict[str, float]:
-        return carried(grip, torsional_radius, loads(value)[1])
+        return carried(grip, pressed.torsional_radius_m, loads(value)[1])
 
-    measure = "sliding_n" if vary == "mass" else "torque_n_m"
-    limit = "sliding_limit_n" if vary == "mass" else "torsion_limit_n_m"
-    threshold = _threshold(lambda value: carried_at(value)[measure] / carried_at(value)[limit],
-                           dimensions[0] / 2.0 if vary == "distance" else None, f"{name}'s {vary}")
+    measure, limit = ("sliding_n", "sliding_limit_n") if vary == "mass" else ("torque_n_m", "torsion_limit_n_m")
+
+    def load_over_limit(value: float) -> float:
+        worst = carried_at(value)
+        return worst[measure] / worst[limit]
+
+    threshold = _threshold(load_over_limit, dimensions[0] / 2.0 if vary == "distance" else None, f"{name}'s {vary}")
     cases, sides = [], []
     rotation = grasp_rotations(torch.tensor(closing, dtype=torch.float64), torch.tensor(DOWN)).numpy()
     for factor in (1.0 - MARGIN, 1.0 + MARGIN):
         value = threshold * factor
         mass, _ = loads(value)
         at = target if vary == "mass" else (value, target[1], target[2])
-        motion = coulomb_motion(config, rotation, mass, mass * inertia_per_kg, at[0], grip, torsional_radius)
+        motion = coulomb_motion(config, rotation, mass, mass * inertia_per_kg, at[0], grip, pressed.torsional_radius_m)
         sides.append((factor, value, mass, carried_at(value), at, motion))
     for (factor, value, mass, paper, at, motion), other in zip(sides, reversed(sides)):
         held = paper["sliding_n"] <= paper["sliding_limit_n"] and paper["torque_n_m"] <= paper["torsion_limit_n_m"]
-        paper = {vary: value, "threshold": threshold, **paper, "pad_path_slope": grip.path_slope,
-                 "patch_radius_m": patch(pad, grip.force_n, surface).radius_m}
+        paper = {vary: value, "threshold": threshold, **paper, "pad_path_slope": grip.path_slope, "patch_radius_m": pressed.radius_m}
         cases.append(Case(f"{name} {vary} x{factor:.1f}", shape, dimensions, mass, at, closing, surface, held, motion,
                           "slide" if vary == "mass" else "turn", other[-1], paper))
     return cases

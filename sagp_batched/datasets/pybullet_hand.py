@@ -164,13 +164,14 @@ class PyBulletHand:
         linkage = self.gripper.finger_motion == "linkage"
         for _ in range(steps):
             (start, start_quat), (end, end_quat) = self.hand_goal_before, self.hand_goal
+            moved = self.hand_goal != self.hand_goal_before
             for substep in range(1, self.substeps + 1):
-                if substep == self.substeps and self.hand_goal != self.hand_goal_before:
-                    self._place_target(end, end_quat)  # each step ends on its target to the last digit
-                elif self.hand_goal != self.hand_goal_before:
+                if moved and substep < self.substeps:
                     fraction = substep / self.substeps
                     self._place_target([a + (b - a) * fraction for a, b in zip(start, end)],
                                        pybullet.getQuaternionSlerp(start_quat, end_quat, fraction))
+                elif moved:
+                    self._place_target(end, end_quat)  # each step ends on its target to the last digit
                 if linkage:
                     self._drive_linkage()
                 pybullet.stepSimulation(physicsClientId=self.client)

@@ -18,13 +18,13 @@ import pybullet_data
 from ..config.settings import ConfigError
 from ..config.world import GRIPPERS_DIR
 from .. import description_files
+from ..execution.contact_model import PAD_FACE_DEPTH_M
 
 FINGER_MOTIONS = ("slide", "linkage")
 # Driven-joint values the linkage's opening is tabulated at, between the joint's limits.
 LINKAGE_SAMPLES = 161
-# A pad's path is followed this far (rad) either side of a driven joint's value; its face is the hull's vertices this near (m)
-# the closing plane's nearest.
-PAD_PATH_STEP_RAD, PAD_FACE_SPREAD_M = 1e-4, 5e-4
+# A pad's path is followed this far (rad) either side of a driven joint's value.
+PAD_PATH_STEP_RAD = 1e-4
 
 
 @dataclass(frozen=True)
@@ -128,7 +128,7 @@ def linkage_closing_rates(gripper: GripperDescription) -> tuple[np.ndarray, np.n
 
 def _pad_path_slope(gripper: GripperDescription, joint_value: float) -> float:
     """``GripperDescription.pad_path_slope`` of a linkage at its driven joint's ``joint_value``: the centre of each
-    pad's face (its hull's vertices within ``PAD_FACE_SPREAD_M`` of the closing plane's nearest), a point fixed in
+    pad's face (its hull's vertices within ``contact_model.PAD_FACE_DEPTH_M`` of the closing plane's nearest), a point fixed in
     the pad, followed by the URDF's kinematics over ``PAD_PATH_STEP_RAD`` either side (within the joint's limits),
     in the base link's frame (z the approach, y the closing axis); the mean of the pads."""
     hulls = description_files.link_hulls(gripper.urdf_path, gripper.pad_links)
@@ -145,7 +145,7 @@ def _pad_path_slope(gripper: GripperDescription, joint_value: float) -> float:
     for link in gripper.pad_links:
         placed = hulls[link] @ at[link][:3, :3].T + at[link][:3, 3]
         inward = np.abs(placed[:, 1])
-        face_centre = hulls[link][inward <= inward.min() + PAD_FACE_SPREAD_M].mean(axis=0)
+        face_centre = hulls[link][inward <= inward.min() + PAD_FACE_DEPTH_M].mean(axis=0)
         start, end = (frames[link][:3, :3] @ face_centre + frames[link][:3, 3] for frames in (first, second))
         moved_in = np.sign(start[1]) * (start[1] - end[1])
         slopes.append((end[2] - start[2]) / moved_in)
