@@ -264,7 +264,7 @@ def test_a_crowned_hand_raises_each_pad_s_face_at_its_centre_the_two_apexes_faci
     vertex stays where it was, and no other link changes."""
     from sagp_batched.datasets.collision_urdf import link_collision_hulls
     from sagp_batched.description_files import read_urdf_document
-    from sagp_batched.execution.contact_model import PAD_FACE_DEPTH_M
+    from sagp_batched.robot.gripper_description import PAD_FACE_DEPTH_M
     from sagp_batched.robot.hand import grasp_frame_link_poses
 
     crown, poses = 0.0005, grasp_frame_link_poses(ROBOT, ROBOT.gripper.open_width_m)

@@ -52,9 +52,10 @@ from sagp_batched_kernels.grasp_frames import grasp_rotations
 from ..config import Config
 from ..config.run import LABEL_PROTOCOLS
 from ..datasets.engines import ENGINES
-from ..execution.contact_model import PAD_FACE_DEPTH_M, ContactSurface, RubberPad, engine_pad, patch
+from ..execution.contact_model import ContactSurface, RubberPad, engine_pad, patch
 from ..grasps import GraspPoses
 from ..robot.description import RobotDescription, robot_of
+from ..robot.gripper_description import PAD_FACE_DEPTH_M
 from ..robot.hand import load_hand_geometry
 from ..world.mesh_settings import MeshImportSettings
 from .coulomb_slip import PaperMotion, PinchGrip, coulomb_motion

@@ -30,7 +30,8 @@ from scipy.spatial import ConvexHull, Delaunay
 
 from .. import description_files
 from ..description_files import UrdfGeometry, UrdfLink, urdf_file_path
-from ..execution.contact_model import PAD_FACE_DEPTH_M, engine_pad
+from ..execution.contact_model import engine_pad
+from ..robot.gripper_description import PAD_FACE_DEPTH_M
 from ..robot.description import RobotDescription, robot_of
 from ..robot.hand import grasp_frame_link_poses
 from ..world.mesh_files import _read_obj_parts, obj_text

@@ -62,12 +62,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..robot.gripper_description import PAD_FACE_DEPTH_M
+
 # Points a side of the grid the pressure is integrated on: the torsional radius of a square face to 0.1 %.
 GRID_POINTS = 121
 # MuJoCo integrates a soft constraint stably down to a time constant of two of its steps (its ``refsafe``).
 MUJOCO_MIN_STEPS_PER_TIME_CONSTANT = 2.0
-# A pad hull's vertices this close to its innermost one (along the closing axis) are its face.
-PAD_FACE_DEPTH_M = 0.0005
 
 
 class ContactModelError(ValueError):

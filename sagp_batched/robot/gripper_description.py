@@ -18,11 +18,12 @@ import pybullet_data
 from ..config.settings import ConfigError
 from ..config.world import GRIPPERS_DIR
 from .. import description_files
-from ..execution.contact_model import PAD_FACE_DEPTH_M
 
 FINGER_MOTIONS = ("slide", "linkage")
 # Driven-joint values the linkage's opening is tabulated at, between the joint's limits.
 LINKAGE_SAMPLES = 161
+# A pad hull's vertices this close to its innermost one (along the closing axis) are its face.
+PAD_FACE_DEPTH_M = 0.0005
 # A pad's path is followed this far (rad) either side of a driven joint's value.
 PAD_PATH_STEP_RAD = 1e-4
 
@@ -128,7 +129,7 @@ def linkage_closing_rates(gripper: GripperDescription) -> tuple[np.ndarray, np.n
 
 def _pad_path_slope(gripper: GripperDescription, joint_value: float) -> float:
     """``GripperDescription.pad_path_slope`` of a linkage at its driven joint's ``joint_value``: the centre of each
-    pad's face (its hull's vertices within ``contact_model.PAD_FACE_DEPTH_M`` of the closing plane's nearest), a point fixed in
+    pad's face (its hull's vertices within ``PAD_FACE_DEPTH_M`` of the closing plane's nearest), a point fixed in
     the pad, followed by the URDF's kinematics over ``PAD_PATH_STEP_RAD`` either side (within the joint's limits),
     in the base link's frame (z the approach, y the closing axis); the mean of the pads."""
     hulls = description_files.link_hulls(gripper.urdf_path, gripper.pad_links)
